@@ -1,0 +1,27 @@
+//! Core data types, stage traits and the error type of kinetree.
+//!
+//! No algorithms live here; the stage crates implement the traits in [`stage`], and
+//! `kinetree-pipeline` wires them together.
+
+mod error;
+pub mod geom;
+pub mod model;
+mod pairs;
+mod poses;
+mod segmentation;
+mod stage;
+mod tracks;
+mod warning;
+
+pub use error::{Error, Result};
+pub use model::Model;
+pub use nalgebra;
+pub use pairs::{DissimilarityMatrix, PairStats, condensed_index, n_pairs};
+pub use poses::{BodyPoses, BodyTrack, JointKind, PairDof, PoseQuality, RankTest};
+pub use segmentation::{MIN_BODY_POINTS, Segmentation};
+pub use stage::{
+    Clustering, ClusteringInput, Dissimilarity, DissimilarityInput, DofInput, DofTester,
+    PoseEstimator, PoseInput,
+};
+pub use tracks::{MIN_FRAMES, MIN_POINTS, Tracks};
+pub use warning::Warning;

@@ -1,0 +1,156 @@
+//! The discovered kinematic model: what `kinetree discover` writes as JSON.
+//!
+//! The schema is documented in `docs/model-schema.md`; bump [`SCHEMA_VERSION`] on any change
+//! that breaks readers.
+
+use crate::{PairDof, Warning};
+use serde::{Deserialize, Serialize};
+
+/// Version of the model JSON schema.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// Where the noise level came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NoiseSource {
+    /// Given by the user or the experiment config.
+    Given,
+    /// Estimated from the data.
+    Estimated,
+}
+
+/// The noise level used by every test.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NoiseInfo {
+    /// Per-coordinate std-dev of the keypoint noise, metres.
+    pub sigma_m: f64,
+    /// Variance of a point-to-point distance, `2 sigma^2`, m^2.
+    pub distance_variance_m2: f64,
+    /// Given or estimated.
+    pub source: NoiseSource,
+}
+
+/// Names of the stages that produced the model.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StageNames {
+    /// Dissimilarity measure.
+    pub dissimilarity: String,
+    /// Clustering method.
+    pub clustering: String,
+    /// Pose estimator.
+    pub pose: String,
+    /// DoF tester.
+    pub dof: String,
+}
+
+/// One rigid body.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Body {
+    /// Body id (0-based; the root of the tree is body 0).
+    pub id: usize,
+    /// Its points, ascending.
+    pub points: Vec<usize>,
+    /// Whether it is static relative to the camera.
+    pub is_static: bool,
+    /// Parent in the kinematic tree, `None` for the root.
+    pub parent: Option<usize>,
+    /// Frames in which it has a pose.
+    pub frames_registered: usize,
+}
+
+/// Joint ranks, as decided by the DoF tester.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ranks {
+    /// Rank of the relative translations.
+    pub translation: usize,
+    /// Rank of the relative axis-angle rotations.
+    pub rotation: usize,
+    /// Rank of the centre-of-rotation estimates.
+    pub centre: usize,
+    /// Rank of the translation along the rotation axis.
+    pub sliding: usize,
+}
+
+/// One joint of the kinematic tree.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Joint {
+    /// Parent body id.
+    pub parent: usize,
+    /// Child body id.
+    pub child: usize,
+    /// `revolute`, `prismatic` or `multi_dof` (with the ranks telling more).
+    #[serde(rename = "type")]
+    pub joint_type: String,
+    /// Unit axis in the camera frame at `reference_frame` (null for `multi_dof`).
+    pub axis: Option<[f64; 3]>,
+    /// A point on the axis in the camera frame at `reference_frame`, metres (revolute only).
+    pub point: Option<[f64; 3]>,
+    /// The same axis in the parent's body frame.
+    pub axis_in_parent: Option<[f64; 3]>,
+    /// The same point in the parent's body frame.
+    pub point_in_parent: Option<[f64; 3]>,
+    /// Frame at which the joint position is zero.
+    pub reference_frame: usize,
+    /// Joint position at every frame: radians (revolute, unwrapped) or metres (prismatic);
+    /// null where either body has no pose.
+    pub positions: Vec<Option<f64>>,
+    /// Observed range `[min, max]` of the positions.
+    pub range: Option<[f64; 2]>,
+    /// Estimated relative DoF.
+    pub dof: usize,
+    /// Rank decisions behind the type.
+    pub ranks: Ranks,
+    /// Largest rejected-singular-value / threshold ratio (below 1: decision holds).
+    pub fit_ratio: f64,
+}
+
+/// The whole discovered model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Model {
+    /// Schema version, [`SCHEMA_VERSION`].
+    pub schema_version: u32,
+    /// Program and version that wrote the file.
+    pub generator: String,
+    /// Number of frames of the input.
+    pub n_frames: usize,
+    /// Number of points of the input.
+    pub n_points: usize,
+    /// Point labels, when the input had them.
+    pub point_labels: Option<Vec<String>>,
+    /// Noise level used.
+    pub noise: NoiseInfo,
+    /// Stage names.
+    pub stages: StageNames,
+    /// Body of every point, -1 for discarded points.
+    pub point_body: Vec<i64>,
+    /// The static body, when one is.
+    pub static_body: Option<usize>,
+    /// Root of the kinematic tree (body 0).
+    pub root_body: usize,
+    /// Bodies, by id.
+    pub bodies: Vec<Body>,
+    /// Joints, one per non-root body, in body order of the child.
+    pub joints: Vec<Joint>,
+    /// The kinematic chain from the paper's procedure, when the structure is a chain.
+    pub chain: Option<Vec<usize>>,
+    /// Every pair's test (the cells of the paper's Table I): camera against each body, then
+    /// each body pair `a < b`; singular values in metres and radians.
+    pub pairs: Vec<PairDof>,
+    /// Degenerate situations met on the way.
+    pub warnings: Vec<Warning>,
+}
+
+impl Model {
+    /// The test between `a` (camera when `None`) and `b`, in either order for bodies.
+    pub fn pair(&self, a: Option<usize>, b: usize) -> Option<&PairDof> {
+        self.pairs.iter().find(|p| {
+            (p.a == a && p.b == b) || (a.is_some() && p.a == Some(b) && Some(p.b) == a)
+        })
+    }
+
+    /// The joint whose child is `child`.
+    pub fn joint_to(&self, child: usize) -> Option<&Joint> {
+        self.joints.iter().find(|j| j.child == child)
+    }
+}
+

@@ -1,0 +1,153 @@
+//! Body poses over time and the per-pair relative-motion tests.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// How well one body was registered in one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PoseQuality {
+    /// Visible points used for the fit.
+    pub n_visible: usize,
+    /// RMS distance between the fitted reference shape and the observations, metres.
+    pub rms_residual_m: f64,
+    /// Standard deviation of the rotation (worst axis, radians) per metre of per-coordinate
+    /// noise: multiply by `sigma` to get radians. From the inertia of the visible points.
+    pub rot_std_per_sigma: f64,
+    /// Standard deviation of the body origin's position (per coordinate) per unit of
+    /// per-coordinate noise, dimensionless.
+    pub trans_std_per_sigma: f64,
+}
+
+/// One body's reference shape and its pose in every frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyTrack {
+    /// The body's points (indices into the tracks), ascending.
+    pub points: Vec<usize>,
+    /// Reference shape in the body frame, one entry per point of `points`. The body frame has
+    /// its origin at the shape's centroid and the camera's orientation at `reference_frame`.
+    pub shape: Vec<Point3<f64>>,
+    /// Frame at which the body frame is aligned with the camera axes (frame 0 where the body
+    /// can be registered there, else the first frame where it can).
+    pub reference_frame: usize,
+    /// `camera_from_body` per frame, `None` where the body cannot be registered.
+    pub cam_from_body: Vec<Option<Isometry3<f64>>>,
+    /// Fit quality per frame, `None` where no pose.
+    pub quality: Vec<Option<PoseQuality>>,
+    /// Frames skipped because fewer than three points were visible.
+    pub frames_too_few_points: usize,
+    /// Frames skipped because the visible points were (nearly) collinear.
+    pub frames_degenerate: usize,
+}
+
+impl BodyTrack {
+    /// Number of frames with a pose.
+    pub fn n_registered(&self) -> usize {
+        self.cam_from_body.iter().filter(|p| p.is_some()).count()
+    }
+}
+
+/// Poses of every body over every frame, produced by a [`PoseEstimator`](crate::PoseEstimator).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyPoses {
+    /// Number of frames `T`.
+    pub n_frames: usize,
+    /// One track per body, in segmentation order.
+    pub bodies: Vec<BodyTrack>,
+}
+
+/// One rank decision on a 3 x K (or 1 x K) data matrix.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RankTest {
+    /// Singular values of the centred matrix in physical units (metres or radians),
+    /// descending.
+    pub singular_values: Vec<f64>,
+    /// Singular values after each column was divided by its predicted noise std-dev.
+    pub whitened: Vec<f64>,
+    /// Threshold on the whitened singular values.
+    pub threshold: f64,
+    /// Number of whitened singular values above the threshold.
+    pub rank: usize,
+    /// Number of columns (frames) used.
+    pub n_columns: usize,
+}
+
+impl RankTest {
+    /// A test with no data (no usable frames): rank 0, no values.
+    pub fn empty() -> Self {
+        Self {
+            singular_values: Vec::new(),
+            whitened: Vec::new(),
+            threshold: f64::INFINITY,
+            rank: 0,
+            n_columns: 0,
+        }
+    }
+
+    /// Ratio of the largest rejected whitened singular value to the threshold (< 1 when the
+    /// decision is clear; near 1 when the next rank almost passed).
+    pub fn next_rank_ratio(&self) -> f64 {
+        self.whitened
+            .get(self.rank)
+            .map_or(0.0, |s| s / self.threshold)
+    }
+}
+
+/// The relative joint type found between two frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum JointKind {
+    /// No relative motion.
+    Rigid,
+    /// One rotational DoF about a fixed axis. Both vectors in frame `a`'s body frame.
+    Revolute {
+        /// Unit axis direction.
+        axis: Vector3<f64>,
+        /// A point on the axis.
+        pivot: Point3<f64>,
+    },
+    /// One translational DoF along a fixed axis (unit vector in frame `a`'s body frame).
+    Prismatic {
+        /// Unit axis direction.
+        axis: Vector3<f64>,
+    },
+    /// More than one DoF (or a motion no single-DoF type explains); see the ranks.
+    MultiDof,
+}
+
+impl JointKind {
+    /// Short name: `rigid`, `revolute`, `prismatic`, `multi_dof`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            JointKind::Rigid => "rigid",
+            JointKind::Revolute { .. } => "revolute",
+            JointKind::Prismatic { .. } => "prismatic",
+            JointKind::MultiDof => "multi_dof",
+        }
+    }
+}
+
+/// Relative-motion test between frame `a` (the camera when `None`) and body `b`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PairDof {
+    /// Reference frame: `None` is the camera, `Some(k)` body `k`.
+    pub a: Option<usize>,
+    /// The moving body.
+    pub b: usize,
+    /// Frame at which the relative motion is taken as zero.
+    pub reference_frame: usize,
+    /// Translation of `b` in `a`'s body frame (the paper's script-T matrix).
+    pub translation: RankTest,
+    /// Axis-angle rotation of `b` relative to `a` (the paper's script-R matrix).
+    pub rotation: RankTest,
+    /// Centre-of-rotation estimates over frames with enough rotation.
+    pub centre: RankTest,
+    /// Translation along the rotation axis (a screw or cylindrical motion when rank 1).
+    pub sliding: RankTest,
+    /// Estimated number of relative degrees of freedom.
+    pub dof: usize,
+    /// The joint type the ranks support.
+    pub joint: JointKind,
+    /// Largest `rejected singular value / threshold` among the tests behind `joint`: below 1
+    /// the decision holds; the smaller, the clearer.
+    pub fit_ratio: f64,
+}

@@ -1,0 +1,117 @@
+//! Assignment of points to rigid bodies.
+
+use serde::{Deserialize, Serialize};
+
+/// Which body every point belongs to; `None` for a discarded point.
+///
+/// Bodies are numbered canonically: body 0 holds the lowest-indexed assigned point, body 1 the
+/// lowest-indexed point not in body 0, and so on, so equal partitions compare equal.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Segmentation {
+    labels: Vec<Option<usize>>,
+    n_bodies: usize,
+    /// Groups of points that formed clusters too small for a pose, in point order.
+    pub discarded_groups: Vec<Vec<usize>>,
+}
+
+/// The fewest points a body needs for a pose.
+pub const MIN_BODY_POINTS: usize = 3;
+
+impl Segmentation {
+    /// Builds a canonical segmentation from raw cluster ids; clusters with fewer than
+    /// `min_points` points are discarded and recorded in [`Segmentation::discarded_groups`].
+    pub fn from_raw(raw: &[Option<usize>], min_points: usize) -> Self {
+        let max = raw.iter().flatten().copied().max().map_or(0, |m| m + 1);
+        let mut sizes = vec![0usize; max];
+        for c in raw.iter().flatten() {
+            sizes[*c] += 1;
+        }
+        let mut map: Vec<Option<usize>> = vec![None; max];
+        let mut n_bodies = 0;
+        let mut groups: Vec<Vec<usize>> = vec![Vec::new(); max];
+        let mut labels = vec![None; raw.len()];
+        for (i, c) in raw.iter().enumerate() {
+            let Some(c) = *c else { continue };
+            if sizes[c] < min_points {
+                groups[c].push(i);
+                continue;
+            }
+            let id = *map[c].get_or_insert_with(|| {
+                n_bodies += 1;
+                n_bodies - 1
+            });
+            labels[i] = Some(id);
+        }
+        let mut discarded_groups: Vec<Vec<usize>> =
+            groups.into_iter().filter(|g| !g.is_empty()).collect();
+        discarded_groups.sort();
+        Self {
+            labels,
+            n_bodies,
+            discarded_groups,
+        }
+    }
+
+    /// Number of points.
+    pub fn n_points(&self) -> usize {
+        self.labels.len()
+    }
+
+    /// Number of bodies kept.
+    pub fn n_bodies(&self) -> usize {
+        self.n_bodies
+    }
+
+    /// Body of each point.
+    pub fn labels(&self) -> &[Option<usize>] {
+        &self.labels
+    }
+
+    /// Body of one point.
+    pub fn body_of(&self, point: usize) -> Option<usize> {
+        self.labels.get(point).copied().flatten()
+    }
+
+    /// The points of each body, in point order.
+    pub fn members(&self) -> Vec<Vec<usize>> {
+        let mut m = vec![Vec::new(); self.n_bodies];
+        for (i, l) in self.labels.iter().enumerate() {
+            if let Some(b) = l {
+                m[*b].push(i);
+            }
+        }
+        m
+    }
+
+    /// Labels as integers with -1 for discarded points (the model-file convention).
+    pub fn labels_i64(&self) -> Vec<i64> {
+        self.labels
+            .iter()
+            .map(|l| l.map_or(-1, |b| b as i64))
+            .collect()
+    }
+
+    /// Merges bodies by a map `old body -> new group` (any integers) and renumbers canonically.
+    pub fn merged(&self, group_of_body: &[usize]) -> Self {
+        let raw: Vec<Option<usize>> = self
+            .labels
+            .iter()
+            .map(|l| l.map(|b| group_of_body[b]))
+            .collect();
+        let mut out = Self::from_raw(&raw, 0);
+        out.discarded_groups.clone_from(&self.discarded_groups);
+        out
+    }
+
+    /// Drops the listed bodies (their points become discarded) and renumbers canonically.
+    pub fn without_bodies(&self, drop: &[usize]) -> Self {
+        let raw: Vec<Option<usize>> = self
+            .labels
+            .iter()
+            .map(|l| l.filter(|b| !drop.contains(b)))
+            .collect();
+        let mut out = Self::from_raw(&raw, 0);
+        out.discarded_groups.clone_from(&self.discarded_groups);
+        out
+    }
+}

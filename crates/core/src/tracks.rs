@@ -1,0 +1,246 @@
+//! Tracked keypoints: `T` frames of `N` 3D points, some occluded.
+
+use crate::{Error, Result};
+use nalgebra::Point3;
+
+/// `T` frames of `N` 3D keypoints in the camera frame, in metres.
+///
+/// Stored frame-major (`frame`, `point`, `xyz`), the layout of a C-order `(T, N, 3)` array and
+/// the one the pairwise-statistics kernel walks. An occluded observation has all three
+/// coordinates NaN; [`Tracks::get`] turns that into `None`, so NaN never reaches an algorithm.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tracks {
+    n_frames: usize,
+    n_points: usize,
+    xyz: Vec<f64>,
+    labels: Option<Vec<String>>,
+    frame_rate_hz: Option<f64>,
+}
+
+/// The fewest frames the method can use (a variance needs two observations).
+pub const MIN_FRAMES: usize = 2;
+/// The fewest points the method can use (one rigid body needs three).
+pub const MIN_POINTS: usize = 3;
+
+impl Tracks {
+    /// Builds tracks from a frame-major buffer of `n_frames * n_points * 3` coordinates.
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the buffer length does not match, [`Error::TooFewFrames`] when
+    /// `n_frames < 2`, [`Error::TooFewPoints`] when `n_points < 3`, [`Error::PartialNan`] for a
+    /// triple with one or two NaN coordinates, [`Error::NonFinite`] for an infinite coordinate,
+    /// [`Error::NoVisibleData`] when every triple is NaN.
+    pub fn new(n_frames: usize, n_points: usize, xyz: Vec<f64>) -> Result<Self> {
+        let expected = n_frames
+            .checked_mul(n_points)
+            .and_then(|v| v.checked_mul(3))
+            .ok_or_else(|| Error::Shape {
+                expected: "(T, N, 3) with T*N*3 addressable".into(),
+                found: format!("({n_frames}, {n_points}, 3)"),
+            })?;
+        if xyz.len() != expected {
+            return Err(Error::Shape {
+                expected: format!("{n_frames} x {n_points} x 3 = {expected} values"),
+                found: format!("{} values", xyz.len()),
+            });
+        }
+        if n_frames < MIN_FRAMES {
+            return Err(Error::TooFewFrames {
+                found: n_frames,
+                min: MIN_FRAMES,
+            });
+        }
+        if n_points < MIN_POINTS {
+            return Err(Error::TooFewPoints {
+                found: n_points,
+                min: MIN_POINTS,
+            });
+        }
+        let mut any_visible = false;
+        for (k, p) in xyz.chunks_exact(3).enumerate() {
+            let nans = p.iter().filter(|v| v.is_nan()).count();
+            let (frame, point) = (k / n_points, k % n_points);
+            if nans == 3 {
+                continue;
+            }
+            if nans > 0 {
+                return Err(Error::PartialNan { frame, point });
+            }
+            if p.iter().any(|v| v.is_infinite()) {
+                return Err(Error::NonFinite { frame, point });
+            }
+            any_visible = true;
+        }
+        if !any_visible {
+            return Err(Error::NoVisibleData);
+        }
+        Ok(Self {
+            n_frames,
+            n_points,
+            xyz,
+            labels: None,
+            frame_rate_hz: None,
+        })
+    }
+
+    /// Builds tracks from per-frame, per-point optional positions.
+    ///
+    /// # Errors
+    /// As [`Tracks::new`].
+    pub fn from_points(frames: &[Vec<Option<Point3<f64>>>]) -> Result<Self> {
+        let n_frames = frames.len();
+        let n_points = frames.first().map_or(0, Vec::len);
+        let mut xyz = Vec::with_capacity(n_frames * n_points * 3);
+        for (t, f) in frames.iter().enumerate() {
+            if f.len() != n_points {
+                return Err(Error::Shape {
+                    expected: format!("{n_points} points in every frame"),
+                    found: format!("{} points in frame {t}", f.len()),
+                });
+            }
+            for p in f {
+                match p {
+                    Some(p) => xyz.extend_from_slice(&[p.x, p.y, p.z]),
+                    None => xyz.extend_from_slice(&[f64::NAN; 3]),
+                }
+            }
+        }
+        Self::new(n_frames, n_points, xyz)
+    }
+
+    /// Attaches one label per point (marker names, for example).
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the count differs from the number of points.
+    pub fn with_labels(mut self, labels: Vec<String>) -> Result<Self> {
+        if labels.len() != self.n_points {
+            return Err(Error::Shape {
+                expected: format!("{} labels", self.n_points),
+                found: format!("{} labels", labels.len()),
+            });
+        }
+        self.labels = Some(labels);
+        Ok(self)
+    }
+
+    /// Attaches the frame rate in hertz.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] unless the rate is finite and positive.
+    pub fn with_frame_rate(mut self, frame_rate_hz: f64) -> Result<Self> {
+        if !(frame_rate_hz.is_finite() && frame_rate_hz > 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "frame_rate_hz".into(),
+                message: format!("must be finite and positive, got {frame_rate_hz}"),
+            });
+        }
+        self.frame_rate_hz = Some(frame_rate_hz);
+        Ok(self)
+    }
+
+    /// Number of frames `T`.
+    pub fn n_frames(&self) -> usize {
+        self.n_frames
+    }
+
+    /// Number of points `N`.
+    pub fn n_points(&self) -> usize {
+        self.n_points
+    }
+
+    /// Point labels, when known.
+    pub fn labels(&self) -> Option<&[String]> {
+        self.labels.as_deref()
+    }
+
+    /// Frame rate in hertz, when known.
+    pub fn frame_rate_hz(&self) -> Option<f64> {
+        self.frame_rate_hz
+    }
+
+    /// Position of `point` in `frame`, `None` when occluded or out of range.
+    #[inline]
+    pub fn get(&self, frame: usize, point: usize) -> Option<Point3<f64>> {
+        if frame >= self.n_frames || point >= self.n_points {
+            return None;
+        }
+        let k = (frame * self.n_points + point) * 3;
+        let x = self.xyz[k];
+        if x.is_nan() {
+            None
+        } else {
+            Some(Point3::new(x, self.xyz[k + 1], self.xyz[k + 2]))
+        }
+    }
+
+    /// Whether `point` is visible in `frame`.
+    #[inline]
+    pub fn is_visible(&self, frame: usize, point: usize) -> bool {
+        self.get(frame, point).is_some()
+    }
+
+    /// The raw coordinates of one frame (`N * 3` values, NaN where occluded).
+    pub fn frame_raw(&self, frame: usize) -> &[f64] {
+        let n = self.n_points * 3;
+        &self.xyz[frame * n..(frame + 1) * n]
+    }
+
+    /// The whole frame-major buffer (`T * N * 3` values, NaN where occluded).
+    pub fn raw(&self) -> &[f64] {
+        &self.xyz
+    }
+
+    /// Number of frames in which `point` is visible.
+    pub fn visible_count(&self, point: usize) -> usize {
+        (0..self.n_frames)
+            .filter(|&t| self.is_visible(t, point))
+            .count()
+    }
+
+    /// Fraction of all (frame, point) observations that are occluded.
+    pub fn occluded_fraction(&self) -> f64 {
+        let hidden = self.xyz.chunks_exact(3).filter(|p| p[0].is_nan()).count();
+        hidden as f64 / (self.n_frames * self.n_points) as f64
+    }
+
+    /// The same tracks restricted to `frames` (in the given order).
+    ///
+    /// # Errors
+    /// As [`Tracks::new`] (too few frames, no visible data), or [`Error::InvalidParameter`] for
+    /// an index out of range.
+    pub fn select_frames(&self, frames: &[usize]) -> Result<Self> {
+        let mut xyz = Vec::with_capacity(frames.len() * self.n_points * 3);
+        for &t in frames {
+            if t >= self.n_frames {
+                return Err(Error::InvalidParameter {
+                    name: "frames".into(),
+                    message: format!("frame {t} out of range (T = {})", self.n_frames),
+                });
+            }
+            xyz.extend_from_slice(self.frame_raw(t));
+        }
+        let mut out = Self::new(frames.len(), self.n_points, xyz)?;
+        out.labels.clone_from(&self.labels);
+        out.frame_rate_hz = self.frame_rate_hz;
+        Ok(out)
+    }
+
+    /// The same tracks with every position mapped through `f` (a change of frame or units).
+    ///
+    /// # Errors
+    /// As [`Tracks::new`], when `f` produces non-finite values.
+    pub fn map_points(&self, f: impl Fn(Point3<f64>) -> Point3<f64>) -> Result<Self> {
+        let mut xyz = self.xyz.clone();
+        for p in xyz.chunks_exact_mut(3) {
+            if p[0].is_nan() {
+                continue;
+            }
+            let q = f(Point3::new(p[0], p[1], p[2]));
+            p.copy_from_slice(&[q.x, q.y, q.z]);
+        }
+        let mut out = Self::new(self.n_frames, self.n_points, xyz)?;
+        out.labels.clone_from(&self.labels);
+        out.frame_rate_hz = self.frame_rate_hz;
+        Ok(out)
+    }
+}

@@ -1,0 +1,112 @@
+//! Degenerate but survivable situations, reported in the output instead of failing.
+
+use serde::{Deserialize, Serialize};
+
+/// A typed warning carried into the model output.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Warning {
+    /// A point never visible in any frame; it is discarded.
+    PointNeverVisible {
+        /// The point.
+        point: usize,
+    },
+    /// A point never seen together with any other point in two frames; it is discarded.
+    PointUnpaired {
+        /// The point.
+        point: usize,
+    },
+    /// Pairs seen together in fewer than two frames; their dissimilarity was inferred through
+    /// third points (see the README's occlusion policy).
+    PairsInferred {
+        /// Number of such pairs.
+        count: usize,
+    },
+    /// A cluster with fewer than three points, too small for a pose; its points are discarded.
+    ClusterDiscarded {
+        /// The points of the cluster.
+        points: Vec<usize>,
+    },
+    /// A body that could not be registered in enough frames; its points are discarded.
+    BodyDropped {
+        /// The body's points.
+        points: Vec<usize>,
+        /// Why.
+        reason: String,
+    },
+    /// A body that has no pose in some frames.
+    FramesUnregistered {
+        /// Body id in the output numbering.
+        body: usize,
+        /// Frames without a pose.
+        frames: usize,
+    },
+    /// Bodies found rigid relative to each other were merged into one.
+    BodiesMerged {
+        /// Points of the bodies that were merged, one list per original body.
+        groups: Vec<Vec<usize>>,
+    },
+    /// No body is static relative to the camera; the tree is rooted at the least-moving one.
+    NoStaticBody {
+        /// The chosen root (output numbering).
+        root: usize,
+    },
+    /// The spanning tree had to use an edge that is not a single-DoF joint.
+    MultiDofJoint {
+        /// Parent body (output numbering).
+        parent: usize,
+        /// Child body (output numbering).
+        child: usize,
+        /// Estimated degrees of freedom of the pair.
+        dof: usize,
+    },
+    /// The noise level was estimated from the data.
+    NoiseEstimated {
+        /// The estimate, per-coordinate std-dev in metres.
+        sigma_m: f64,
+    },
+}
+
+impl std::fmt::Display for Warning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Warning::PointNeverVisible { point } => {
+                write!(f, "point {point} is never visible; discarded")
+            }
+            Warning::PointUnpaired { point } => write!(
+                f,
+                "point {point} is never seen with another point in two frames; discarded"
+            ),
+            Warning::PairsInferred { count } => write!(
+                f,
+                "{count} point pairs were never seen together twice; their dissimilarity was inferred through third points"
+            ),
+            Warning::ClusterDiscarded { points } => {
+                write!(f, "cluster of {} point(s) {points:?} is too small for a pose; discarded", points.len())
+            }
+            Warning::BodyDropped { points, reason } => {
+                write!(f, "body with points {points:?} dropped: {reason}")
+            }
+            Warning::FramesUnregistered { body, frames } => {
+                write!(f, "body {body} has no pose in {frames} frame(s)")
+            }
+            Warning::BodiesMerged { groups } => {
+                write!(f, "{} bodies moved rigidly together and were merged: {groups:?}", groups.len())
+            }
+            Warning::NoStaticBody { root } => write!(
+                f,
+                "no body is static relative to the camera; the tree is rooted at body {root}, the one that moves least"
+            ),
+            Warning::MultiDofJoint { parent, child, dof } => write!(
+                f,
+                "bodies {parent} -> {child} are linked in the tree but their relative motion has {dof} DoF, not one"
+            ),
+            Warning::NoiseEstimated { sigma_m } => write!(
+                f,
+                "noise level estimated from the data: sigma = {:.3} mm per coordinate",
+                sigma_m * 1e3
+            ),
+        }
+    }
+}

@@ -1,0 +1,14 @@
+//! Pairwise distance statistics, dissimilarity measures and noise estimation.
+//!
+//! Every measure implements [`kinetree_core::Dissimilarity`]. Noise parameters are the
+//! per-coordinate std-dev `sigma` in metres; a distance then has variance about `2 sigma^2`.
+
+mod measures;
+mod noise;
+mod stats;
+
+pub use measures::{
+    DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams, f_test_q,
+};
+pub use noise::{estimate_noise_sigma, refine_noise_sigma};
+pub use stats::pair_stats;

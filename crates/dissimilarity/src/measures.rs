@@ -1,0 +1,209 @@
+//! Dissimilarity measures: the paper's F-test q, and the distance std-dev and variance.
+
+use kinetree_core::{
+    Dissimilarity, DissimilarityInput, DissimilarityMatrix, Error, Result,
+};
+use serde::{Deserialize, Serialize};
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
+fn check_sigma(sigma: f64) -> Result<f64> {
+    if sigma.is_finite() && sigma > 0.0 {
+        Ok(2.0 * sigma * sigma)
+    } else {
+        Err(Error::InvalidParameter {
+            name: "noise_sigma_m".into(),
+            message: format!("per-coordinate noise must be finite and positive, got {sigma}"),
+        })
+    }
+}
+
+/// Parameters of [`FTest`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FTestParams {
+    /// Average q above which two groups of points stop looking rigid (default cut for the
+    /// clusterer). Under the null hypothesis q is uniform on [0, 1] (mean 0.5); moving pairs
+    /// approach 1.
+    pub cut: f64,
+}
+
+impl Default for FTestParams {
+    fn default() -> Self {
+        Self { cut: 0.8 }
+    }
+}
+
+impl FTestParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] when `cut` is not in (0.5, 1).
+    pub fn validate(&self) -> Result<()> {
+        if !(self.cut > 0.5 && self.cut < 1.0) {
+            return Err(Error::InvalidParameter {
+                name: "cut".into(),
+                message: format!("must lie in (0.5, 1), got {}", self.cut),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The paper's one-sided F-test dissimilarity (Sec. III-A):
+/// `q_ij = CDF_{F(T_ij - 1, T_ij - 1)}(s_ij^2 / sigma_d^2)` with `sigma_d^2 = 2 sigma^2` the
+/// variance of a distance under per-coordinate noise `sigma`.
+///
+/// q is about uniform on [0, 1] for a rigid pair and tends to 1 for a moving one. Pairs seen
+/// together in fewer than two frames get NaN (unknown).
+///
+/// Complexity: O(N^2) CDF evaluations (about 0.4 us each).
+///
+/// Reference: the paper in `shared/paper`; F-test as in any statistics text.
+#[derive(Debug, Clone)]
+pub struct FTest {
+    params: FTestParams,
+}
+
+impl FTest {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: FTestParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+/// q for one pair; guards the inputs statrs panics on (NaN, overflowing ratios).
+pub fn f_test_q(var_m2: f64, count: u32, distance_variance_m2: f64) -> f64 {
+    if count < 2 || !var_m2.is_finite() {
+        return f64::NAN;
+    }
+    let ratio = var_m2 / distance_variance_m2;
+    let dof = f64::from(count - 1);
+    if !ratio.is_finite() || ratio * dof > 1e300 {
+        return 1.0;
+    }
+    match FisherSnedecor::new(dof, dof) {
+        Ok(f) => f.cdf(ratio),
+        Err(_) => f64::NAN,
+    }
+}
+
+impl Dissimilarity for FTest {
+    fn name(&self) -> &str {
+        "f_test"
+    }
+
+    fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
+        let vd = check_sigma(input.noise_sigma_m)?;
+        let s = input.stats;
+        let values = s
+            .var_m2
+            .iter()
+            .zip(&s.count)
+            .map(|(&v, &c)| f_test_q(v, c, vd))
+            .collect();
+        Ok(DissimilarityMatrix {
+            n_points: s.n_points,
+            values,
+            suggested_cut: self.params.cut,
+            measure: self.name().into(),
+        })
+    }
+}
+
+/// Parameters of [`DistanceStd`] and [`DistanceVariance`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SpreadParams {
+    /// Default cut as a multiple of the noise's distance std-dev `sqrt(2) sigma`.
+    pub cut_in_noise_std: f64,
+}
+
+impl Default for SpreadParams {
+    fn default() -> Self {
+        Self {
+            cut_in_noise_std: 3.0,
+        }
+    }
+}
+
+impl SpreadParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] when `cut_in_noise_std` is not finite and above 1.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.cut_in_noise_std.is_finite() && self.cut_in_noise_std > 1.0) {
+            return Err(Error::InvalidParameter {
+                name: "cut_in_noise_std".into(),
+                message: format!("must be finite and above 1, got {}", self.cut_in_noise_std),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Standard deviation of each pair's distance, metres (the left panel of the paper's Fig. 3).
+#[derive(Debug, Clone)]
+pub struct DistanceStd {
+    params: SpreadParams,
+}
+
+impl DistanceStd {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: SpreadParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl Dissimilarity for DistanceStd {
+    fn name(&self) -> &str {
+        "distance_std"
+    }
+
+    fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
+        let vd = check_sigma(input.noise_sigma_m)?;
+        let s = input.stats;
+        Ok(DissimilarityMatrix {
+            n_points: s.n_points,
+            values: s.var_m2.iter().map(|v| v.sqrt()).collect(),
+            suggested_cut: self.params.cut_in_noise_std * vd.sqrt(),
+            measure: self.name().into(),
+        })
+    }
+}
+
+/// Sample variance of each pair's distance, m^2.
+#[derive(Debug, Clone)]
+pub struct DistanceVariance {
+    params: SpreadParams,
+}
+
+impl DistanceVariance {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: SpreadParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl Dissimilarity for DistanceVariance {
+    fn name(&self) -> &str {
+        "distance_variance"
+    }
+
+    fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
+        let vd = check_sigma(input.noise_sigma_m)?;
+        let s = input.stats;
+        Ok(DissimilarityMatrix {
+            n_points: s.n_points,
+            values: s.var_m2.clone(),
+            suggested_cut: self.params.cut_in_noise_std.powi(2) * vd,
+            measure: self.name().into(),
+        })
+    }
+}

@@ -1,0 +1,90 @@
+//! Estimating the keypoint noise level from the data.
+
+use kinetree_core::{Error, PairStats, Result, Segmentation, condensed_index};
+
+/// Median of `chi^2_d / d` (Wilson-Hilferty), the factor between a median sample variance
+/// and the true variance.
+fn chi2_median_over_dof(d: f64) -> f64 {
+    (1.0 - 2.0 / (9.0 * d)).powi(3)
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Estimates the per-coordinate noise std-dev (metres) from pair statistics alone.
+///
+/// Rigid pairs have distance variances `2 sigma^2 chi^2_d / d`: a narrow band in log-variance
+/// (width about `sqrt(2/d)`) at the bottom of the distribution, since a moving pair can only
+/// have more variance. The estimator scans log-variances upward for the first window of width
+/// `4 sqrt(2/d)` holding at least `max(3, N/2)` pairs (every point has at least two rigid
+/// partners, so the band holds at least `N` pairs), moves to the densest window starting within
+/// one width of it, and takes that window's median.
+///
+/// This is a first guess; [`refine_noise_sigma`] improves it once bodies are known.
+///
+/// # Errors
+/// [`Error::Degenerate`] when too few pairs have a usable variance.
+pub fn estimate_noise_sigma(stats: &PairStats) -> Result<f64> {
+    let mut z: Vec<(f64, f64)> = stats
+        .var_m2
+        .iter()
+        .zip(&stats.count)
+        .filter(|(v, c)| **c >= 3 && v.is_finite() && **v > 0.0)
+        .map(|(v, c)| {
+            let d = f64::from(*c - 1);
+            // E[ln(chi^2_d / d)] is about -1/d: remove that bias.
+            (v.ln() + 1.0 / d, (2.0 / d).sqrt())
+        })
+        .collect();
+    let need = (stats.n_points / 2).max(3);
+    if z.len() < need {
+        return Err(Error::Degenerate(format!(
+            "cannot estimate the noise level: only {} pairs are seen together in 3+ frames (need {need})",
+            z.len()
+        )));
+    }
+    z.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut widths: Vec<f64> = z.iter().map(|p| p.1).collect();
+    let w = 4.0 * median(&mut widths);
+    let zs: Vec<f64> = z.iter().map(|p| p.0).collect();
+    let count_from = |i: usize| zs[i..].partition_point(|&v| v <= zs[i] + w);
+    let first = (0..zs.len()).find(|&i| count_from(i) >= need).unwrap_or(0);
+    let end = zs.partition_point(|&v| v <= zs[first] + w);
+    let best = (first..end.max(first + 1))
+        .max_by_key(|&i| (count_from(i), std::cmp::Reverse(i)))
+        .unwrap_or(first);
+    let mut window: Vec<f64> = zs[best..best + count_from(best)].to_vec();
+    let var_d = median(&mut window).exp();
+    Ok((var_d / 2.0).sqrt())
+}
+
+/// Re-estimates the noise level from the pairs inside each body of a segmentation: the median
+/// of their distance variances, corrected for the median of `chi^2_d / d`. Robust to a few
+/// wrongly assigned points. Returns `None` when no body has a usable pair.
+pub fn refine_noise_sigma(stats: &PairStats, segmentation: &Segmentation) -> Option<f64> {
+    let n = stats.n_points;
+    let mut r = Vec::new();
+    for members in segmentation.members() {
+        for (a, &i) in members.iter().enumerate() {
+            for &j in &members[a + 1..] {
+                let k = condensed_index(n, i, j);
+                let (c, v) = (stats.count[k], stats.var_m2[k]);
+                if c >= 3 && v.is_finite() {
+                    r.push(v / chi2_median_over_dof(f64::from(c - 1)));
+                }
+            }
+        }
+    }
+    if r.is_empty() {
+        return None;
+    }
+    let var_d = median(&mut r);
+    (var_d > 0.0).then(|| (var_d / 2.0).sqrt())
+}

@@ -1,0 +1,119 @@
+//! Metrics against ground truth: clustering agreement, axis and pivot errors, joint RMS.
+
+mod truth;
+
+pub use truth::{Evaluation, JointEval, evaluate};
+
+use nalgebra::{Point3, Vector3};
+
+/// Adjusted Rand index between a predicted labelling (negative = discarded; each discarded
+/// point counts as its own cluster) and the truth. 1 for identical partitions, about 0 for
+/// chance agreement.
+///
+/// Reference: Hubert and Arabie (1985), "Comparing partitions".
+pub fn adjusted_rand_index(predicted: &[i64], truth: &[usize]) -> f64 {
+    assert_eq!(predicted.len(), truth.len(), "labellings of different lengths");
+    let n = predicted.len();
+    let mut next = predicted.iter().copied().max().unwrap_or(0).max(0) + 1;
+    let pred: Vec<usize> = predicted
+        .iter()
+        .map(|&p| {
+            if p >= 0 {
+                p as usize
+            } else {
+                next += 1;
+                (next - 1) as usize
+            }
+        })
+        .collect();
+    let kp = pred.iter().max().map_or(0, |m| m + 1);
+    let kt = truth.iter().max().map_or(0, |m| m + 1);
+    let mut table = vec![0u64; kp * kt];
+    for (p, t) in pred.iter().zip(truth) {
+        table[p * kt + t] += 1;
+    }
+    let c2 = |x: u64| (x * x.saturating_sub(1) / 2) as f64;
+    let sum_ij: f64 = table.iter().map(|&x| c2(x)).sum();
+    let a: f64 = (0..kp)
+        .map(|p| c2(table[p * kt..(p + 1) * kt].iter().sum()))
+        .sum();
+    let b: f64 = (0..kt)
+        .map(|t| c2((0..kp).map(|p| table[p * kt + t]).sum()))
+        .sum();
+    let total = c2(n as u64);
+    if total == 0.0 {
+        return 1.0;
+    }
+    let expected = a * b / total;
+    let max = 0.5 * (a + b);
+    if (max - expected).abs() < f64::EPSILON {
+        return 1.0;
+    }
+    (sum_ij - expected) / (max - expected)
+}
+
+/// Angle in degrees between two axes, ignoring their signs (0 to 90).
+pub fn axis_error_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    let c = (a.dot(b).abs() / (a.norm() * b.norm())).min(1.0);
+    c.acos().to_degrees()
+}
+
+/// Distance from `point` to the line through `line_point` along `line_dir`.
+pub fn point_line_distance(point: &Point3<f64>, line_point: &Point3<f64>, line_dir: &Vector3<f64>) -> f64 {
+    let d = line_dir.normalize();
+    let v = point - line_point;
+    (v - d * v.dot(&d)).norm()
+}
+
+/// RMS difference between an estimated joint trajectory and the truth after the best sign
+/// (+1 or -1) and constant offset, over frames where the estimate is known. `None` when no
+/// frame is known.
+pub fn aligned_rms(estimate: &[Option<f64>], truth: &[f64]) -> Option<f64> {
+    let pairs: Vec<(f64, f64)> = estimate
+        .iter()
+        .zip(truth)
+        .filter_map(|(e, t)| e.map(|e| (e, *t)))
+        .collect();
+    if pairs.is_empty() {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    [1.0, -1.0]
+        .iter()
+        .map(|s| {
+            let offset = pairs.iter().map(|(e, t)| t - s * e).sum::<f64>() / n;
+            (pairs.iter().map(|(e, t)| (t - s * e - offset).powi(2)).sum::<f64>() / n).sqrt()
+        })
+        .min_by(f64::total_cmp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ari_is_one_for_relabelled_partition_and_low_for_a_merge() {
+        let truth = [0, 0, 0, 1, 1, 1, 2, 2, 2];
+        assert!((adjusted_rand_index(&[5, 5, 5, 3, 3, 3, 0, 0, 0], &truth) - 1.0).abs() < 1e-12);
+        let merged = adjusted_rand_index(&[0, 0, 0, 0, 0, 0, 2, 2, 2], &truth);
+        assert!(merged < 0.7, "{merged}");
+        let discarded = adjusted_rand_index(&[0, 0, -1, 1, 1, 1, 2, 2, 2], &truth);
+        assert!(discarded < 1.0);
+    }
+
+    #[test]
+    fn aligned_rms_removes_sign_and_offset() {
+        let truth: Vec<f64> = (0..10).map(|k| k as f64 * 0.1).collect();
+        let est: Vec<Option<f64>> = truth.iter().map(|t| Some(-t + 3.0)).collect();
+        assert!(aligned_rms(&est, &truth).is_some_and(|r| r < 1e-12));
+        let bad: Vec<Option<f64>> = truth.iter().map(|t| Some(t * t)).collect();
+        assert!(aligned_rms(&bad, &truth).is_some_and(|r| r > 0.01));
+    }
+
+    #[test]
+    fn axis_error_ignores_sign() {
+        let a = Vector3::new(0.0, 0.0, 1.0);
+        assert!(axis_error_deg(&a, &-a) < 1e-9);
+        assert!((axis_error_deg(&a, &Vector3::new(1.0, 0.0, 0.0)) - 90.0).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,115 @@
+//! Comparing a discovered model with the simulator's truth.
+
+use crate::{adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance};
+use kinetree_core::Model;
+use kinetree_synth::{GroundTruth, JointType};
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// How one true joint was recovered.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JointEval {
+    /// True joint index.
+    pub joint: usize,
+    /// A model joint links the same two bodies, parent to child.
+    pub found: bool,
+    /// ... and has the same type.
+    pub type_ok: bool,
+    /// Axis error, degrees.
+    pub axis_error_deg: Option<f64>,
+    /// Distance from the true anchor to the estimated axis line (revolute), metres.
+    pub pivot_error_m: Option<f64>,
+    /// RMS joint-position error after sign and offset alignment (radians or metres).
+    pub position_rms: Option<f64>,
+}
+
+/// The comparison of a model with the truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Evaluation {
+    /// Adjusted Rand index of the segmentation.
+    pub ari: f64,
+    /// Number of true bodies.
+    pub n_bodies_true: usize,
+    /// Number of bodies found.
+    pub n_bodies_found: usize,
+    /// Same bodies, the true base as static root, and every joint found with its type.
+    pub structure_exact: bool,
+    /// Per true joint.
+    pub joints: Vec<JointEval>,
+}
+
+impl Evaluation {
+    /// Largest axis error over joints, degrees (0 when none).
+    pub fn max_axis_error_deg(&self) -> f64 {
+        self.joints.iter().filter_map(|j| j.axis_error_deg).fold(0.0, f64::max)
+    }
+}
+
+/// The true body holding most of each model body's points.
+fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
+    model
+        .bodies
+        .iter()
+        .map(|b| {
+            let mut votes = vec![0usize; truth.n_bodies()];
+            for &p in &b.points {
+                votes[truth.point_body[p]] += 1;
+            }
+            (0..votes.len()).max_by_key(|&k| (votes[k], std::cmp::Reverse(k))).unwrap_or(0)
+        })
+        .collect()
+}
+
+/// Compares `model` with `truth`.
+pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
+    let ari = adjusted_rand_index(&model.point_body, &truth.point_body);
+    let map = body_map(model, truth);
+    let mut joints = Vec::new();
+    let mut all_ok = model.bodies.len() == truth.n_bodies()
+        && model.static_body.is_some_and(|s| map[s] == 0)
+        && {
+            let mut m = map.clone();
+            m.sort_unstable();
+            m.dedup();
+            m.len() == model.bodies.len()
+        };
+    for (k, spec) in truth.mechanism.joints.iter().enumerate() {
+        let found = model
+            .joints
+            .iter()
+            .find(|j| map[j.parent] == spec.parent && map[j.child] == spec.child);
+        let mut e = JointEval {
+            joint: k,
+            found: found.is_some(),
+            type_ok: false,
+            axis_error_deg: None,
+            pivot_error_m: None,
+            position_rms: None,
+        };
+        if let Some(j) = found {
+            let expected = match spec.joint_type {
+                JointType::Revolute => "revolute",
+                JointType::Prismatic => "prismatic",
+            };
+            e.type_ok = j.joint_type == expected;
+            let true_axis = truth.axis_in_camera(k, j.reference_frame);
+            if let Some(a) = j.axis {
+                e.axis_error_deg = Some(axis_error_deg(&Vector3::from(a), &true_axis));
+                if let (Some(p), JointType::Revolute) = (j.point, spec.joint_type) {
+                    let anchor = truth.anchor_in_camera(k, j.reference_frame);
+                    e.pivot_error_m = Some(point_line_distance(&anchor, &Point3::from(p), &Vector3::from(a)));
+                }
+            }
+            e.position_rms = aligned_rms(&j.positions, &truth.joint_positions[k]);
+        }
+        all_ok &= e.found && e.type_ok;
+        joints.push(e);
+    }
+    Evaluation {
+        ari,
+        n_bodies_true: truth.n_bodies(),
+        n_bodies_found: model.bodies.len(),
+        structure_exact: all_ok && (ari - 1.0).abs() < 1e-12,
+        joints,
+    }
+}

@@ -1,0 +1,264 @@
+//! Reading and writing tracks (`.npy`, `.csv`) and models (JSON).
+//!
+//! Every error names the file (through [`Error::File`]) and, where it can, the position.
+
+use kinetree_core::{Error, Model, Result, Tracks};
+use npyz::WriterBuilder;
+use std::fs::File;
+use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::path::Path;
+
+/// Largest frame or point index accepted in a CSV file (guards against absurd allocations).
+pub const MAX_CSV_INDEX: u64 = 10_000_000;
+
+/// Reads tracks from a `.npy` or `.csv` file, chosen by extension.
+///
+/// # Errors
+/// [`Error::File`] wrapping the cause: I/O, an unknown extension, or the format's own errors.
+pub fn read_tracks(path: &Path) -> Result<Tracks> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("npy") => read_npy(path),
+        Some("csv") => read_csv(path),
+        _ => Err(Error::Malformed {
+            position: "file name".into(),
+            message: "unknown extension; expected .npy or .csv".into(),
+        }
+        .in_file(path)),
+    }
+}
+
+/// Reads a float64 `(T, N, 3)` `.npy` array, NaN for occluded points (C or Fortran order).
+///
+/// # Errors
+/// [`Error::DType`] for another element type, [`Error::Shape`] for another shape, and the
+/// validation errors of [`Tracks::new`], all inside [`Error::File`].
+pub fn read_npy(path: &Path) -> Result<Tracks> {
+    read_npy_inner(path).map_err(|e| e.in_file(path))
+}
+
+fn read_npy_inner(path: &Path) -> Result<Tracks> {
+    let file = File::open(path)?;
+    let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| Error::Malformed {
+        position: "header".into(),
+        message: e.to_string(),
+    })?;
+    let dtype = npy.dtype();
+    let type_str = match &dtype {
+        npyz::DType::Plain(t) => t.to_string(),
+        other => format!("{other:?}"),
+    };
+    if type_str != "<f8" {
+        return Err(Error::DType {
+            expected: "float64 ('<f8')".into(),
+            found: type_str,
+        });
+    }
+    let shape: Vec<u64> = npy.shape().to_vec();
+    if shape.len() != 3 || shape[2] != 3 {
+        return Err(Error::Shape {
+            expected: "(T, N, 3)".into(),
+            found: format!("{shape:?}"),
+        });
+    }
+    let (t, n) = (shape[0] as usize, shape[1] as usize);
+    let order = npy.order();
+    let data: Vec<f64> = npy.into_vec::<f64>().map_err(|e| Error::Malformed {
+        position: "data".into(),
+        message: e.to_string(),
+    })?;
+    let xyz = if order == npyz::Order::Fortran {
+        // Element (i, j, k) sits at i + T j + T N k in Fortran order.
+        let mut c = vec![0.0; data.len()];
+        for i in 0..t {
+            for j in 0..n {
+                for k in 0..3 {
+                    c[(i * n + j) * 3 + k] = data[i + t * j + t * n * k];
+                }
+            }
+        }
+        c
+    } else {
+        data
+    };
+    Tracks::new(t, n, xyz)
+}
+
+/// Writes tracks as a float64 `(T, N, 3)` `.npy` array (C order, NaN for occluded points).
+///
+/// # Errors
+/// [`Error::File`] wrapping the I/O error.
+pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
+    let inner = || -> std::io::Result<()> {
+        let file = BufWriter::new(File::create(path)?);
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[
+                tracks.n_frames() as u64,
+                tracks.n_points() as u64,
+                3,
+            ])
+            .writer(file)
+            .begin_nd()?;
+        w.extend(tracks.raw().iter().copied())?;
+        w.finish()?;
+        Ok(())
+    };
+    inner().map_err(|e| Error::Io(e).in_file(path))
+}
+
+/// Reads `frame,point,x,y,z` rows (header required; one row per visible observation;
+/// indices 0-based). `T` and `N` are one more than the largest frame and point index; a
+/// (frame, point) without a row is occluded.
+///
+/// # Errors
+/// [`Error::Malformed`] naming the line for a bad header, a wrong number of fields, a
+/// non-integer or out-of-range index, a non-numeric coordinate or a duplicate row;
+/// [`Error::NonFinite`] for inf or NaN coordinates; then the errors of [`Tracks::new`].
+pub fn read_csv(path: &Path) -> Result<Tracks> {
+    read_csv_inner(path).map_err(|e| e.in_file(path))
+}
+
+fn read_csv_inner(path: &Path) -> Result<Tracks> {
+    let reader = BufReader::new(File::open(path)?);
+    let mut rows: Vec<(usize, usize, [f64; 3])> = Vec::new();
+    let mut header_seen = false;
+    for (k, line) in reader.lines().enumerate() {
+        let line = line?;
+        let lineno = k + 1;
+        let trimmed = line.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = trimmed.split(',').map(str::trim).collect();
+        if !header_seen {
+            if fields != ["frame", "point", "x", "y", "z"] {
+                return Err(Error::Malformed {
+                    position: format!("line {lineno}"),
+                    message: format!("expected header `frame,point,x,y,z`, found `{trimmed}`"),
+                });
+            }
+            header_seen = true;
+            continue;
+        }
+        let bad = |message: String| Error::Malformed {
+            position: format!("line {lineno}"),
+            message,
+        };
+        if fields.len() != 5 {
+            return Err(bad(format!("expected 5 fields, found {}", fields.len())));
+        }
+        let index = |name: &str, s: &str| -> Result<usize> {
+            let v: u64 = s
+                .parse()
+                .map_err(|_| bad(format!("{name} `{s}` is not a non-negative integer")))?;
+            if v > MAX_CSV_INDEX {
+                return Err(bad(format!("{name} {v} out of range (max {MAX_CSV_INDEX})")));
+            }
+            Ok(v as usize)
+        };
+        let frame = index("frame", fields[0])?;
+        let point = index("point", fields[1])?;
+        let mut xyz = [0.0; 3];
+        for (c, s) in fields[2..].iter().enumerate() {
+            let v: f64 = s
+                .parse()
+                .map_err(|_| bad(format!("coordinate `{s}` is not a number")))?;
+            if !v.is_finite() {
+                return Err(Error::Malformed {
+                    position: format!("line {lineno}"),
+                    message: format!(
+                        "frame {frame}, point {point}: non-finite coordinate `{s}` (leave occluded observations out)"
+                    ),
+                });
+            }
+            xyz[c] = v;
+        }
+        rows.push((frame, point, xyz));
+    }
+    if !header_seen {
+        return Err(Error::Malformed {
+            position: "line 1".into(),
+            message: "empty file; expected header `frame,point,x,y,z`".into(),
+        });
+    }
+    if rows.is_empty() {
+        return Err(Error::NoVisibleData);
+    }
+    let t = rows.iter().map(|r| r.0).max().unwrap_or(0) + 1;
+    let n = rows.iter().map(|r| r.1).max().unwrap_or(0) + 1;
+    let total = t.checked_mul(n).filter(|&v| v <= 1 << 31).ok_or_else(|| Error::Shape {
+        expected: "T x N below 2^31 observations".into(),
+        found: format!("{t} x {n}"),
+    })?;
+    let mut xyz = vec![f64::NAN; total * 3];
+    let mut seen = vec![false; total];
+    for (line, (frame, point, p)) in rows.iter().enumerate() {
+        let k = frame * n + point;
+        if seen[k] {
+            return Err(Error::Malformed {
+                position: format!("data row {}", line + 1),
+                message: format!("duplicate row for frame {frame}, point {point}"),
+            });
+        }
+        seen[k] = true;
+        xyz[k * 3..k * 3 + 3].copy_from_slice(p);
+    }
+    Tracks::new(t, n, xyz)
+}
+
+/// Writes tracks as `frame,point,x,y,z` rows, one per visible observation.
+///
+/// # Errors
+/// [`Error::File`] wrapping the I/O error.
+pub fn write_csv(path: &Path, tracks: &Tracks) -> Result<()> {
+    let inner = || -> std::io::Result<()> {
+        let mut w = BufWriter::new(File::create(path)?);
+        writeln!(w, "frame,point,x,y,z")?;
+        for t in 0..tracks.n_frames() {
+            for i in 0..tracks.n_points() {
+                if let Some(p) = tracks.get(t, i) {
+                    writeln!(w, "{t},{i},{:?},{:?},{:?}", p.x, p.y, p.z)?;
+                }
+            }
+        }
+        w.flush()
+    };
+    inner().map_err(|e| Error::Io(e).in_file(path))
+}
+
+/// Writes any serialisable value as pretty JSON.
+///
+/// # Errors
+/// [`Error::File`] wrapping the I/O or serialisation error.
+pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
+    let inner = || -> Result<()> {
+        let mut w = BufWriter::new(File::create(path)?);
+        serde_json::to_writer_pretty(&mut w, value).map_err(|e| Error::Malformed {
+            position: "serialisation".into(),
+            message: e.to_string(),
+        })?;
+        w.write_all(b"\n")?;
+        w.flush()?;
+        Ok(())
+    };
+    inner().map_err(|e| e.in_file(path))
+}
+
+/// Reads a model JSON file.
+///
+/// # Errors
+/// [`Error::File`] wrapping the I/O error, or [`Error::Malformed`] with the line and column.
+pub fn read_model(path: &Path) -> Result<Model> {
+    let inner = || -> Result<Model> {
+        let reader = BufReader::new(File::open(path)?);
+        serde_json::from_reader(reader).map_err(|e| Error::Malformed {
+            position: format!("line {}, column {}", e.line(), e.column()),
+            message: e.to_string(),
+        })
+    };
+    inner().map_err(|e| e.in_file(path))
+}

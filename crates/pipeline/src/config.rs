@@ -1,0 +1,236 @@
+//! Configuration: one serde enum per stage slot, every variant wrapping a params struct.
+
+use kinetree_clustering::{Hierarchical, HierarchicalParams};
+use kinetree_core::{Clustering, Dissimilarity, DofTester, Error, PoseEstimator, Result};
+use kinetree_dissimilarity::{DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams};
+use kinetree_dof::{SvdRank, SvdRankParams};
+use kinetree_pose::{KabschParams, KabschPoses};
+use kinetree_synth::RandomParams;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Dissimilarity slot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum DissimilarityConfig {
+    /// The paper's F-test q.
+    FTest(FTestParams),
+    /// Distance std-dev.
+    DistanceStd(SpreadParams),
+    /// Distance variance.
+    DistanceVariance(SpreadParams),
+}
+
+impl Default for DissimilarityConfig {
+    fn default() -> Self {
+        Self::FTest(FTestParams::default())
+    }
+}
+
+impl DissimilarityConfig {
+    /// Builds the stage.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn build(&self) -> Result<Box<dyn Dissimilarity>> {
+        Ok(match self {
+            Self::FTest(p) => Box::new(FTest::new(*p)?),
+            Self::DistanceStd(p) => Box::new(DistanceStd::new(*p)?),
+            Self::DistanceVariance(p) => Box::new(DistanceVariance::new(*p)?),
+        })
+    }
+}
+
+/// Clustering slot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ClusteringConfig {
+    /// Agglomerative clustering (kodama).
+    Hierarchical(HierarchicalParams),
+}
+
+impl Default for ClusteringConfig {
+    fn default() -> Self {
+        Self::Hierarchical(HierarchicalParams::default())
+    }
+}
+
+impl ClusteringConfig {
+    /// Builds the stage.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn build(&self) -> Result<Box<dyn Clustering>> {
+        Ok(match self {
+            Self::Hierarchical(p) => Box::new(Hierarchical::new(*p)?),
+        })
+    }
+}
+
+/// Pose slot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum PoseConfig {
+    /// Kabsch-Umeyama against reference shapes.
+    Kabsch(KabschParams),
+}
+
+impl Default for PoseConfig {
+    fn default() -> Self {
+        Self::Kabsch(KabschParams::default())
+    }
+}
+
+impl PoseConfig {
+    /// Builds the stage.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn build(&self) -> Result<Box<dyn PoseEstimator>> {
+        Ok(match self {
+            Self::Kabsch(p) => Box::new(KabschPoses::new(*p)?),
+        })
+    }
+}
+
+/// DoF-tester slot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum DofConfig {
+    /// SVD ranks with noise-derived thresholds.
+    SvdRank(SvdRankParams),
+}
+
+impl Default for DofConfig {
+    fn default() -> Self {
+        Self::SvdRank(SvdRankParams::default())
+    }
+}
+
+impl DofConfig {
+    /// Builds the stage.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn build(&self) -> Result<Box<dyn DofTester>> {
+        Ok(match self {
+            Self::SvdRank(p) => Box::new(SvdRank::new(*p)?),
+        })
+    }
+}
+
+/// The whole pipeline's configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineConfig {
+    /// Per-coordinate noise std-dev in metres; estimated from the data when absent.
+    pub noise_sigma_m: Option<f64>,
+    /// Seed for any random choice of any stage.
+    pub seed: u64,
+    /// Dissimilarity measure.
+    pub dissimilarity: DissimilarityConfig,
+    /// Clustering method.
+    pub clustering: ClusteringConfig,
+    /// Pose estimator.
+    pub pose: PoseConfig,
+    /// DoF tester.
+    pub dof: DofConfig,
+}
+
+/// Where an experiment's data come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum DataConfig {
+    /// The paper's 2-DoF arm ([`kinetree_synth::paper_arm`]).
+    PaperArm(PaperArmData),
+    /// A random mechanism ([`kinetree_synth::random_scenario`]).
+    Random(RandomParams),
+    /// A tracks file (`.npy` or `.csv`), relative to the config file.
+    File(FileData),
+}
+
+/// Parameters of the paper-arm data.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PaperArmData {
+    /// Seed of the noise.
+    pub seed: u64,
+    /// Per-coordinate noise, metres.
+    pub noise_sigma_m: f64,
+    /// Extra random occlusion.
+    pub dropout: f64,
+    /// Number of frames.
+    pub n_frames: usize,
+}
+
+impl Default for PaperArmData {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            noise_sigma_m: 0.001,
+            dropout: 0.0,
+            n_frames: 100,
+        }
+    }
+}
+
+/// A tracks file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileData {
+    /// Path of the `.npy` or `.csv` file.
+    pub path: PathBuf,
+}
+
+/// Experiment metadata.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentMeta {
+    /// Name; results go to `results/<name>/`.
+    pub name: String,
+    /// One-line description.
+    #[serde(default)]
+    pub description: String,
+}
+
+/// An experiment config file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentConfig {
+    /// Metadata.
+    pub experiment: ExperimentMeta,
+    /// Data source.
+    pub data: DataConfig,
+    /// Pipeline.
+    #[serde(default)]
+    pub pipeline: PipelineConfig,
+}
+
+impl ExperimentConfig {
+    /// Parses a TOML config; unknown keys are errors.
+    ///
+    /// # Errors
+    /// [`Error::Config`] with the parser's message (line and key).
+    pub fn from_toml(text: &str) -> Result<Self> {
+        toml::from_str(text).map_err(|e| Error::Config(e.to_string()))
+    }
+
+    /// The config with every default filled in, as TOML.
+    ///
+    /// # Errors
+    /// [`Error::Config`] if serialisation fails.
+    pub fn resolved_toml(&self) -> Result<String> {
+        toml::to_string(self).map_err(|e| Error::Config(e.to_string()))
+    }
+}
+
+/// The paper experiment's config, compiled in: what `kinetree run` uses with no argument.
+pub const PAPER_EXPERIMENT_TOML: &str = include_str!("../../../experiments/paper-table1/table1.toml");
+
+/// Parses a pipeline config (the contents of an experiment's `[pipeline]` table) from TOML.
+///
+/// # Errors
+/// [`Error::Config`] with the parser's message; unknown keys are errors.
+pub fn pipeline_from_toml(text: &str) -> Result<PipelineConfig> {
+    toml::from_str(text).map_err(|e| Error::Config(e.to_string()))
+}

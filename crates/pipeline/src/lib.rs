@@ -1,0 +1,14 @@
+//! The kinetree pipeline: config enums -> stages, the run, experiments and reports.
+//!
+//! This is the only crate that knows every stage. Adding a stage: write its file and trait
+//! impl in its crate, add a variant to the slot's enum in [`config`], a match arm in its
+//! `build`, and a line in the conformance tests.
+
+pub mod config;
+pub mod experiment;
+pub mod report;
+mod run;
+
+pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};
+pub use experiment::{ExperimentOutcome, load_data, run_experiment, write_results};
+pub use run::{Discovery, Pipeline};

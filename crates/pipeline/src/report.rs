@@ -1,0 +1,156 @@
+//! Human-readable reports: the structure summary and the paper's Table I.
+
+use kinetree_core::{Model, RankTest};
+use std::fmt::Write;
+
+fn values(t: &RankTest) -> String {
+    if t.rank == 0 {
+        return "-".into();
+    }
+    t.singular_values[..t.rank]
+        .iter()
+        .map(|v| format!("{v:.1}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The cells of Table I: for rows F0 (camera) .. F(n-1) and columns F1 .. Fn, the non-zero
+/// (above-threshold) singular values of the translation, rotation and centre matrices.
+/// Frame `F(k+1)` is model body `k`. Returns `(row, column, [t, r, c])` triples.
+pub fn table_cells(model: &Model) -> Vec<(usize, usize, [String; 3])> {
+    model
+        .pairs
+        .iter()
+        .map(|p| {
+            let row = p.a.map_or(0, |a| a + 1);
+            (
+                row,
+                p.b + 1,
+                [values(&p.translation), values(&p.rotation), values(&p.centre)],
+            )
+        })
+        .collect()
+}
+
+/// Table I as Markdown, in the paper's layout (each column Fm split into translation,
+/// rotation and centre).
+pub fn table_markdown(model: &Model) -> String {
+    let n = model.bodies.len();
+    let cells = table_cells(model);
+    let mut s = String::new();
+    s.push('|');
+    s.push_str("   |");
+    for m in 1..=n {
+        let _ = write!(s, " F{m} T | F{m} R | F{m} C |");
+    }
+    s.push('\n');
+    s.push('|');
+    s.push_str("---|");
+    for _ in 1..=n {
+        s.push_str("---|---|---|");
+    }
+    s.push('\n');
+    for row in 0..n {
+        let _ = write!(s, "| F{row} |");
+        for col in 1..=n {
+            match cells.iter().find(|c| c.0 == row && c.1 == col) {
+                Some((_, _, [t, r, c])) => {
+                    let _ = write!(s, " {t} | {r} | {c} |");
+                }
+                None => s.push_str("   |   |   |"),
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Table I as aligned plain text for the terminal.
+pub fn table_text(model: &Model) -> String {
+    let n = model.bodies.len();
+    let cells = table_cells(model);
+    let width = cells
+        .iter()
+        .map(|c| c.2.iter().map(String::len).max().unwrap_or(1))
+        .max()
+        .unwrap_or(1)
+        .max(4);
+    let mut s = String::new();
+    let _ = write!(s, "{:4}", "");
+    for m in 1..=n {
+        let head = format!("F{m} (T | R | C)");
+        let _ = write!(s, "  {head:<w$}", w = 3 * width + 6);
+    }
+    s.push('\n');
+    for row in 0..n {
+        let _ = write!(s, "{:4}", format!("F{row}"));
+        for col in 1..=n {
+            let text = match cells.iter().find(|c| c.0 == row && c.1 == col) {
+                Some((_, _, [t, r, c])) => format!("{t:<width$} | {r:<width$} | {c:<width$}"),
+                None => String::new(),
+            };
+            let _ = write!(s, "  {text:<w$}", w = 3 * width + 6);
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// A readable summary of the discovered structure.
+pub fn summary(model: &Model) -> String {
+    let mut s = String::new();
+    let n_discarded = model.point_body.iter().filter(|&&b| b < 0).count();
+    let _ = writeln!(
+        s,
+        "{} bodies from {} points over {} frames ({} discarded); noise sigma {:.3} mm ({:?})",
+        model.bodies.len(),
+        model.n_points,
+        model.n_frames,
+        n_discarded,
+        model.noise.sigma_m * 1e3,
+        model.noise.source
+    );
+    for b in &model.bodies {
+        let role = if b.is_static {
+            "static"
+        } else if b.parent.is_none() {
+            "root"
+        } else {
+            "moving"
+        };
+        let _ = writeln!(
+            s,
+            "  body {} ({role}): {} points {:?}",
+            b.id,
+            b.points.len(),
+            b.points
+        );
+    }
+    for j in &model.joints {
+        let axis = j
+            .axis
+            .map(|a| format!(" axis [{:.3}, {:.3}, {:.3}]", a[0], a[1], a[2]))
+            .unwrap_or_default();
+        let point = j
+            .point
+            .map(|p| format!(" through [{:.3}, {:.3}, {:.3}] m", p[0], p[1], p[2]))
+            .unwrap_or_default();
+        let range = j
+            .range
+            .map(|r| format!(" range [{:.3}, {:.3}]", r[0], r[1]))
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "  joint body {} -> body {}: {}{axis}{point}{range}",
+            j.parent, j.child, j.joint_type
+        );
+    }
+    if let Some(c) = &model.chain {
+        let chain: Vec<String> = c.iter().map(|b| format!("body {b}")).collect();
+        let _ = writeln!(s, "  chain: {}", chain.join(" -> "));
+    }
+    for w in &model.warnings {
+        let _ = writeln!(s, "  warning: {w}");
+    }
+    s
+}

@@ -1,0 +1,398 @@
+//! Running the pipeline on tracks: segmentation, poses, DoF tests, structure, model.
+
+use crate::config::PipelineConfig;
+use kinetree_core::geom::cam_from;
+use kinetree_core::model::{
+    Body, Joint, NoiseInfo, NoiseSource, Ranks, SCHEMA_VERSION, StageNames,
+};
+use kinetree_core::{
+    BodyPoses, Clustering, ClusteringInput, Dissimilarity, DissimilarityInput,
+    DissimilarityMatrix, DofInput, DofTester, Error, JointKind, Model, PairDof, PairStats,
+    PoseEstimator, PoseInput, Result, Segmentation, Tracks, Warning,
+};
+use kinetree_dissimilarity::{estimate_noise_sigma, pair_stats, refine_noise_sigma};
+
+/// The stages, built from a [`PipelineConfig`] or supplied by the caller.
+#[derive(Debug)]
+pub struct Pipeline {
+    /// Dissimilarity measure.
+    pub dissimilarity: Box<dyn Dissimilarity>,
+    /// Clustering method.
+    pub clustering: Box<dyn Clustering>,
+    /// Pose estimator.
+    pub pose: Box<dyn PoseEstimator>,
+    /// DoF tester.
+    pub dof: Box<dyn DofTester>,
+    /// Per-coordinate noise, metres; estimated when `None`.
+    pub noise_sigma_m: Option<f64>,
+    /// Seed for the stages.
+    pub seed: u64,
+}
+
+/// Everything a run produces: the model and the intermediate results behind it.
+#[derive(Debug, Clone)]
+pub struct Discovery {
+    /// The model (bodies renumbered in tree order).
+    pub model: Model,
+    /// Pair statistics.
+    pub stats: PairStats,
+    /// The dissimilarity matrix used for the final segmentation.
+    pub dissimilarity: DissimilarityMatrix,
+    /// Final segmentation (segmentation numbering).
+    pub segmentation: Segmentation,
+    /// Poses per body (segmentation numbering).
+    pub poses: BodyPoses,
+    /// `model body id -> segmentation body id`.
+    pub body_order: Vec<usize>,
+}
+
+/// How many times rigidly co-moving bodies are merged and the poses redone.
+const MAX_MERGE_ROUNDS: usize = 3;
+/// Noise re-estimation rounds after segmentation.
+const NOISE_ROUNDS: usize = 2;
+
+impl Pipeline {
+    /// Builds every stage from a config.
+    ///
+    /// # Errors
+    /// When a stage's parameters are invalid or the noise level is not positive.
+    pub fn from_config(c: &PipelineConfig) -> Result<Self> {
+        if let Some(s) = c.noise_sigma_m
+            && !(s.is_finite() && s > 0.0)
+        {
+            return Err(Error::InvalidParameter {
+                name: "noise_sigma_m".into(),
+                message: format!("must be finite and positive, got {s}"),
+            });
+        }
+        Ok(Self {
+            dissimilarity: c.dissimilarity.build()?,
+            clustering: c.clustering.build()?,
+            pose: c.pose.build()?,
+            dof: c.dof.build()?,
+            noise_sigma_m: c.noise_sigma_m,
+            seed: c.seed,
+        })
+    }
+
+    fn segment(&self, tracks: &Tracks, stats: &PairStats, sigma: f64) -> Result<(DissimilarityMatrix, Segmentation)> {
+        let d = self.dissimilarity.compute(&DissimilarityInput {
+            tracks,
+            stats,
+            noise_sigma_m: sigma,
+        })?;
+        let s = self.clustering.cluster(&ClusteringInput {
+            dissimilarity: &d,
+            seed: self.seed,
+        })?;
+        Ok((d, s))
+    }
+
+    fn all_pairs(&self, poses: &BodyPoses, sigma: f64) -> Result<Vec<PairDof>> {
+        let input = DofInput {
+            poses,
+            noise_sigma_m: sigma,
+        };
+        let n = poses.bodies.len();
+        let mut out = Vec::new();
+        let frames: Vec<Option<usize>> = std::iter::once(None).chain((0..n).map(Some)).collect();
+        for (i, &a) in frames.iter().enumerate() {
+            for &b in &frames[i + 1..] {
+                let Some(b) = b else { continue };
+                match self.dof.test_pair(&input, a, b) {
+                    Ok(p) => out.push(p),
+                    Err(Error::Degenerate(_)) => {}
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Runs the whole pipeline.
+    ///
+    /// # Errors
+    /// [`Error::Degenerate`] when no body can be found or registered, and any stage's error.
+    pub fn run(&self, tracks: &Tracks) -> Result<Discovery> {
+        let mut warnings = Vec::new();
+        let n = tracks.n_points();
+        for i in 0..n {
+            if tracks.visible_count(i) == 0 {
+                warnings.push(Warning::PointNeverVisible { point: i });
+            }
+        }
+        let stats = pair_stats(tracks);
+        let mut paired = vec![false; n];
+        for i in 0..n {
+            for j in i + 1..n {
+                if stats.count(i, j) >= 2 {
+                    paired[i] = true;
+                    paired[j] = true;
+                }
+            }
+        }
+        for (i, &p) in paired.iter().enumerate() {
+            if !p && tracks.visible_count(i) > 0 {
+                warnings.push(Warning::PointUnpaired { point: i });
+            }
+        }
+        let unknown_among_paired = (0..n)
+            .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+            .filter(|&(i, j)| paired[i] && paired[j] && stats.count(i, j) < 2)
+            .count();
+        if unknown_among_paired > 0 {
+            warnings.push(Warning::PairsInferred {
+                count: unknown_among_paired,
+            });
+        }
+        let (mut sigma, source) = match self.noise_sigma_m {
+            Some(s) => (s, NoiseSource::Given),
+            None => (estimate_noise_sigma(&stats)?, NoiseSource::Estimated),
+        };
+        let (mut dmat, mut seg) = self.segment(tracks, &stats, sigma)?;
+        if source == NoiseSource::Estimated {
+            for _ in 0..NOISE_ROUNDS {
+                let Some(s) = refine_noise_sigma(&stats, &seg) else { break };
+                let changed = (s / sigma - 1.0).abs() > 0.01;
+                sigma = s;
+                if !changed {
+                    break;
+                }
+                (dmat, seg) = self.segment(tracks, &stats, sigma)?;
+            }
+            warnings.push(Warning::NoiseEstimated { sigma_m: sigma });
+        }
+        for g in &seg.discarded_groups {
+            warnings.push(Warning::ClusterDiscarded { points: g.clone() });
+        }
+        // Poses; drop bodies with fewer than two registered frames; merge bodies that move
+        // rigidly together.
+        let mut poses;
+        let mut pairs;
+        let mut round = 0;
+        loop {
+            poses = self.pose.estimate(&PoseInput {
+                tracks,
+                segmentation: &seg,
+                noise_sigma_m: sigma,
+            })?;
+            let drop: Vec<usize> = (0..poses.bodies.len())
+                .filter(|&b| poses.bodies[b].n_registered() < 2)
+                .collect();
+            if !drop.is_empty() {
+                for &b in &drop {
+                    warnings.push(Warning::BodyDropped {
+                        points: poses.bodies[b].points.clone(),
+                        reason: format!(
+                            "registered in {} frame(s); two are needed",
+                            poses.bodies[b].n_registered()
+                        ),
+                    });
+                }
+                seg = seg.without_bodies(&drop);
+                continue;
+            }
+            if seg.n_bodies() == 0 {
+                return Err(Error::Degenerate(
+                    "no rigid body of three or more points could be found and registered".into(),
+                ));
+            }
+            pairs = self.all_pairs(&poses, sigma)?;
+            let nb = seg.n_bodies();
+            let mut group: Vec<usize> = (0..nb).collect();
+            let mut merged_any = false;
+            for p in &pairs {
+                if let (Some(a), JointKind::Rigid) = (p.a, &p.joint) {
+                    let (ga, gb) = (group[a], group[p.b]);
+                    if ga != gb {
+                        merged_any = true;
+                        for g in &mut group {
+                            if *g == gb {
+                                *g = ga;
+                            }
+                        }
+                    }
+                }
+            }
+            if !merged_any || round >= MAX_MERGE_ROUNDS {
+                break;
+            }
+            let mut groups: Vec<Vec<usize>> = Vec::new();
+            for g in 0..nb {
+                let members: Vec<usize> = (0..nb).filter(|&b| group[b] == g).collect();
+                if members.len() > 1 {
+                    groups.extend(members.iter().map(|&b| poses.bodies[b].points.clone()));
+                }
+            }
+            warnings.push(Warning::BodiesMerged { groups });
+            seg = seg.merged(&group);
+            round += 1;
+        }
+        let model = self.assemble(tracks, &stats, &seg, &poses, pairs, sigma, source, warnings)?;
+        Ok(Discovery {
+            body_order: model.1,
+            model: model.0,
+            stats,
+            dissimilarity: dmat,
+            segmentation: seg,
+            poses,
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        &self,
+        tracks: &Tracks,
+        _stats: &PairStats,
+        seg: &Segmentation,
+        poses: &BodyPoses,
+        pairs: Vec<PairDof>,
+        sigma: f64,
+        source: NoiseSource,
+        mut warnings: Vec<Warning>,
+    ) -> Result<(Model, Vec<usize>)> {
+        let nb = seg.n_bodies();
+        let tree = kinetree_structure::spanning_tree(nb, &pairs)
+            .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
+        // Model numbering: tree (breadth-first) order.
+        let order = tree.order.clone();
+        let mut new_id = vec![0usize; nb];
+        for (k, &b) in order.iter().enumerate() {
+            new_id[b] = k;
+        }
+        let renumber_pair = |p: &PairDof| -> PairDof {
+            let mut q = p.clone();
+            q.a = p.a.map(|a| new_id[a]);
+            q.b = new_id[p.b];
+            q
+        };
+        let statics = kinetree_structure::static_bodies(nb, &pairs);
+        if !tree.root_is_static {
+            warnings.push(Warning::NoStaticBody {
+                root: new_id[tree.root],
+            });
+        }
+        let input = DofInput {
+            poses,
+            noise_sigma_m: sigma,
+        };
+        let mut joints = Vec::new();
+        for &child in &order {
+            let Some(parent) = tree.parent[child] else { continue };
+            let pair = self.dof.test_pair(&input, Some(parent), child)?;
+            let (positions, first) = kinetree_structure::joint_positions(poses, &pair);
+            let reference_frame = first.unwrap_or(pair.reference_frame);
+            let cam_parent = cam_from(poses, Some(parent), reference_frame);
+            let (axis_p, point_p) = match &pair.joint {
+                JointKind::Revolute { axis, pivot } => (Some(*axis), Some(*pivot)),
+                JointKind::Prismatic { axis } => (Some(*axis), None),
+                _ => (None, None),
+            };
+            let arr = |v: kinetree_core::nalgebra::Vector3<f64>| [v.x, v.y, v.z];
+            let known: Vec<f64> = positions.iter().flatten().copied().collect();
+            let range = (!known.is_empty()).then(|| {
+                [
+                    known.iter().copied().fold(f64::INFINITY, f64::min),
+                    known.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                ]
+            });
+            if !matches!(pair.joint, JointKind::Revolute { .. } | JointKind::Prismatic { .. }) {
+                warnings.push(Warning::MultiDofJoint {
+                    parent: new_id[parent],
+                    child: new_id[child],
+                    dof: pair.dof,
+                });
+            }
+            joints.push(Joint {
+                parent: new_id[parent],
+                child: new_id[child],
+                joint_type: pair.joint.name().into(),
+                axis: match (axis_p, cam_parent) {
+                    (Some(a), Some(c)) => Some(arr(c.rotation * a)),
+                    _ => None,
+                },
+                point: match (point_p, cam_parent) {
+                    (Some(p), Some(c)) => Some(arr((c * p).coords)),
+                    _ => None,
+                },
+                axis_in_parent: axis_p.map(arr),
+                point_in_parent: point_p.map(|p| arr(p.coords)),
+                reference_frame,
+                positions,
+                range,
+                dof: pair.dof,
+                ranks: Ranks {
+                    translation: pair.translation.rank,
+                    rotation: pair.rotation.rank,
+                    centre: pair.centre.rank,
+                    sliding: pair.sliding.rank,
+                },
+                fit_ratio: pair.fit_ratio,
+            });
+        }
+        for &b in &order {
+            let missing = poses.n_frames - poses.bodies[b].n_registered();
+            if missing > 0 {
+                warnings.push(Warning::FramesUnregistered {
+                    body: new_id[b],
+                    frames: missing,
+                });
+            }
+        }
+        let bodies = order
+            .iter()
+            .map(|&b| Body {
+                id: new_id[b],
+                points: poses.bodies[b].points.clone(),
+                is_static: statics.contains(&b),
+                parent: tree.parent[b].map(|p| new_id[p]),
+                frames_registered: poses.bodies[b].n_registered(),
+            })
+            .collect();
+        let point_body = seg
+            .labels()
+            .iter()
+            .map(|l| l.map_or(-1, |b| new_id[b] as i64))
+            .collect();
+        let mut model_pairs: Vec<PairDof> = pairs.iter().map(renumber_pair).collect();
+        for p in &mut model_pairs {
+            if let Some(a) = p.a
+                && a > p.b
+            {
+                // Keep a < b in the new numbering; the ranks do not depend on the order.
+                p.a = Some(p.b);
+                p.b = a;
+            }
+        }
+        model_pairs.sort_by_key(|p| (p.a.map_or(0, |a| a + 1), p.b));
+        let chain = kinetree_structure::paper_chain(nb, &pairs)
+            .map(|c| c.iter().map(|&b| new_id[b]).collect());
+        let model = Model {
+            schema_version: SCHEMA_VERSION,
+            generator: format!("kinetree {}", env!("CARGO_PKG_VERSION")),
+            n_frames: tracks.n_frames(),
+            n_points: tracks.n_points(),
+            point_labels: tracks.labels().map(<[String]>::to_vec),
+            noise: NoiseInfo {
+                sigma_m: sigma,
+                distance_variance_m2: 2.0 * sigma * sigma,
+                source,
+            },
+            stages: StageNames {
+                dissimilarity: self.dissimilarity.name().into(),
+                clustering: self.clustering.name().into(),
+                pose: self.pose.name().into(),
+                dof: self.dof.name().into(),
+            },
+            point_body,
+            static_body: statics.first().map(|&s| new_id[s]),
+            root_body: new_id[tree.root],
+            bodies,
+            joints,
+            chain,
+            pairs: model_pairs,
+            warnings,
+        };
+        Ok((model, order))
+    }
+}

@@ -1,0 +1,220 @@
+//! Per-body reference shapes built from all frames, and the pose estimator on top of them.
+
+use crate::kabsch::{centroid, kabsch, rotation_std_per_sigma, spread};
+use kinetree_core::nalgebra::{Isometry3, Point3, Translation3};
+use kinetree_core::{
+    BodyPoses, BodyTrack, Error, PoseEstimator, PoseInput, PoseQuality, Result, Tracks,
+};
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`KabschPoses`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KabschParams {
+    /// Rounds of shape re-estimation (generalised Procrustes); each round can also place
+    /// points first seen together with already placed ones.
+    pub shape_passes: usize,
+    /// A frame's visible points must spread at least this many noise std-devs along their
+    /// second principal axis, else they count as collinear and the frame gets no pose.
+    pub min_spread_in_sigma: f64,
+}
+
+impl Default for KabschParams {
+    fn default() -> Self {
+        Self {
+            shape_passes: 4,
+            min_spread_in_sigma: 1.0,
+        }
+    }
+}
+
+impl KabschParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for zero passes or a negative spread.
+    pub fn validate(&self) -> Result<()> {
+        if self.shape_passes == 0 {
+            return Err(Error::InvalidParameter {
+                name: "shape_passes".into(),
+                message: "must be at least 1".into(),
+            });
+        }
+        if !(self.min_spread_in_sigma.is_finite() && self.min_spread_in_sigma >= 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "min_spread_in_sigma".into(),
+                message: format!("must be finite and >= 0, got {}", self.min_spread_in_sigma),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Kabsch-Umeyama poses against a per-body reference shape built from every frame.
+///
+/// The shape starts from the frame where the body shows the most points and is refined over
+/// `shape_passes` rounds: each frame with three or more placed, non-collinear visible points is
+/// registered to the current shape and its points, mapped back, are averaged. Any frame with
+/// three such points then gets a pose, even if it shares none with frame 0.
+///
+/// Reference-pose rule: the body frame has its origin at the shape's centroid and the camera's
+/// axes at the body's reference frame, which is frame 0 when the body can be registered there
+/// and otherwise the first frame where it can (so `cam_from_body` there is a pure translation,
+/// as the paper's `P_0 = P_1` choice).
+///
+/// Complexity: O(passes * T * n_b) per body.
+#[derive(Debug, Clone)]
+pub struct KabschPoses {
+    params: KabschParams,
+}
+
+impl KabschPoses {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: KabschParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+
+    fn body_track(&self, tracks: &Tracks, points: &[usize], sigma: f64) -> BodyTrack {
+        let t_len = tracks.n_frames();
+        let nb = points.len();
+        let obs: Vec<Vec<(usize, Point3<f64>)>> = (0..t_len)
+            .map(|t| {
+                points
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, &p)| tracks.get(t, p).map(|q| (k, q)))
+                    .collect()
+            })
+            .collect();
+        let min_spread = self.params.min_spread_in_sigma * sigma;
+        let usable = |pts: &[Point3<f64>]| pts.len() >= 3 && spread(pts)[1] > min_spread.max(1e-12);
+        let mut order: Vec<usize> = (0..t_len).collect();
+        order.sort_by_key(|&t| std::cmp::Reverse(obs[t].len()));
+        // Initial shape: the first frame (most points) whose points are usable.
+        let mut shape: Vec<Option<Point3<f64>>> = vec![None; nb];
+        if let Some(&t0) = order.iter().find(|&&t| {
+            usable(&obs[t].iter().map(|o| o.1).collect::<Vec<_>>())
+        }) {
+            for &(k, q) in &obs[t0] {
+                shape[k] = Some(q);
+            }
+        }
+        let fit = |shape: &[Option<Point3<f64>>], t: usize| -> Option<Isometry3<f64>> {
+            let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = obs[t]
+                .iter()
+                .filter_map(|&(k, q)| shape[k].map(|s| (s, q)))
+                .unzip();
+            if !usable(&src) {
+                return None;
+            }
+            kabsch(&src, &dst)
+        };
+        for _ in 0..self.params.shape_passes {
+            let mut sums = vec![kinetree_core::nalgebra::Vector3::zeros(); nb];
+            let mut counts = vec![0usize; nb];
+            for &t in &order {
+                if let Some(pose) = fit(&shape, t) {
+                    let inv = pose.inverse();
+                    for &(k, q) in &obs[t] {
+                        sums[k] += (inv * q).coords;
+                        counts[k] += 1;
+                    }
+                }
+            }
+            for k in 0..nb {
+                if counts[k] > 0 {
+                    shape[k] = Some(Point3::from(sums[k] / counts[k] as f64));
+                }
+            }
+        }
+        let placed: Vec<Point3<f64>> = shape.iter().flatten().copied().collect();
+        let mut poses: Vec<Option<Isometry3<f64>>> = (0..t_len).map(|t| fit(&shape, t)).collect();
+        let reference_frame = poses.iter().position(Option::is_some).unwrap_or(0);
+        // Re-express the shape in the body frame: camera axes at the reference frame, origin at
+        // the centroid of the placed points.
+        let mut body_shape = vec![Point3::origin(); nb];
+        if let Some(p_ref) = poses[reference_frame] {
+            let c = centroid(&placed.iter().map(|s| p_ref * s).collect::<Vec<_>>());
+            let body_from_shape = Translation3::from(-c.coords) * p_ref;
+            for k in 0..nb {
+                if let Some(s) = shape[k] {
+                    body_shape[k] = body_from_shape * s;
+                }
+            }
+            let shape_from_body = body_from_shape.inverse();
+            for p in poses.iter_mut().flatten() {
+                *p *= shape_from_body;
+            }
+        }
+        let mut quality = vec![None; t_len];
+        let (mut too_few, mut degenerate) = (0, 0);
+        for t in 0..t_len {
+            let vis: Vec<(Point3<f64>, Point3<f64>)> = obs[t]
+                .iter()
+                .filter(|(k, _)| shape[*k].is_some())
+                .map(|&(k, q)| (body_shape[k], q))
+                .collect();
+            let Some(pose) = poses[t] else {
+                if vis.len() < 3 {
+                    too_few += 1;
+                } else {
+                    degenerate += 1;
+                }
+                continue;
+            };
+            let src: Vec<Point3<f64>> = vis.iter().map(|v| v.0).collect();
+            let n = src.len() as f64;
+            let rms = (vis.iter().map(|(s, q)| (pose * s - q).norm_squared()).sum::<f64>() / n).sqrt();
+            let rot = rotation_std_per_sigma(&src);
+            let c_vis = centroid(&src).coords.norm();
+            quality[t] = Some(PoseQuality {
+                n_visible: vis.len(),
+                rms_residual_m: rms,
+                rot_std_per_sigma: rot,
+                trans_std_per_sigma: (1.0 / n + (rot * c_vis).powi(2)).sqrt(),
+            });
+        }
+        BodyTrack {
+            points: points.to_vec(),
+            shape: body_shape,
+            reference_frame,
+            cam_from_body: poses,
+            quality,
+            frames_too_few_points: too_few,
+            frames_degenerate: degenerate,
+        }
+    }
+}
+
+impl PoseEstimator for KabschPoses {
+    fn name(&self) -> &str {
+        "kabsch"
+    }
+
+    fn estimate(&self, input: &PoseInput<'_>) -> Result<BodyPoses> {
+        let seg = input.segmentation;
+        if seg.n_points() != input.tracks.n_points() {
+            return Err(Error::Shape {
+                expected: format!("segmentation of {} points", input.tracks.n_points()),
+                found: format!("{} points", seg.n_points()),
+            });
+        }
+        if !(input.noise_sigma_m.is_finite() && input.noise_sigma_m >= 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "noise_sigma_m".into(),
+                message: format!("must be finite and >= 0, got {}", input.noise_sigma_m),
+            });
+        }
+        let bodies = seg
+            .members()
+            .iter()
+            .map(|pts| self.body_track(input.tracks, pts, input.noise_sigma_m))
+            .collect();
+        Ok(BodyPoses {
+            n_frames: input.tracks.n_frames(),
+            bodies,
+        })
+    }
+}

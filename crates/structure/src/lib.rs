@@ -1,0 +1,188 @@
+//! Kinematic structure: the DoF graph over bodies and the camera, the paper's chain
+//! extraction, a spanning tree rooted at the static body, joints and their positions.
+
+use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
+use kinetree_core::{BodyPoses, JointKind, PairDof};
+use petgraph::graph::{NodeIndex, UnGraph};
+
+/// A node of the DoF graph.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameNode {
+    /// The camera frame (the paper's F0).
+    Camera,
+    /// A body, by segmentation id.
+    Body(usize),
+}
+
+/// The DoF graph: node 0 is the camera, node `k + 1` body `k`; each tested pair is an edge
+/// whose weight indexes into `pairs`.
+pub fn dof_graph(n_bodies: usize, pairs: &[PairDof]) -> UnGraph<FrameNode, usize> {
+    let mut g = UnGraph::with_capacity(n_bodies + 1, pairs.len());
+    g.add_node(FrameNode::Camera);
+    for b in 0..n_bodies {
+        g.add_node(FrameNode::Body(b));
+    }
+    for (i, p) in pairs.iter().enumerate() {
+        let a = p.a.map_or(0, |a| a + 1);
+        g.add_edge(NodeIndex::new(a), NodeIndex::new(p.b + 1), i);
+    }
+    g
+}
+
+fn find_pair(pairs: &[PairDof], a: Option<usize>, b: usize) -> Option<&PairDof> {
+    pairs
+        .iter()
+        .find(|p| (p.a == a && p.b == b) || (a.is_some() && p.a == Some(b) && Some(p.b) == a))
+}
+
+/// Bodies with no motion relative to the camera.
+pub fn static_bodies(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
+    (0..n_bodies)
+        .filter(|&b| find_pair(pairs, None, b).is_some_and(|p| p.dof == 0))
+        .collect()
+}
+
+/// The paper's chain extraction (Sec. III-B): start from a body with `f_0l = 0` (or, without
+/// one, from the camera), then repeatedly step to the one unused body with a single DoF to
+/// the current one. Returns the chain of bodies when it covers them all and every step was
+/// unambiguous, `None` otherwise (a tree, or a structure this rule cannot order).
+pub fn paper_chain(n_bodies: usize, pairs: &[PairDof]) -> Option<Vec<usize>> {
+    let statics = static_bodies(n_bodies, pairs);
+    let mut chain = Vec::new();
+    let mut current: Option<usize> = None;
+    if let [s] = statics[..] {
+        chain.push(s);
+        current = Some(s);
+    } else if statics.len() > 1 {
+        return None;
+    }
+    while chain.len() < n_bodies {
+        let next: Vec<usize> = (0..n_bodies)
+            .filter(|b| !chain.contains(b))
+            .filter(|&b| find_pair(pairs, current, b).is_some_and(|p| p.dof == 1))
+            .collect();
+        let [b] = next[..] else { return None };
+        chain.push(b);
+        current = Some(b);
+    }
+    Some(chain)
+}
+
+/// The kinematic tree over bodies.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tree {
+    /// The root body.
+    pub root: usize,
+    /// Whether the root is static relative to the camera.
+    pub root_is_static: bool,
+    /// Parent of every body (`None` for the root and for bodies no test links to the rest).
+    pub parent: Vec<Option<usize>>,
+    /// Bodies in breadth-first order from the root (children by ascending id), then any
+    /// unlinked bodies.
+    pub order: Vec<usize>,
+}
+
+/// Edge cost for the spanning tree: single-DoF joints first, the clearest fits first.
+fn edge_cost(p: &PairDof) -> f64 {
+    let single = matches!(p.joint, JointKind::Revolute { .. } | JointKind::Prismatic { .. });
+    if single {
+        1.0 + p.fit_ratio.min(0.999)
+    } else {
+        1.0 + p.dof.max(1) as f64
+    }
+}
+
+/// Spanning tree over bodies rooted at the static body (the lowest-numbered one if several);
+/// without a static body, at the body whose motion relative to the camera is smallest.
+/// Prefers single-DoF edges with the best fit (minimum spanning tree on [`edge_cost`]-style
+/// costs, computed by petgraph's Kruskal).
+pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
+    if n_bodies == 0 {
+        return None;
+    }
+    let statics = static_bodies(n_bodies, pairs);
+    let (root, root_is_static) = match statics.first() {
+        Some(&s) => (s, true),
+        None => {
+            let motion = |b: usize| {
+                find_pair(pairs, None, b).map_or(f64::INFINITY, |p| {
+                    p.translation.whitened.iter().chain(&p.rotation.whitened).sum::<f64>()
+                })
+            };
+            let r = (0..n_bodies).min_by(|&x, &y| motion(x).total_cmp(&motion(y)))?;
+            (r, false)
+        }
+    };
+    let mut g: UnGraph<usize, f64> = UnGraph::with_capacity(n_bodies, pairs.len());
+    for b in 0..n_bodies {
+        g.add_node(b);
+    }
+    for p in pairs {
+        if let Some(a) = p.a {
+            g.add_edge(NodeIndex::new(a), NodeIndex::new(p.b), edge_cost(p));
+        }
+    }
+    let mst = petgraph::algo::min_spanning_tree(&g);
+    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n_bodies];
+    for e in mst {
+        if let petgraph::data::Element::Edge { source, target, .. } = e {
+            adj[source].push(target);
+            adj[target].push(source);
+        }
+    }
+    for a in &mut adj {
+        a.sort_unstable();
+    }
+    let mut parent = vec![None; n_bodies];
+    let mut seen = vec![false; n_bodies];
+    let mut order = vec![root];
+    seen[root] = true;
+    let mut i = 0;
+    while i < order.len() {
+        let u = order[i];
+        for &v in &adj[u] {
+            if !seen[v] {
+                seen[v] = true;
+                parent[v] = Some(u);
+                order.push(v);
+            }
+        }
+        i += 1;
+    }
+    order.extend((0..n_bodies).filter(|&b| !seen[b]));
+    Some(Tree {
+        root,
+        root_is_static,
+        parent,
+        order,
+    })
+}
+
+/// Joint positions of `pair.b` relative to `pair.a` at every frame, zero at the first frame
+/// where both have a pose (returned as the second value): revolute angles in radians,
+/// unwrapped through pi; prismatic displacements in metres along the axis; `None` where
+/// either body has no pose or the joint is not single-DoF.
+pub fn joint_positions(poses: &BodyPoses, pair: &PairDof) -> (Vec<Option<f64>>, Option<usize>) {
+    let x = relative_poses(poses, pair.a, pair.b);
+    let Some(first) = x.iter().position(Option::is_some) else {
+        return (vec![None; poses.n_frames], None);
+    };
+    let Some(x0) = x[first] else {
+        return (vec![None; poses.n_frames], None);
+    };
+    let mut out: Vec<Option<f64>> = match &pair.joint {
+        JointKind::Revolute { axis, .. } => x
+            .iter()
+            .map(|xk| xk.map(|xk| angle_about(&(xk.rotation * x0.rotation.inverse()), axis)))
+            .collect(),
+        JointKind::Prismatic { axis } => x
+            .iter()
+            .map(|xk| xk.map(|xk| axis.dot(&(xk.translation.vector - x0.translation.vector))))
+            .collect(),
+        _ => vec![None; poses.n_frames],
+    };
+    if matches!(pair.joint, JointKind::Revolute { .. }) {
+        unwrap_angles(&mut out);
+    }
+    (out, Some(first))
+}

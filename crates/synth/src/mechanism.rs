@@ -1,0 +1,163 @@
+//! Mechanisms: boxes joined by a tree of revolute and prismatic joints.
+
+use kinetree_core::{Error, Result};
+use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// An axis-aligned box in its body's frame (world coordinates at the zero configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BoxShape {
+    /// Centre, metres.
+    pub centre: [f64; 3],
+    /// Half extents along x, y, z, metres.
+    pub half_extents: [f64; 3],
+}
+
+impl BoxShape {
+    /// The eight corners, in binary order of (x, y, z) signs (- before +).
+    pub fn corners(&self) -> [Point3<f64>; 8] {
+        let c = Vector3::from(self.centre);
+        let h = Vector3::from(self.half_extents);
+        std::array::from_fn(|k| {
+            let s = Vector3::new(
+                if k & 4 == 0 { -1.0 } else { 1.0 },
+                if k & 2 == 0 { -1.0 } else { 1.0 },
+                if k & 1 == 0 { -1.0 } else { 1.0 },
+            );
+            Point3::from(c + s.component_mul(&h))
+        })
+    }
+
+    /// Entry parameter of the segment `o + s d`, `s` in `[0, 1]`, into the box shrunk by
+    /// `shrink`; `None` when the segment misses it.
+    pub fn segment_entry(&self, o: &Point3<f64>, d: &Vector3<f64>, shrink: f64) -> Option<f64> {
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for i in 0..3 {
+            let min = self.centre[i] - self.half_extents[i] + shrink;
+            let max = self.centre[i] + self.half_extents[i] - shrink;
+            if d[i].abs() < 1e-15 {
+                if o[i] < min || o[i] > max {
+                    return None;
+                }
+                continue;
+            }
+            let (mut a, mut b) = ((min - o[i]) / d[i], (max - o[i]) / d[i]);
+            if a > b {
+                std::mem::swap(&mut a, &mut b);
+            }
+            lo = lo.max(a);
+            hi = hi.min(b);
+            if lo > hi {
+                return None;
+            }
+        }
+        Some(lo)
+    }
+}
+
+/// One rigid body.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BodySpec {
+    /// Name for reports.
+    pub name: String,
+    /// Its shape.
+    pub shape: BoxShape,
+    /// Corners left without a keypoint (indices 0-7 as in [`BoxShape::corners`]).
+    #[serde(default)]
+    pub skip_corners: Vec<usize>,
+    /// Extra keypoints at random places on the box surface.
+    #[serde(default)]
+    pub extra_points: usize,
+}
+
+/// Joint type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JointType {
+    /// Rotation about the axis through the anchor.
+    Revolute,
+    /// Translation along the axis.
+    Prismatic,
+}
+
+/// A single-DoF joint; axis and anchor in world coordinates at the zero configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct JointSpec {
+    /// Parent body index.
+    pub parent: usize,
+    /// Child body index.
+    pub child: usize,
+    /// Joint type.
+    #[serde(rename = "type")]
+    pub joint_type: JointType,
+    /// Axis direction (normalised on use).
+    pub axis: [f64; 3],
+    /// A point on the axis (revolute), metres.
+    pub anchor: [f64; 3],
+}
+
+/// A mechanism: body 0 is the base; joints form a tree over the bodies.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Mechanism {
+    /// Bodies.
+    pub bodies: Vec<BodySpec>,
+    /// Joints, each child appearing once, parents before children.
+    pub joints: Vec<JointSpec>,
+}
+
+impl Mechanism {
+    /// Checks that the joints form a tree rooted at body 0 with parents listed first.
+    ///
+    /// # Errors
+    /// [`Error::Config`] naming the first problem.
+    pub fn validate(&self) -> Result<()> {
+        let n = self.bodies.len();
+        if n == 0 {
+            return Err(Error::Config("a mechanism needs at least one body".into()));
+        }
+        if self.joints.len() != n - 1 {
+            return Err(Error::Config(format!(
+                "{n} bodies need {} joints, found {}",
+                n - 1,
+                self.joints.len()
+            )));
+        }
+        let mut placed = vec![false; n];
+        placed[0] = true;
+        for (k, j) in self.joints.iter().enumerate() {
+            if j.parent >= n || j.child >= n || !placed[j.parent] || placed[j.child] {
+                return Err(Error::Config(format!(
+                    "joint {k} ({} -> {}) must attach a new child to an earlier body",
+                    j.parent, j.child
+                )));
+            }
+            if Vector3::from(j.axis).norm() < 1e-12 {
+                return Err(Error::Config(format!("joint {k} has a zero axis")));
+            }
+            placed[j.child] = true;
+        }
+        Ok(())
+    }
+
+    /// `world_from_body` for every body at joint positions `q` (radians or metres).
+    pub fn forward(&self, q: &[f64]) -> Vec<Isometry3<f64>> {
+        let mut pose = vec![Isometry3::identity(); self.bodies.len()];
+        for (j, qj) in self.joints.iter().zip(q) {
+            let axis = Unit::new_normalize(Vector3::from(j.axis));
+            let local = match j.joint_type {
+                JointType::Revolute => {
+                    let a = Vector3::from(j.anchor);
+                    Translation3::from(a)
+                        * UnitQuaternion::from_axis_angle(&axis, *qj)
+                        * Translation3::from(-a)
+                }
+                JointType::Prismatic => Isometry3::from_parts(
+                    Translation3::from(axis.into_inner() * *qj),
+                    UnitQuaternion::identity(),
+                ),
+            };
+            pose[j.child] = pose[j.parent] * local;
+        }
+        pose
+    }
+}

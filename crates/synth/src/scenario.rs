@@ -1,0 +1,293 @@
+//! Scenarios: a mechanism, joint trajectories, a camera, occlusion and noise, from a seed.
+
+use crate::mechanism::{JointType, Mechanism};
+use kinetree_core::{Error, Result, Tracks};
+use nalgebra::{Isometry3, Point3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+
+/// A joint's position over time; `t` in seconds from the first frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Trajectory {
+    /// Constant acceleration from rest: `final_value * (t / duration)^2` (a constant torque).
+    Quadratic {
+        /// Position at the last frame.
+        final_value: f64,
+    },
+    /// `offset + amplitude * sin(2 pi frequency_hz t + phase_rad)`.
+    Sine {
+        /// Offset.
+        offset: f64,
+        /// Amplitude.
+        amplitude: f64,
+        /// Frequency, hertz.
+        frequency_hz: f64,
+        /// Phase, radians.
+        phase_rad: f64,
+    },
+}
+
+impl Trajectory {
+    /// Position at time `t` of a sequence lasting `duration` seconds.
+    pub fn at(&self, t: f64, duration: f64) -> f64 {
+        match *self {
+            Trajectory::Quadratic { final_value } => final_value * (t / duration).powi(2),
+            Trajectory::Sine {
+                offset,
+                amplitude,
+                frequency_hz,
+                phase_rad,
+            } => offset + amplitude * (std::f64::consts::TAU * frequency_hz * t + phase_rad).sin(),
+        }
+    }
+}
+
+/// A pinhole camera looking from `eye` at `target`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    /// Camera centre in world coordinates, metres.
+    pub eye: [f64; 3],
+    /// Point looked at.
+    pub target: [f64; 3],
+    /// World direction that appears up.
+    pub up: [f64; 3],
+    /// Full horizontal field of view, degrees.
+    pub fov_h_deg: f64,
+    /// Full vertical field of view, degrees.
+    pub fov_v_deg: f64,
+}
+
+impl Camera {
+    /// `camera_from_world`: x right, y down, z forward (the usual computer-vision axes).
+    pub fn cam_from_world(&self) -> Isometry3<f64> {
+        let eye = Point3::from(self.eye);
+        let target = Point3::from(self.target);
+        let z = (target - eye).normalize();
+        let x = z.cross(&Vector3::from(self.up)).normalize();
+        let y = z.cross(&x);
+        let r = nalgebra::Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
+        let rot = nalgebra::UnitQuaternion::from_matrix(&r);
+        let t = -(rot * eye.coords);
+        Isometry3::from_parts(t.into(), rot)
+    }
+}
+
+/// Everything needed to simulate one data set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Scenario {
+    /// The mechanism.
+    pub mechanism: Mechanism,
+    /// One trajectory per joint.
+    pub trajectories: Vec<Trajectory>,
+    /// Number of frames.
+    pub n_frames: usize,
+    /// Frame rate, hertz.
+    pub frame_rate_hz: f64,
+    /// The camera.
+    pub camera: Camera,
+    /// Per-coordinate Gaussian noise std-dev, metres.
+    pub noise_sigma_m: f64,
+    /// Extra random occlusion: the fraction of (frame, point) observations dropped, in bursts
+    /// of 5 frames on average, on top of self-occlusion and the field of view.
+    pub dropout: f64,
+    /// Seed of every random choice.
+    pub seed: u64,
+}
+
+/// The truth behind a simulated data set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroundTruth {
+    /// Body of every keypoint.
+    pub point_body: Vec<usize>,
+    /// Joint positions, `[joint][frame]`.
+    pub joint_positions: Vec<Vec<f64>>,
+    /// The mechanism.
+    pub mechanism: Mechanism,
+    /// `camera_from_world`.
+    pub cam_from_world: Isometry3<f64>,
+    /// Fraction of observations occluded.
+    pub occluded_fraction: f64,
+}
+
+impl GroundTruth {
+    /// Joint `j`'s unit axis in the camera frame at `frame`.
+    pub fn axis_in_camera(&self, j: usize, frame: usize) -> Vector3<f64> {
+        let q: Vec<f64> = self.joint_positions.iter().map(|p| p[frame]).collect();
+        let poses = self.mechanism.forward(&q);
+        let spec = &self.mechanism.joints[j];
+        (self.cam_from_world * poses[spec.parent] * Vector3::from(spec.axis)).normalize()
+    }
+
+    /// A point on joint `j`'s axis in the camera frame at `frame`.
+    pub fn anchor_in_camera(&self, j: usize, frame: usize) -> Point3<f64> {
+        let q: Vec<f64> = self.joint_positions.iter().map(|p| p[frame]).collect();
+        let poses = self.mechanism.forward(&q);
+        let spec = &self.mechanism.joints[j];
+        self.cam_from_world * poses[spec.parent] * Point3::from(spec.anchor)
+    }
+
+    /// Number of bodies.
+    pub fn n_bodies(&self) -> usize {
+        self.mechanism.bodies.len()
+    }
+}
+
+/// A simulated data set.
+#[derive(Debug, Clone)]
+pub struct SynthData {
+    /// Noisy, occluded keypoint tracks in the camera frame.
+    pub tracks: Tracks,
+    /// The truth.
+    pub truth: GroundTruth,
+}
+
+/// Keypoints of every body (world coordinates at zero configuration) and their body.
+fn keypoints(m: &Mechanism, rng: &mut ChaCha8Rng) -> (Vec<Point3<f64>>, Vec<usize>) {
+    let mut pts = Vec::new();
+    let mut body = Vec::new();
+    for (b, spec) in m.bodies.iter().enumerate() {
+        for (k, c) in spec.shape.corners().iter().enumerate() {
+            if !spec.skip_corners.contains(&k) {
+                pts.push(*c);
+                body.push(b);
+            }
+        }
+        let h = Vector3::from(spec.shape.half_extents);
+        for _ in 0..spec.extra_points {
+            // A random point on a random face.
+            let axis = rng.random_range(0..3);
+            let mut u = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            u[axis] = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            pts.push(Point3::from(Vector3::from(spec.shape.centre) + u.component_mul(&h)));
+            body.push(b);
+        }
+    }
+    (pts, body)
+}
+
+/// Simulates a scenario: forward kinematics, visibility by ray casting against every box and
+/// the field of view, burst dropout, then Gaussian noise.
+///
+/// # Errors
+/// [`Error::Config`] for an invalid mechanism or mismatched trajectories, and the errors of
+/// [`Tracks::new`] (for example when nothing is visible).
+pub fn simulate(s: &Scenario) -> Result<SynthData> {
+    s.mechanism.validate()?;
+    if s.trajectories.len() != s.mechanism.joints.len() {
+        return Err(Error::Config(format!(
+            "{} joints need {} trajectories, found {}",
+            s.mechanism.joints.len(),
+            s.mechanism.joints.len(),
+            s.trajectories.len()
+        )));
+    }
+    if !(s.frame_rate_hz > 0.0 && s.noise_sigma_m >= 0.0 && (0.0..1.0).contains(&s.dropout)) {
+        return Err(Error::Config(
+            "frame_rate_hz must be > 0, noise_sigma_m >= 0 and dropout in [0, 1)".into(),
+        ));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
+    let (pts, point_body) = keypoints(&s.mechanism, &mut rng);
+    let n = pts.len();
+    let duration = (s.n_frames.max(2) - 1) as f64 / s.frame_rate_hz;
+    let joint_positions: Vec<Vec<f64>> = s
+        .trajectories
+        .iter()
+        .map(|tr| {
+            (0..s.n_frames)
+                .map(|k| tr.at(k as f64 / s.frame_rate_hz, duration))
+                .collect()
+        })
+        .collect();
+    let cam = s.camera.cam_from_world();
+    let eye = Point3::from(s.camera.eye);
+    let (tan_h, tan_v) = (
+        (s.camera.fov_h_deg.to_radians() / 2.0).tan(),
+        (s.camera.fov_v_deg.to_radians() / 2.0).tan(),
+    );
+    let noise = Normal::new(0.0, s.noise_sigma_m.max(0.0))
+        .map_err(|e| Error::Config(format!("noise: {e}")))?;
+    let p_exit = 0.2;
+    let p_enter = if s.dropout > 0.0 {
+        (s.dropout * p_exit / (1.0 - s.dropout)).min(1.0)
+    } else {
+        0.0
+    };
+    let mut dropped = vec![false; n];
+    for d in &mut dropped {
+        *d = rng.random_bool(s.dropout);
+    }
+    let mut frames = Vec::with_capacity(s.n_frames);
+    for k in 0..s.n_frames {
+        let q: Vec<f64> = joint_positions.iter().map(|p| p[k]).collect();
+        let poses = s.mechanism.forward(&q);
+        let body_from_world: Vec<Isometry3<f64>> = poses.iter().map(|p| p.inverse()).collect();
+        let mut frame = Vec::with_capacity(n);
+        for i in 0..n {
+            if k > 0 {
+                let flip = if dropped[i] { p_exit } else { p_enter };
+                if rng.random_bool(flip) {
+                    dropped[i] = !dropped[i];
+                }
+            }
+            let world = poses[point_body[i]] * pts[i];
+            let pc = cam * world;
+            let in_view = pc.z > 1e-6 && (pc.x / pc.z).abs() <= tan_h && (pc.y / pc.z).abs() <= tan_v;
+            let occluded = in_view
+                && s.mechanism.bodies.iter().enumerate().any(|(b, spec)| {
+                    let o = body_from_world[b] * eye;
+                    let d = body_from_world[b] * world - o;
+                    spec.shape
+                        .segment_entry(&o, &d, 1e-7)
+                        .is_some_and(|e| e < 1.0 - 1e-9)
+                });
+            let noisy = Point3::new(
+                pc.x + noise.sample(&mut rng),
+                pc.y + noise.sample(&mut rng),
+                pc.z + noise.sample(&mut rng),
+            );
+            frame.push((in_view && !occluded && !dropped[i]).then_some(noisy));
+        }
+        frames.push(frame);
+    }
+    let tracks = Tracks::from_points(&frames)?.with_frame_rate(s.frame_rate_hz)?;
+    let occluded_fraction = tracks.occluded_fraction();
+    Ok(SynthData {
+        tracks,
+        truth: GroundTruth {
+            point_body,
+            joint_positions,
+            mechanism: s.mechanism.clone(),
+            cam_from_world: cam,
+            occluded_fraction,
+        },
+    })
+}
+
+/// Axis-angle helper for random unit vectors.
+pub(crate) fn random_unit(rng: &mut ChaCha8Rng) -> Vector3<f64> {
+    loop {
+        let v = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        let n = v.norm();
+        if n > 0.2 && n <= 1.0 {
+            return v / n;
+        }
+    }
+}
+
+/// Whether a joint type moves in radians (revolute) or metres (prismatic).
+pub fn is_angular(t: JointType) -> bool {
+    t == JointType::Revolute
+}
