@@ -1,7 +1,9 @@
 //! Clustering of points into rigid bodies, each method a [`kinetree_core::Clustering`].
 
 mod hierarchical;
+mod reassign;
 mod unknown;
 
 pub use hierarchical::{Hierarchical, HierarchicalParams, Linkage};
+pub use reassign::reassign_points;
 pub use unknown::fill_unknown;

@@ -48,6 +48,8 @@ pub struct Discovery {
 
 /// How many times rigidly co-moving bodies are merged and the poses redone.
 const MAX_MERGE_ROUNDS: usize = 3;
+/// Observed pairs a point needs with a body to be judged against it.
+const REASSIGN_MIN_PAIRS: usize = 2;
 /// Noise re-estimation rounds after segmentation.
 const NOISE_ROUNDS: usize = 2;
 
@@ -85,6 +87,7 @@ impl Pipeline {
             dissimilarity: &d,
             seed: self.seed,
         })?;
+        let s = kinetree_clustering::reassign_points(&d, &s, d.suggested_cut, REASSIGN_MIN_PAIRS);
         Ok((d, s))
     }
 
