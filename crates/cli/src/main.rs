@@ -11,7 +11,11 @@ use kinetree_pipeline::{
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Parser)]
-#[command(name = "kinetree", version, about = "Discover rigid bodies, joints and kinematic trees from tracked 3D keypoints")]
+#[command(
+    name = "kinetree",
+    version,
+    about = "Discover rigid bodies, joints and kinematic trees from tracked 3D keypoints"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -88,9 +92,14 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
     })?;
     let outcome = run_experiment(&cfg, &base)?;
     let model = &outcome.discovery.model;
-    println!("experiment {}: {}", cfg.experiment.name, cfg.experiment.description);
+    println!(
+        "experiment {}: {}",
+        cfg.experiment.name, cfg.experiment.description
+    );
     print!("{}", summary(model));
-    println!("\nTable I: non-zero singular values of translation (T, m), rotation (R, rad) and centre (C, m)");
+    println!(
+        "\nTable I: non-zero singular values of translation (T, m), rotation (R, rad) and centre (C, m)"
+    );
     print!("{}", table_text(model));
     if let Some(e) = &outcome.evaluation {
         println!(
@@ -103,7 +112,8 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
                 j.joint,
                 j.found,
                 j.type_ok,
-                j.axis_error_deg.map_or("-".into(), |v| format!("{v:.3} deg")),
+                j.axis_error_deg
+                    .map_or("-".into(), |v| format!("{v:.3} deg")),
                 j.position_rms.map_or("-".into(), |v| format!("{v:.4}"))
             );
         }
@@ -126,7 +136,8 @@ fn main() -> Result<()> {
         } => {
             let mut cfg = match &pipeline {
                 Some(p) => {
-                    let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+                    let text = std::fs::read_to_string(p)
+                        .with_context(|| format!("reading {}", p.display()))?;
                     toml_pipeline(&text).with_context(|| format!("in {}", p.display()))?
                 }
                 None => PipelineConfig::default(),
@@ -172,7 +183,8 @@ fn main() -> Result<()> {
                 other => bail!("unknown mechanism `{other}`; use paper-arm or random"),
             };
             let (tracks, truth) = kinetree_pipeline::load_data(&data, Path::new("."))?;
-            std::fs::create_dir_all(&output).with_context(|| format!("creating {}", output.display()))?;
+            std::fs::create_dir_all(&output)
+                .with_context(|| format!("creating {}", output.display()))?;
             kinetree_io::write_npy(&output.join("tracks.npy"), &tracks)?;
             kinetree_io::write_csv(&output.join("tracks.csv"), &tracks)?;
             if let Some(t) = truth {

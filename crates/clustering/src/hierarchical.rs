@@ -83,7 +83,10 @@ impl HierarchicalParams {
         if self.min_points < MIN_BODY_POINTS {
             return Err(Error::InvalidParameter {
                 name: "min_points".into(),
-                message: format!("must be at least {MIN_BODY_POINTS}, got {}", self.min_points),
+                message: format!(
+                    "must be at least {MIN_BODY_POINTS}, got {}",
+                    self.min_points
+                ),
             });
         }
         Ok(())

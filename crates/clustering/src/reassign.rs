@@ -13,7 +13,12 @@ use kinetree_core::{DissimilarityMatrix, MIN_BODY_POINTS, Segmentation};
 /// left with fewer than three points are discarded.
 ///
 /// Complexity: O(N^2) per round.
-pub fn reassign_points(m: &DissimilarityMatrix, seg: &Segmentation, cut: f64, min_pairs: usize) -> Segmentation {
+pub fn reassign_points(
+    m: &DissimilarityMatrix,
+    seg: &Segmentation,
+    cut: f64,
+    min_pairs: usize,
+) -> Segmentation {
     let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
     let nb = seg.n_bodies();
     for _ in 0..2 {
@@ -45,7 +50,7 @@ pub fn reassign_points(m: &DissimilarityMatrix, seg: &Segmentation, cut: f64, mi
     }
     let mut out = Segmentation::from_raw(&labels, MIN_BODY_POINTS);
     let mut groups = seg.discarded_groups.clone();
-    groups.extend(out.discarded_groups.drain(..));
+    groups.append(&mut out.discarded_groups);
     let moved: Vec<usize> = (0..labels.len())
         .filter(|&i| seg.labels()[i].is_some() && out.labels()[i].is_none())
         .collect();

@@ -46,7 +46,9 @@ pub enum Error {
         found: String,
     },
     /// Some but not all of a point's three coordinates are NaN.
-    #[error("frame {frame}, point {point}: partly NaN coordinates (all three must be NaN for an occluded point)")]
+    #[error(
+        "frame {frame}, point {point}: partly NaN coordinates (all three must be NaN for an occluded point)"
+    )]
     PartialNan {
         /// Frame index (0-based).
         frame: usize,

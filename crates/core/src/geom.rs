@@ -54,7 +54,11 @@ pub fn cam_from(poses: &BodyPoses, a: Option<usize>, frame: usize) -> Option<Iso
 
 /// `a_from_b` at every frame: the pose of body `b` in frame `a`'s body frame, `None` where
 /// either is not registered.
-pub fn relative_poses(poses: &BodyPoses, a: Option<usize>, b: usize) -> Vec<Option<Isometry3<f64>>> {
+pub fn relative_poses(
+    poses: &BodyPoses,
+    a: Option<usize>,
+    b: usize,
+) -> Vec<Option<Isometry3<f64>>> {
     (0..poses.n_frames)
         .map(|t| {
             let ca = cam_from(poses, a, t)?;
@@ -78,12 +82,17 @@ pub fn relative_motion(
 ) -> Option<Vec<Option<Isometry3<f64>>>> {
     let x = relative_poses(poses, a, b);
     let x_ref_inv = x.get(reference_frame).copied().flatten()?.inverse();
-    Some(x.into_iter().map(|xk| xk.map(|xk| xk * x_ref_inv)).collect())
+    Some(
+        x.into_iter()
+            .map(|xk| xk.map(|xk| xk * x_ref_inv))
+            .collect(),
+    )
 }
 
 /// First frame at which both `a` and `b` are registered.
 pub fn first_common_frame(poses: &BodyPoses, a: Option<usize>, b: usize) -> Option<usize> {
-    (0..poses.n_frames).find(|&t| cam_from(poses, a, t).is_some() && cam_from(poses, Some(b), t).is_some())
+    (0..poses.n_frames)
+        .find(|&t| cam_from(poses, a, t).is_some() && cam_from(poses, Some(b), t).is_some())
 }
 
 /// Flips `v` so that its component of largest magnitude is positive (a deterministic sign for

@@ -143,9 +143,9 @@ pub struct Model {
 impl Model {
     /// The test between `a` (camera when `None`) and `b`, in either order for bodies.
     pub fn pair(&self, a: Option<usize>, b: usize) -> Option<&PairDof> {
-        self.pairs.iter().find(|p| {
-            (p.a == a && p.b == b) || (a.is_some() && p.a == Some(b) && Some(p.b) == a)
-        })
+        self.pairs
+            .iter()
+            .find(|p| (p.a == a && p.b == b) || (a.is_some() && p.a == Some(b) && Some(p.b) == a))
     }
 
     /// The joint whose child is `child`.
@@ -153,4 +153,3 @@ impl Model {
         self.joints.iter().find(|j| j.child == child)
     }
 }
-

@@ -83,7 +83,11 @@ impl std::fmt::Display for Warning {
                 "{count} point pairs were never seen together twice; their dissimilarity was inferred through third points"
             ),
             Warning::ClusterDiscarded { points } => {
-                write!(f, "cluster of {} point(s) {points:?} is too small for a pose; discarded", points.len())
+                write!(
+                    f,
+                    "cluster of {} point(s) {points:?} is too small for a pose; discarded",
+                    points.len()
+                )
             }
             Warning::BodyDropped { points, reason } => {
                 write!(f, "body with points {points:?} dropped: {reason}")
@@ -92,7 +96,11 @@ impl std::fmt::Display for Warning {
                 write!(f, "body {body} has no pose in {frames} frame(s)")
             }
             Warning::BodiesMerged { groups } => {
-                write!(f, "{} bodies moved rigidly together and were merged: {groups:?}", groups.len())
+                write!(
+                    f,
+                    "{} bodies moved rigidly together and were merged: {groups:?}",
+                    groups.len()
+                )
             }
             Warning::NoStaticBody { root } => write!(
                 f,

@@ -7,8 +7,6 @@ mod measures;
 mod noise;
 mod stats;
 
-pub use measures::{
-    DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams, f_test_q,
-};
+pub use measures::{DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams, f_test_q};
 pub use noise::{estimate_noise_sigma, refine_noise_sigma};
 pub use stats::pair_stats;

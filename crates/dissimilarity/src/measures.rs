@@ -1,8 +1,6 @@
 //! Dissimilarity measures: the paper's F-test q, and the distance std-dev and variance.
 
-use kinetree_core::{
-    Dissimilarity, DissimilarityInput, DissimilarityMatrix, Error, Result,
-};
+use kinetree_core::{Dissimilarity, DissimilarityInput, DissimilarityMatrix, Error, Result};
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 

@@ -4,4 +4,4 @@ mod rank;
 mod svd_rank;
 
 pub use rank::{principal_direction, rank_test};
-pub use svd_rank::{SvdRank, SvdRankParams, registered};
+pub use svd_rank::{SvdRank, SvdRankParams};

@@ -1,11 +1,9 @@
 //! The paper's SVD rank tests, with thresholds from the noise propagated through each pose.
 
 use crate::rank::{principal_direction, rank_test};
-use kinetree_core::geom::{angle_about, canonical_sign, cam_from, log_so3, relative_poses};
+use kinetree_core::geom::{angle_about, canonical_sign, log_so3, relative_poses};
 use kinetree_core::nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
-use kinetree_core::{
-    BodyPoses, DofInput, DofTester, Error, JointKind, PairDof, RankTest, Result,
-};
+use kinetree_core::{BodyPoses, DofInput, DofTester, Error, JointKind, PairDof, RankTest, Result};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`SvdRank`].
@@ -137,7 +135,8 @@ impl DofTester for SvdRank {
             .min_by(|&i, &j| rot_std[i].total_cmp(&rot_std[j]))
             .unwrap_or(0);
         let reference_frame = frames[r];
-        let x_ref = x[reference_frame].ok_or_else(|| Error::Numerical("lost reference pose".into()))?;
+        let x_ref =
+            x[reference_frame].ok_or_else(|| Error::Numerical("lost reference pose".into()))?;
         let y_ref = x_ref.translation.vector;
         let mut u = Vec::with_capacity(frames.len());
         let mut u_std = Vec::with_capacity(frames.len());
@@ -148,7 +147,12 @@ impl DofTester for SvdRank {
             let y = xk.translation.vector;
             let ((ra, ta), (_, tb)) = prec[i];
             u.push(y - y_ref);
-            u_std.push(sigma * (ta * ta + tb * tb + (ra * y.norm()).powi(2)).sqrt().max(1e-12));
+            u_std.push(
+                sigma
+                    * (ta * ta + tb * tb + (ra * y.norm()).powi(2))
+                        .sqrt()
+                        .max(1e-12),
+            );
             let q: UnitQuaternion<f64> = xk.rotation * x_ref.rotation.inverse();
             rot.push(log_so3(&q.to_rotation_matrix()));
             q_rel.push(q);
@@ -165,7 +169,9 @@ impl DofTester for SvdRank {
         match rotation.rank {
             0 => {
                 dof = translation.rank;
-                fit_ratio = rotation.next_rank_ratio().max(translation.next_rank_ratio());
+                fit_ratio = rotation
+                    .next_rank_ratio()
+                    .max(translation.next_rank_ratio());
                 if translation.rank == 0 {
                     joint = JointKind::Rigid;
                 } else if translation.rank == 1 {
@@ -205,7 +211,10 @@ impl DofTester for SvdRank {
                     }
                 }
                 centre = rank_test(&w, &w_std, 3, kappa);
-                let z: Vec<Vector3<f64>> = u.iter().map(|uk| Vector3::new(axis.dot(uk), 0.0, 0.0)).collect();
+                let z: Vec<Vector3<f64>> = u
+                    .iter()
+                    .map(|uk| Vector3::new(axis.dot(uk), 0.0, 0.0))
+                    .collect();
                 sliding = rank_test(&z, &u_std, 1, kappa);
                 dof = (1 + centre.rank + sliding.rank).min(6);
                 fit_ratio = rotation
@@ -243,9 +252,4 @@ impl DofTester for SvdRank {
             fit_ratio,
         })
     }
-}
-
-/// Whether frame `a` has a pose at `t` (the camera always has).
-pub fn registered(poses: &BodyPoses, a: Option<usize>, t: usize) -> bool {
-    cam_from(poses, a, t).is_some()
 }

@@ -12,7 +12,11 @@ use nalgebra::{Point3, Vector3};
 ///
 /// Reference: Hubert and Arabie (1985), "Comparing partitions".
 pub fn adjusted_rand_index(predicted: &[i64], truth: &[usize]) -> f64 {
-    assert_eq!(predicted.len(), truth.len(), "labellings of different lengths");
+    assert_eq!(
+        predicted.len(),
+        truth.len(),
+        "labellings of different lengths"
+    );
     let n = predicted.len();
     let mut next = predicted.iter().copied().max().unwrap_or(0).max(0) + 1;
     let pred: Vec<usize> = predicted
@@ -59,7 +63,11 @@ pub fn axis_error_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 }
 
 /// Distance from `point` to the line through `line_point` along `line_dir`.
-pub fn point_line_distance(point: &Point3<f64>, line_point: &Point3<f64>, line_dir: &Vector3<f64>) -> f64 {
+pub fn point_line_distance(
+    point: &Point3<f64>,
+    line_point: &Point3<f64>,
+    line_dir: &Vector3<f64>,
+) -> f64 {
     let d = line_dir.normalize();
     let v = point - line_point;
     (v - d * v.dot(&d)).norm()
@@ -82,7 +90,12 @@ pub fn aligned_rms(estimate: &[Option<f64>], truth: &[f64]) -> Option<f64> {
         .iter()
         .map(|s| {
             let offset = pairs.iter().map(|(e, t)| t - s * e).sum::<f64>() / n;
-            (pairs.iter().map(|(e, t)| (t - s * e - offset).powi(2)).sum::<f64>() / n).sqrt()
+            (pairs
+                .iter()
+                .map(|(e, t)| (t - s * e - offset).powi(2))
+                .sum::<f64>()
+                / n)
+                .sqrt()
         })
         .min_by(f64::total_cmp)
 }

@@ -26,8 +26,11 @@ pub struct JointEval {
 /// The comparison of a model with the truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
-    /// Adjusted Rand index of the segmentation.
+    /// Adjusted Rand index of the segmentation over the points visible in at least two frames
+    /// (a point seen once or never cannot be placed by any method).
     pub ari: f64,
+    /// Number of points the ARI is computed over.
+    pub n_points_scored: usize,
     /// Number of true bodies.
     pub n_bodies_true: usize,
     /// Number of bodies found.
@@ -41,7 +44,10 @@ pub struct Evaluation {
 impl Evaluation {
     /// Largest axis error over joints, degrees (0 when none).
     pub fn max_axis_error_deg(&self) -> f64 {
-        self.joints.iter().filter_map(|j| j.axis_error_deg).fold(0.0, f64::max)
+        self.joints
+            .iter()
+            .filter_map(|j| j.axis_error_deg)
+            .fold(0.0, f64::max)
     }
 }
 
@@ -55,14 +61,21 @@ fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
             for &p in &b.points {
                 votes[truth.point_body[p]] += 1;
             }
-            (0..votes.len()).max_by_key(|&k| (votes[k], std::cmp::Reverse(k))).unwrap_or(0)
+            (0..votes.len())
+                .max_by_key(|&k| (votes[k], std::cmp::Reverse(k)))
+                .unwrap_or(0)
         })
         .collect()
 }
 
 /// Compares `model` with `truth`.
 pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
-    let ari = adjusted_rand_index(&model.point_body, &truth.point_body);
+    let scored: Vec<usize> = (0..truth.point_body.len())
+        .filter(|&i| truth.visible_frames[i] >= 2)
+        .collect();
+    let pred: Vec<i64> = scored.iter().map(|&i| model.point_body[i]).collect();
+    let true_labels: Vec<usize> = scored.iter().map(|&i| truth.point_body[i]).collect();
+    let ari = adjusted_rand_index(&pred, &true_labels);
     let map = body_map(model, truth);
     let mut joints = Vec::new();
     let mut all_ok = model.bodies.len() == truth.n_bodies()
@@ -97,7 +110,11 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                 e.axis_error_deg = Some(axis_error_deg(&Vector3::from(a), &true_axis));
                 if let (Some(p), JointType::Revolute) = (j.point, spec.joint_type) {
                     let anchor = truth.anchor_in_camera(k, j.reference_frame);
-                    e.pivot_error_m = Some(point_line_distance(&anchor, &Point3::from(p), &Vector3::from(a)));
+                    e.pivot_error_m = Some(point_line_distance(
+                        &anchor,
+                        &Point3::from(p),
+                        &Vector3::from(a),
+                    ));
                 }
             }
             e.position_rms = aligned_rms(&j.positions, &truth.joint_positions[k]);
@@ -107,6 +124,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
     }
     Evaluation {
         ari,
+        n_points_scored: scored.len(),
         n_bodies_true: truth.n_bodies(),
         n_bodies_found: model.bodies.len(),
         structure_exact: all_ok && (ari - 1.0).abs() < 1e-12,

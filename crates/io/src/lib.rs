@@ -96,11 +96,7 @@ pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
         let file = BufWriter::new(File::create(path)?);
         let mut w = npyz::WriteOptions::new()
             .default_dtype()
-            .shape(&[
-                tracks.n_frames() as u64,
-                tracks.n_points() as u64,
-                3,
-            ])
+            .shape(&[tracks.n_frames() as u64, tracks.n_points() as u64, 3])
             .writer(file)
             .begin_nd()?;
         w.extend(tracks.raw().iter().copied())?;
@@ -111,8 +107,10 @@ pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
 }
 
 /// Reads `frame,point,x,y,z` rows (header required; one row per visible observation;
-/// indices 0-based). `T` and `N` are one more than the largest frame and point index; a
-/// (frame, point) without a row is occluded.
+/// indices 0-based); a (frame, point) without a row is occluded. An optional comment line
+/// before the header, `# frames=T points=N`, fixes the size (so points or frames that are
+/// never visible at the end are kept); without it `T` and `N` are one more than the largest
+/// indices.
 ///
 /// # Errors
 /// [`Error::Malformed`] naming the line for a bad header, a wrong number of fields, a
@@ -126,11 +124,33 @@ fn read_csv_inner(path: &Path) -> Result<Tracks> {
     let reader = BufReader::new(File::open(path)?);
     let mut rows: Vec<(usize, usize, [f64; 3])> = Vec::new();
     let mut header_seen = false;
+    let mut declared: (Option<usize>, Option<usize>) = (None, None);
     for (k, line) in reader.lines().enumerate() {
         let line = line?;
         let lineno = k + 1;
         let trimmed = line.trim();
-        if trimmed.is_empty() || trimmed.starts_with('#') {
+        if let Some(comment) = trimmed.strip_prefix('#') {
+            if !header_seen {
+                for token in comment.split_whitespace() {
+                    let parse = |v: &str| -> Result<usize> {
+                        v.parse::<usize>()
+                            .ok()
+                            .filter(|&x| x as u64 <= MAX_CSV_INDEX)
+                            .ok_or_else(|| Error::Malformed {
+                                position: format!("line {lineno}"),
+                                message: format!("bad size declaration `{token}`"),
+                            })
+                    };
+                    if let Some(v) = token.strip_prefix("frames=") {
+                        declared.0 = Some(parse(v)?);
+                    } else if let Some(v) = token.strip_prefix("points=") {
+                        declared.1 = Some(parse(v)?);
+                    }
+                }
+            }
+            continue;
+        }
+        if trimmed.is_empty() {
             continue;
         }
         let fields: Vec<&str> = trimmed.split(',').map(str::trim).collect();
@@ -156,12 +176,23 @@ fn read_csv_inner(path: &Path) -> Result<Tracks> {
                 .parse()
                 .map_err(|_| bad(format!("{name} `{s}` is not a non-negative integer")))?;
             if v > MAX_CSV_INDEX {
-                return Err(bad(format!("{name} {v} out of range (max {MAX_CSV_INDEX})")));
+                return Err(bad(format!(
+                    "{name} {v} out of range (max {MAX_CSV_INDEX})"
+                )));
             }
             Ok(v as usize)
         };
         let frame = index("frame", fields[0])?;
         let point = index("point", fields[1])?;
+        for (name, v, limit) in [("frame", frame, declared.0), ("point", point, declared.1)] {
+            if let Some(limit) = limit
+                && v >= limit
+            {
+                return Err(bad(format!(
+                    "{name} {v} out of range (the file declares {limit})"
+                )));
+            }
+        }
         let mut xyz = [0.0; 3];
         for (c, s) in fields[2..].iter().enumerate() {
             let v: f64 = s
@@ -188,12 +219,19 @@ fn read_csv_inner(path: &Path) -> Result<Tracks> {
     if rows.is_empty() {
         return Err(Error::NoVisibleData);
     }
-    let t = rows.iter().map(|r| r.0).max().unwrap_or(0) + 1;
-    let n = rows.iter().map(|r| r.1).max().unwrap_or(0) + 1;
-    let total = t.checked_mul(n).filter(|&v| v <= 1 << 31).ok_or_else(|| Error::Shape {
-        expected: "T x N below 2^31 observations".into(),
-        found: format!("{t} x {n}"),
-    })?;
+    let t = declared
+        .0
+        .unwrap_or_else(|| rows.iter().map(|r| r.0).max().unwrap_or(0) + 1);
+    let n = declared
+        .1
+        .unwrap_or_else(|| rows.iter().map(|r| r.1).max().unwrap_or(0) + 1);
+    let total = t
+        .checked_mul(n)
+        .filter(|&v| v <= 1 << 31)
+        .ok_or_else(|| Error::Shape {
+            expected: "T x N below 2^31 observations".into(),
+            found: format!("{t} x {n}"),
+        })?;
     let mut xyz = vec![f64::NAN; total * 3];
     let mut seen = vec![false; total];
     for (line, (frame, point, p)) in rows.iter().enumerate() {
@@ -210,13 +248,20 @@ fn read_csv_inner(path: &Path) -> Result<Tracks> {
     Tracks::new(t, n, xyz)
 }
 
-/// Writes tracks as `frame,point,x,y,z` rows, one per visible observation.
+/// Writes tracks as `frame,point,x,y,z` rows, one per visible observation, after a
+/// `# frames=T points=N` size line.
 ///
 /// # Errors
 /// [`Error::File`] wrapping the I/O error.
 pub fn write_csv(path: &Path, tracks: &Tracks) -> Result<()> {
     let inner = || -> std::io::Result<()> {
         let mut w = BufWriter::new(File::create(path)?);
+        writeln!(
+            w,
+            "# frames={} points={}",
+            tracks.n_frames(),
+            tracks.n_points()
+        )?;
         writeln!(w, "frame,point,x,y,z")?;
         for t in 0..tracks.n_frames() {
             for i in 0..tracks.n_points() {

@@ -225,7 +225,8 @@ impl ExperimentConfig {
 }
 
 /// The paper experiment's config, compiled in: what `kinetree run` uses with no argument.
-pub const PAPER_EXPERIMENT_TOML: &str = include_str!("../../../experiments/paper-table1/table1.toml");
+pub const PAPER_EXPERIMENT_TOML: &str =
+    include_str!("../../../experiments/paper-table1/table1.toml");
 
 /// Parses a pipeline config (the contents of an experiment's `[pipeline]` table) from TOML.
 ///

@@ -73,7 +73,11 @@ pub fn run_experiment(cfg: &ExperimentConfig, base_dir: &Path) -> Result<Experim
 ///
 /// # Errors
 /// I/O errors, naming the file.
-pub fn write_results(cfg: &ExperimentConfig, outcome: &ExperimentOutcome, dir: &Path) -> Result<()> {
+pub fn write_results(
+    cfg: &ExperimentConfig,
+    outcome: &ExperimentOutcome,
+    dir: &Path,
+) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| kinetree_core::Error::Io(e).in_file(dir))?;
     let write = |name: &str, text: &str| -> Result<()> {
         let p = dir.join(name);

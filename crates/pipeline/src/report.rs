@@ -26,7 +26,11 @@ pub fn table_cells(model: &Model) -> Vec<(usize, usize, [String; 3])> {
             (
                 row,
                 p.b + 1,
-                [values(&p.translation), values(&p.rotation), values(&p.centre)],
+                [
+                    values(&p.translation),
+                    values(&p.rotation),
+                    values(&p.centre),
+                ],
             )
         })
         .collect()

@@ -6,9 +6,9 @@ use kinetree_core::model::{
     Body, Joint, NoiseInfo, NoiseSource, Ranks, SCHEMA_VERSION, StageNames,
 };
 use kinetree_core::{
-    BodyPoses, Clustering, ClusteringInput, Dissimilarity, DissimilarityInput,
-    DissimilarityMatrix, DofInput, DofTester, Error, JointKind, Model, PairDof, PairStats,
-    PoseEstimator, PoseInput, Result, Segmentation, Tracks, Warning,
+    BodyPoses, Clustering, ClusteringInput, Dissimilarity, DissimilarityInput, DissimilarityMatrix,
+    DofInput, DofTester, Error, JointKind, Model, PairDof, PairStats, PoseEstimator, PoseInput,
+    Result, Segmentation, Tracks, Warning,
 };
 use kinetree_dissimilarity::{estimate_noise_sigma, pair_stats, refine_noise_sigma};
 
@@ -77,7 +77,12 @@ impl Pipeline {
         })
     }
 
-    fn segment(&self, tracks: &Tracks, stats: &PairStats, sigma: f64) -> Result<(DissimilarityMatrix, Segmentation)> {
+    fn segment(
+        &self,
+        tracks: &Tracks,
+        stats: &PairStats,
+        sigma: f64,
+    ) -> Result<(DissimilarityMatrix, Segmentation)> {
         let d = self.dissimilarity.compute(&DissimilarityInput {
             tracks,
             stats,
@@ -155,7 +160,9 @@ impl Pipeline {
         let (mut dmat, mut seg) = self.segment(tracks, &stats, sigma)?;
         if source == NoiseSource::Estimated {
             for _ in 0..NOISE_ROUNDS {
-                let Some(s) = refine_noise_sigma(&stats, &seg) else { break };
+                let Some(s) = refine_noise_sigma(&stats, &seg) else {
+                    break;
+                };
                 let changed = (s / sigma - 1.0).abs() > 0.01;
                 sigma = s;
                 if !changed {
@@ -281,7 +288,9 @@ impl Pipeline {
         };
         let mut joints = Vec::new();
         for &child in &order {
-            let Some(parent) = tree.parent[child] else { continue };
+            let Some(parent) = tree.parent[child] else {
+                continue;
+            };
             let pair = self.dof.test_pair(&input, Some(parent), child)?;
             let (positions, first) = kinetree_structure::joint_positions(poses, &pair);
             let reference_frame = first.unwrap_or(pair.reference_frame);
@@ -299,7 +308,10 @@ impl Pipeline {
                     known.iter().copied().fold(f64::NEG_INFINITY, f64::max),
                 ]
             });
-            if !matches!(pair.joint, JointKind::Revolute { .. } | JointKind::Prismatic { .. }) {
+            if !matches!(
+                pair.joint,
+                JointKind::Revolute { .. } | JointKind::Prismatic { .. }
+            ) {
                 warnings.push(Warning::MultiDofJoint {
                     parent: new_id[parent],
                     child: new_id[child],

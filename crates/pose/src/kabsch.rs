@@ -1,6 +1,8 @@
 //! The Kabsch-Umeyama least-squares rigid registration.
 
-use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use kinetree_core::nalgebra::{
+    Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 
 /// Centroid of a non-empty point set.
 pub fn centroid(p: &[Point3<f64>]) -> Point3<f64> {
@@ -70,5 +72,9 @@ pub fn rotation_std_per_sigma(p: &[Point3<f64>]) -> f64 {
         j += Matrix3::identity() * d.norm_squared() - d * d.transpose();
     }
     let lmin = j.symmetric_eigenvalues().min();
-    if lmin > 0.0 { 1.0 / lmin.sqrt() } else { f64::INFINITY }
+    if lmin > 0.0 {
+        1.0 / lmin.sqrt()
+    } else {
+        f64::INFINITY
+    }
 }

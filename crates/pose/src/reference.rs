@@ -94,9 +94,10 @@ impl KabschPoses {
         order.sort_by_key(|&t| std::cmp::Reverse(obs[t].len()));
         // Initial shape: the first frame (most points) whose points are usable.
         let mut shape: Vec<Option<Point3<f64>>> = vec![None; nb];
-        if let Some(&t0) = order.iter().find(|&&t| {
-            usable(&obs[t].iter().map(|o| o.1).collect::<Vec<_>>())
-        }) {
+        if let Some(&t0) = order
+            .iter()
+            .find(|&&t| usable(&obs[t].iter().map(|o| o.1).collect::<Vec<_>>()))
+        {
             for &(k, q) in &obs[t0] {
                 shape[k] = Some(q);
             }
@@ -166,7 +167,12 @@ impl KabschPoses {
             };
             let src: Vec<Point3<f64>> = vis.iter().map(|v| v.0).collect();
             let n = src.len() as f64;
-            let rms = (vis.iter().map(|(s, q)| (pose * s - q).norm_squared()).sum::<f64>() / n).sqrt();
+            let rms = (vis
+                .iter()
+                .map(|(s, q)| (pose * s - q).norm_squared())
+                .sum::<f64>()
+                / n)
+                .sqrt();
             let rot = rotation_std_per_sigma(&src);
             let c_vis = centroid(&src).coords.norm();
             quality[t] = Some(PoseQuality {

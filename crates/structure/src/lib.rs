@@ -84,7 +84,10 @@ pub struct Tree {
 
 /// Edge cost for the spanning tree: single-DoF joints first, the clearest fits first.
 fn edge_cost(p: &PairDof) -> f64 {
-    let single = matches!(p.joint, JointKind::Revolute { .. } | JointKind::Prismatic { .. });
+    let single = matches!(
+        p.joint,
+        JointKind::Revolute { .. } | JointKind::Prismatic { .. }
+    );
     if single {
         1.0 + p.fit_ratio.min(0.999)
     } else {
@@ -106,7 +109,11 @@ pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
         None => {
             let motion = |b: usize| {
                 find_pair(pairs, None, b).map_or(f64::INFINITY, |p| {
-                    p.translation.whitened.iter().chain(&p.rotation.whitened).sum::<f64>()
+                    p.translation
+                        .whitened
+                        .iter()
+                        .chain(&p.rotation.whitened)
+                        .sum::<f64>()
                 })
             };
             let r = (0..n_bodies).min_by(|&x, &y| motion(x).total_cmp(&motion(y)))?;

@@ -168,7 +168,8 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
         } else {
             rng.random_range(0.6..1.4)
         };
-        let frequency_hz = 0.15 + 0.3 * (j as f64 + rng.random_range(0.0..1.0)) / p.n_joints.max(1) as f64;
+        let frequency_hz =
+            0.15 + 0.3 * (j as f64 + rng.random_range(0.0..1.0)) / p.n_joints.max(1) as f64;
         trajectories.push(Trajectory::Sine {
             offset: 0.0,
             amplitude,

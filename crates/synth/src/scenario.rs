@@ -111,6 +111,8 @@ pub struct GroundTruth {
     pub cam_from_world: Isometry3<f64>,
     /// Fraction of observations occluded.
     pub occluded_fraction: f64,
+    /// Frames in which each keypoint is visible.
+    pub visible_frames: Vec<usize>,
 }
 
 impl GroundTruth {
@@ -166,7 +168,9 @@ fn keypoints(m: &Mechanism, rng: &mut ChaCha8Rng) -> (Vec<Point3<f64>>, Vec<usiz
                 rng.random_range(-1.0..1.0),
             );
             u[axis] = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-            pts.push(Point3::from(Vector3::from(spec.shape.centre) + u.component_mul(&h)));
+            pts.push(Point3::from(
+                Vector3::from(spec.shape.centre) + u.component_mul(&h),
+            ));
             body.push(b);
         }
     }
@@ -240,7 +244,8 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
             }
             let world = poses[point_body[i]] * pts[i];
             let pc = cam * world;
-            let in_view = pc.z > 1e-6 && (pc.x / pc.z).abs() <= tan_h && (pc.y / pc.z).abs() <= tan_v;
+            let in_view =
+                pc.z > 1e-6 && (pc.x / pc.z).abs() <= tan_h && (pc.y / pc.z).abs() <= tan_v;
             let occluded = in_view
                 && s.mechanism.bodies.iter().enumerate().any(|(b, spec)| {
                     let o = body_from_world[b] * eye;
@@ -260,6 +265,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
     }
     let tracks = Tracks::from_points(&frames)?.with_frame_rate(s.frame_rate_hz)?;
     let occluded_fraction = tracks.occluded_fraction();
+    let visible_frames = (0..n).map(|i| tracks.visible_count(i)).collect();
     Ok(SynthData {
         tracks,
         truth: GroundTruth {
@@ -268,6 +274,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
             mechanism: s.mechanism.clone(),
             cam_from_world: cam,
             occluded_fraction,
+            visible_frames,
         },
     })
 }

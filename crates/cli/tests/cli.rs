@@ -1,0 +1,125 @@
+//! The `kinetree` binary: the README's run command, and simulate -> discover.
+
+use std::process::Command;
+
+fn kinetree() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_kinetree"))
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("kinetree-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("dir");
+    d
+}
+
+#[test]
+fn run_without_argument_prints_the_paper_structure_and_table() {
+    let results = tmp("results");
+    let out = kinetree()
+        .args(["run", "--results"])
+        .arg(&results)
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("3 bodies"), "{stdout}");
+    assert!(
+        stdout.contains("chain: body 0 -> body 1 -> body 2"),
+        "{stdout}"
+    );
+    assert_eq!(stdout.matches(": revolute").count(), 2, "{stdout}");
+    assert!(stdout.contains("Table I"), "{stdout}");
+    for row in ["F0", "F1", "F2"] {
+        assert!(
+            stdout.lines().any(|l| l.starts_with(row)),
+            "row {row} in {stdout}"
+        );
+    }
+    assert!(stdout.contains("structure exact: true"), "{stdout}");
+    let dir = results.join("paper-table1");
+    for f in ["model.json", "table.md", "resolved.toml", "evaluation.json"] {
+        assert!(dir.join(f).is_file(), "{f} written");
+    }
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("model.json")).expect("read"))
+            .expect("json");
+    assert_eq!(model["bodies"].as_array().map(Vec::len), Some(3));
+}
+
+#[test]
+fn simulate_then_discover_npy_and_csv() {
+    let dir = tmp("sim");
+    let out = kinetree()
+        .args([
+            "simulate",
+            "--mechanism",
+            "random",
+            "--joints",
+            "3",
+            "--seed",
+            "4",
+            "-o",
+        ])
+        .arg(&dir)
+        .output()
+        .expect("simulate");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).expect("truth"))
+            .expect("json");
+    let n_bodies = truth["mechanism"]["bodies"]
+        .as_array()
+        .map(Vec::len)
+        .expect("bodies");
+    for file in ["tracks.npy", "tracks.csv"] {
+        let model_path = dir.join(format!("{file}.model.json"));
+        let out = kinetree()
+            .arg("discover")
+            .arg(dir.join(file))
+            .arg("-o")
+            .arg(&model_path)
+            .output()
+            .expect("discover");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let model: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&model_path).expect("model"))
+                .expect("json");
+        assert_eq!(
+            model["bodies"].as_array().map(Vec::len),
+            Some(n_bodies),
+            "{file}"
+        );
+        assert_eq!(
+            model["joints"].as_array().map(Vec::len),
+            Some(n_bodies - 1),
+            "{file}"
+        );
+    }
+}
+
+#[test]
+fn discover_reports_bad_files_without_panicking() {
+    let dir = tmp("bad");
+    let p = dir.join("bad.csv");
+    std::fs::write(&p, "frame,point,x,y,z\n0,0,1,2\n").expect("write");
+    let out = kinetree().arg("discover").arg(&p).output().expect("runs");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("line 2") && stderr.contains("bad.csv"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}

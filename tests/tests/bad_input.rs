@@ -1,0 +1,218 @@
+//! Every bad-input case of issue 2 gets its typed error, naming the file and the position.
+
+use kinetree_core::{Error, Tracks};
+use kinetree_io::{read_csv, read_model, read_npy, read_tracks};
+use npyz::WriterBuilder;
+use std::path::{Path, PathBuf};
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("kinetree-bad-input-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir.join(name)
+}
+
+fn write_npy_f64(path: &Path, shape: &[u64], data: &[f64]) {
+    let f = std::fs::File::create(path).expect("create");
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(shape)
+        .writer(f)
+        .begin_nd()
+        .expect("header");
+    w.extend(data.iter().copied()).expect("data");
+    w.finish().expect("finish");
+}
+
+fn root(e: &Error) -> &Error {
+    e.root()
+}
+
+fn names_file(e: &Error, path: &Path) {
+    assert!(
+        matches!(e, Error::File { .. }),
+        "{e:?} should name the file"
+    );
+    assert!(e.to_string().contains(&path.display().to_string()), "{e}");
+}
+
+fn good(t: usize, n: usize) -> Vec<f64> {
+    (0..t * n * 3)
+        .map(|k| (k % 7) as f64 * 0.1 + (k / 3) as f64 * 1e-3)
+        .collect()
+}
+
+#[test]
+fn npy_wrong_dtype() {
+    let p = tmp("f32.npy");
+    let f = std::fs::File::create(&p).expect("create");
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[2, 3, 3])
+        .writer(f)
+        .begin_nd()
+        .expect("header");
+    w.extend((0..18).map(|k| k as f32)).expect("data");
+    w.finish().expect("finish");
+    let e = read_npy(&p).expect_err("f32 rejected");
+    names_file(&e, &p);
+    assert!(
+        matches!(root(&e), Error::DType { found, .. } if found == "<f4"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn npy_wrong_shape() {
+    for shape in [vec![4u64, 9], vec![2, 3, 2]] {
+        let p = tmp("shape.npy");
+        let len: u64 = shape.iter().product();
+        write_npy_f64(&p, &shape, &vec![0.5; len as usize]);
+        let e = read_npy(&p).expect_err("bad shape");
+        assert!(matches!(root(&e), Error::Shape { .. }), "{e:?}");
+    }
+}
+
+#[test]
+fn npy_partly_nan_and_inf_are_located() {
+    let p = tmp("nan.npy");
+    let mut d = good(4, 3);
+    d[(2 * 3 + 1) * 3 + 1] = f64::NAN; // frame 2, point 1, y only
+    write_npy_f64(&p, &[4, 3, 3], &d);
+    let e = read_npy(&p).expect_err("partial NaN");
+    names_file(&e, &p);
+    assert!(
+        matches!(root(&e), Error::PartialNan { frame: 2, point: 1 }),
+        "{e:?}"
+    );
+
+    let mut d = good(4, 3);
+    d[(3 * 3 + 2) * 3] = f64::INFINITY;
+    write_npy_f64(&p, &[4, 3, 3], &d);
+    let e = read_npy(&p).expect_err("inf");
+    assert!(
+        matches!(root(&e), Error::NonFinite { frame: 3, point: 2 }),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn too_few_frames_points_and_no_visible_data() {
+    let p = tmp("small.npy");
+    write_npy_f64(&p, &[1, 3, 3], &good(1, 3));
+    assert!(matches!(
+        root(&read_npy(&p).expect_err("T=1")),
+        Error::TooFewFrames { found: 1, .. }
+    ));
+    write_npy_f64(&p, &[5, 2, 3], &good(5, 2));
+    assert!(matches!(
+        root(&read_npy(&p).expect_err("N=2")),
+        Error::TooFewPoints { found: 2, .. }
+    ));
+    write_npy_f64(&p, &[5, 4, 3], &[f64::NAN; 60]);
+    assert!(matches!(
+        root(&read_npy(&p).expect_err("all NaN")),
+        Error::NoVisibleData
+    ));
+    assert!(matches!(
+        Tracks::new(3, 4, vec![0.0; 5]),
+        Err(Error::Shape { .. })
+    ));
+}
+
+#[test]
+fn npy_garbage_is_malformed() {
+    let p = tmp("garbage.npy");
+    std::fs::write(&p, b"not an npy file at all").expect("write");
+    let e = read_npy(&p).expect_err("garbage");
+    names_file(&e, &p);
+    assert!(matches!(root(&e), Error::Malformed { .. }), "{e:?}");
+}
+
+fn csv(name: &str, body: &str) -> PathBuf {
+    let p = tmp(name);
+    std::fs::write(&p, body).expect("write");
+    p
+}
+
+#[test]
+fn csv_errors_name_the_line() {
+    let cases = [
+        ("header.csv", "f,p,x,y,z\n0,0,1,2,3\n", "line 1"),
+        ("fields.csv", "frame,point,x,y,z\n0,0,1,2\n", "line 2"),
+        (
+            "negative.csv",
+            "frame,point,x,y,z\n0,0,1,2,3\n-1,0,1,2,3\n",
+            "line 3",
+        ),
+        (
+            "huge.csv",
+            "frame,point,x,y,z\n0,99999999999,1,2,3\n",
+            "line 2",
+        ),
+        ("number.csv", "frame,point,x,y,z\n0,0,1,abc,3\n", "line 2"),
+        ("inf.csv", "frame,point,x,y,z\n0,0,1,inf,3\n", "line 2"),
+        (
+            "dup.csv",
+            "frame,point,x,y,z\n0,0,1,2,3\n0,0,1,2,3\n",
+            "data row 2",
+        ),
+        ("empty.csv", "", "line 1"),
+        (
+            "declared.csv",
+            "# frames=2 points=3\nframe,point,x,y,z\n0,3,1,2,3\n",
+            "line 3",
+        ),
+        ("baddecl.csv", "# frames=x\nframe,point,x,y,z\n", "line 1"),
+    ];
+    for (name, body, position) in cases {
+        let p = csv(name, body);
+        let e = read_csv(&p).expect_err(name);
+        names_file(&e, &p);
+        assert!(
+            matches!(root(&e), Error::Malformed { position: pos, .. } if pos == position),
+            "{name}: {e}"
+        );
+    }
+    let p = csv("novis.csv", "frame,point,x,y,z\n");
+    assert!(matches!(
+        root(&read_csv(&p).expect_err("no rows")),
+        Error::NoVisibleData
+    ));
+    let p = csv("twopoints.csv", "frame,point,x,y,z\n0,0,1,2,3\n1,1,1,2,3\n");
+    assert!(matches!(
+        root(&read_csv(&p).expect_err("N=2")),
+        Error::TooFewPoints { .. }
+    ));
+}
+
+#[test]
+fn unknown_extension_and_bad_model_json() {
+    let p = csv("tracks.txt", "whatever");
+    assert!(matches!(
+        root(&read_tracks(&p).expect_err("ext")),
+        Error::Malformed { .. }
+    ));
+    let p = csv("model.json", "{\"schema_version\": 1, \"bodies\": [");
+    let e = read_model(&p).expect_err("truncated JSON");
+    names_file(&e, &p);
+    assert!(matches!(root(&e), Error::Malformed { .. }), "{e:?}");
+}
+
+#[test]
+fn bad_pipeline_parameters_are_typed_errors() {
+    use kinetree_pipeline::{ExperimentConfig, Pipeline, PipelineConfig};
+    let cfg = PipelineConfig {
+        noise_sigma_m: Some(-1.0),
+        ..PipelineConfig::default()
+    };
+    assert!(matches!(
+        Pipeline::from_config(&cfg),
+        Err(Error::InvalidParameter { .. })
+    ));
+    let text = "[experiment]\nname = \"x\"\n[data]\nkind = \"paper_arm\"\nsede = 3\n";
+    let e = ExperimentConfig::from_toml(text).expect_err("typo in a key");
+    assert!(
+        matches!(e, Error::Config(ref m) if m.contains("sede")),
+        "{e}"
+    );
+}

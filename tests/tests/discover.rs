@@ -1,0 +1,81 @@
+//! `discover` on other mechanisms, through .npy and .csv files.
+
+use kinetree_eval::evaluate;
+use kinetree_io::{read_tracks, write_csv, write_npy};
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_synth::{RandomParams, random_scenario, simulate};
+
+fn roundtrip_and_discover(params: RandomParams) {
+    let data = simulate(&random_scenario(&params)).expect("simulate");
+    let dir = std::env::temp_dir().join(format!(
+        "kinetree-discover-{}-{}",
+        std::process::id(),
+        params.seed
+    ));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let npy = dir.join("tracks.npy");
+    let csv = dir.join("tracks.csv");
+    write_npy(&npy, &data.tracks).expect("npy");
+    write_csv(&csv, &data.tracks).expect("csv");
+    let from_npy = read_tracks(&npy).expect("read npy");
+    let from_csv = read_tracks(&csv).expect("read csv");
+    // Occluded entries are NaN, so compare observation by observation (NaN != NaN).
+    assert_eq!(from_npy.n_frames(), data.tracks.n_frames());
+    assert_eq!(from_npy.n_points(), data.tracks.n_points());
+    assert_eq!(
+        from_csv.n_points(),
+        data.tracks.n_points(),
+        "declared size kept"
+    );
+    assert_eq!(from_csv.n_frames(), data.tracks.n_frames());
+    for t in 0..data.tracks.n_frames() {
+        for i in 0..data.tracks.n_points() {
+            assert_eq!(
+                from_npy.get(t, i),
+                data.tracks.get(t, i),
+                "npy frame {t} point {i}"
+            );
+            assert_eq!(
+                from_csv.get(t, i),
+                data.tracks.get(t, i),
+                "csv frame {t} point {i}"
+            );
+        }
+    }
+    let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+    for tracks in [&from_npy, &from_csv] {
+        let d = pipeline.run(tracks).expect("discover");
+        let e = evaluate(&d.model, &data.truth);
+        assert!(e.structure_exact, "seed {}: {e:?}", params.seed);
+        for j in &e.joints {
+            assert!(j.axis_error_deg.is_some_and(|a| a < 3.0), "{j:?}");
+        }
+        let sigma = d.model.noise.sigma_m;
+        assert!(
+            (sigma / params.noise_sigma_m - 1.0).abs() < 0.1,
+            "noise estimate {sigma}"
+        );
+    }
+}
+
+#[test]
+fn chain_with_prismatic_and_revolute_joints() {
+    roundtrip_and_discover(RandomParams {
+        n_joints: 4,
+        prismatic_fraction: 0.5,
+        seed: 2,
+        dropout: 0.2,
+        ..RandomParams::default()
+    });
+}
+
+#[test]
+fn branching_tree() {
+    roundtrip_and_discover(RandomParams {
+        n_joints: 5,
+        tree: true,
+        seed: 3,
+        dropout: 0.2,
+        ..RandomParams::default()
+    });
+}

@@ -1,0 +1,94 @@
+//! The paper's 2-DoF arm end to end (issue 2's acceptance tests).
+
+use kinetree_core::Model;
+use kinetree_eval::evaluate;
+use kinetree_pipeline::config::{DataConfig, PaperArmData};
+use kinetree_pipeline::{ExperimentConfig, PAPER_EXPERIMENT_TOML, run_experiment};
+use std::path::Path;
+
+fn paper_outcome(seed: u64, estimate_noise: bool) -> kinetree_pipeline::ExperimentOutcome {
+    let mut cfg =
+        ExperimentConfig::from_toml(PAPER_EXPERIMENT_TOML).expect("embedded config parses");
+    if let DataConfig::PaperArm(p) = &mut cfg.data {
+        *p = PaperArmData { seed, ..*p };
+    }
+    if estimate_noise {
+        cfg.pipeline.noise_sigma_m = None;
+    }
+    run_experiment(&cfg, Path::new(".")).expect("paper experiment runs")
+}
+
+fn check_paper_structure(model: &Model, truth: &kinetree_synth::GroundTruth) {
+    let e = evaluate(model, truth);
+    assert!((e.ari - 1.0).abs() < 1e-12, "ARI {}", e.ari);
+    assert_eq!(model.bodies.len(), 3, "three bodies");
+    assert_eq!(model.static_body, Some(0), "base static and the root");
+    assert_eq!(
+        model.chain,
+        Some(vec![0, 1, 2]),
+        "chain base -> link1 -> link2"
+    );
+    assert!(e.structure_exact, "{e:?}");
+    for j in &e.joints {
+        assert!(j.type_ok, "joint {} type", j.joint);
+        let axis = j.axis_error_deg.expect("axis");
+        assert!(axis < 2.0, "joint {} axis error {axis} deg", j.joint);
+        let rms = j.position_rms.expect("positions");
+        assert!(rms < 0.05, "joint {} RMS {rms} rad", j.joint);
+    }
+    assert!(model.joints.iter().all(|j| j.joint_type == "revolute"));
+}
+
+#[test]
+fn paper_arm_structure_axes_and_angles() {
+    for seed in [1, 2, 3] {
+        let out = paper_outcome(seed, false);
+        check_paper_structure(&out.discovery.model, out.truth.as_ref().expect("synthetic"));
+    }
+}
+
+#[test]
+fn paper_arm_with_estimated_noise() {
+    let out = paper_outcome(4, true);
+    let model = &out.discovery.model;
+    let sigma = model.noise.sigma_m;
+    assert!((sigma / 0.001 - 1.0).abs() < 0.1, "noise estimate {sigma}");
+    check_paper_structure(model, out.truth.as_ref().expect("synthetic"));
+}
+
+#[test]
+fn table_one_pattern_matches_the_paper() {
+    let out = paper_outcome(1, false);
+    let m = &out.discovery.model;
+    let pair = |a: Option<usize>, b: usize| m.pair(a, b).expect("pair tested");
+    // Base: no DoF relative to the camera.
+    let base = pair(None, 0);
+    assert_eq!((base.translation.rank, base.rotation.rank), (0, 0));
+    // Link 1: one rotational DoF relative to the base (and to the camera).
+    for a in [None, Some(0)] {
+        let p = pair(a, 1);
+        assert_eq!(p.rotation.rank, 1);
+        assert_eq!(p.centre.rank, 0, "fixed centre of rotation");
+        assert_eq!(p.dof, 1);
+    }
+    // Link 2: rotation rank 1 and translation rank 2 relative to camera and base, so no joint;
+    // one rotational DoF relative to link 1.
+    for a in [None, Some(0)] {
+        let p = pair(a, 2);
+        assert_eq!(p.rotation.rank, 1);
+        assert_eq!(p.translation.rank, 2);
+        assert!(p.centre.rank >= 1, "moving centre: not a joint");
+        assert!(p.dof > 1);
+    }
+    let p = pair(Some(1), 2);
+    assert_eq!((p.rotation.rank, p.centre.rank, p.dof), (1, 0, 1));
+    // Rotation singular values of the size of the paper's (18.9, 19.6, 8.9): several radians
+    // times sqrt(T).
+    for (a, b) in [(None, 1), (None, 2), (Some(1), 2)] {
+        let s = pair(a, b).rotation.singular_values[0];
+        assert!(
+            (5.0..30.0).contains(&s),
+            "rotation singular value {s} for {a:?}-{b}"
+        );
+    }
+}

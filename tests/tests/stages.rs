@@ -1,0 +1,96 @@
+//! Stage-level checks on simulated data: Kabsch, pair statistics, the F-test q.
+
+use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use kinetree_core::{Dissimilarity, DissimilarityInput, Tracks};
+use kinetree_dissimilarity::{FTest, FTestParams, f_test_q, pair_stats};
+use kinetree_pose::kabsch;
+use kinetree_synth::{paper_arm, simulate};
+
+#[test]
+fn kabsch_is_exact_on_noise_free_data() {
+    let src: Vec<Point3<f64>> = [
+        [0.1, 0.2, 0.3],
+        [-0.4, 0.1, 0.9],
+        [0.5, -0.7, 0.2],
+        [0.3, 0.3, -0.6],
+        [-0.2, -0.5, -0.1],
+    ]
+    .iter()
+    .map(|p| Point3::new(p[0], p[1], p[2]))
+    .collect();
+    for angle in [0.0, 0.3, 2.0, std::f64::consts::PI] {
+        let truth = Isometry3::from_parts(
+            Translation3::new(0.5, -1.0, 2.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(1.0, 2.0, -0.5).normalize() * angle),
+        );
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| truth * p).collect();
+        let est = kabsch(&src, &dst).expect("fit");
+        for (s, d) in src.iter().zip(&dst) {
+            assert!((est * s - d).norm() < 1e-12);
+        }
+        assert!(est.rotation.angle_to(&truth.rotation) < 1e-9);
+    }
+    // A mirrored target still yields a proper rotation.
+    let mirrored: Vec<Point3<f64>> = src.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
+    let est = kabsch(&src, &mirrored).expect("fit");
+    assert!((est.rotation.to_rotation_matrix().matrix().determinant() - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn pair_variance_survives_large_distances_and_small_noise() {
+    // Two points 1 m apart (plus a 5 km offset) with a known 0.1 mm alternating wobble.
+    let n_frames = 1000;
+    let mut xyz = Vec::new();
+    for t in 0..n_frames {
+        let e = if t % 2 == 0 { 1e-4 } else { -1e-4 };
+        xyz.extend_from_slice(&[5000.0, 0.0, 0.0, 5001.0 + e, 0.0, 0.0, 5000.0, 1.0, 0.0]);
+    }
+    let tracks = Tracks::new(n_frames, 3, xyz).expect("valid");
+    let s = pair_stats(&tracks);
+    let var = s.var(0, 1).expect("variance");
+    let expected = 1e-8 * n_frames as f64 / (n_frames as f64 - 1.0);
+    assert!((var / expected - 1.0).abs() < 1e-6, "{var} vs {expected}");
+    assert!(s.var(0, 2).expect("variance") < 1e-20);
+}
+
+#[test]
+fn q_is_near_half_for_rigid_pairs_and_near_one_for_moving_pairs() {
+    let data = simulate(&paper_arm(5)).expect("simulate");
+    let stats = pair_stats(&data.tracks);
+    let m = FTest::new(FTestParams::default())
+        .expect("params")
+        .compute(&DissimilarityInput {
+            tracks: &data.tracks,
+            stats: &stats,
+            noise_sigma_m: 0.001,
+        })
+        .expect("q");
+    let body = &data.truth.point_body;
+    let (mut rigid, mut moving) = (Vec::new(), Vec::new());
+    for i in 0..body.len() {
+        for j in i + 1..body.len() {
+            if let Some(q) = m.get(i, j) {
+                if body[i] == body[j] {
+                    rigid.push(q)
+                } else {
+                    moving.push(q)
+                }
+            }
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    assert!(
+        (mean(&rigid) - 0.5).abs() < 0.1,
+        "rigid mean q {}",
+        mean(&rigid)
+    );
+    assert!(median(&mut moving) > 0.99, "moving median q");
+    // Guards: no panic and NaN for unusable input, 1 for overflowing ratios.
+    assert!(f_test_q(f64::NAN, 10, 1e-6).is_nan());
+    assert!(f_test_q(1e-6, 1, 1e-6).is_nan());
+    assert_eq!(f_test_q(1e308, 10_000, 1e-12), 1.0);
+}
