@@ -49,11 +49,15 @@ fn paper_arm_structure_axes_and_angles() {
 
 #[test]
 fn paper_arm_with_estimated_noise() {
-    let out = paper_outcome(4, true);
-    let model = &out.discovery.model;
-    let sigma = model.noise.sigma_m;
-    assert!((sigma / 0.001 - 1.0).abs() < 0.1, "noise estimate {sigma}");
-    check_paper_structure(model, out.truth.as_ref().expect("synthetic"));
+    // Seed 1 has a base point whose noise came out high over its 48 visible frames; the
+    // pairwise clustering discards it and the pose-based attachment brings it back.
+    for seed in 1..=4 {
+        let out = paper_outcome(seed, true);
+        let model = &out.discovery.model;
+        let sigma = model.noise.sigma_m;
+        assert!((sigma / 0.001 - 1.0).abs() < 0.1, "noise estimate {sigma}");
+        check_paper_structure(model, out.truth.as_ref().expect("synthetic"));
+    }
 }
 
 #[test]

@@ -94,3 +94,34 @@ fn q_is_near_half_for_rigid_pairs_and_near_one_for_moving_pairs() {
     assert!(f_test_q(1e-6, 1, 1e-6).is_nan());
     assert_eq!(f_test_q(1e308, 10_000, 1e-12), 1.0);
 }
+
+#[test]
+fn dof_graph_and_tree_on_the_paper_arm() {
+    use kinetree_pipeline::{Pipeline, PipelineConfig};
+    use kinetree_structure::{FrameNode, dof_graph, paper_chain, spanning_tree};
+    let data = simulate(&paper_arm(6)).expect("simulate");
+    let d = Pipeline::from_config(&PipelineConfig {
+        noise_sigma_m: Some(0.001),
+        ..PipelineConfig::default()
+    })
+    .expect("pipeline")
+    .run(&data.tracks)
+    .expect("run");
+    let pairs = &d.model.pairs;
+    let g = dof_graph(3, pairs);
+    // Camera + 3 bodies; every pair of the four frames tested once.
+    assert_eq!(g.node_count(), 4);
+    assert_eq!(g.edge_count(), 6);
+    assert_eq!(g[petgraph::graph::NodeIndex::new(0)], FrameNode::Camera);
+    let single_dof: Vec<(usize, usize)> = g
+        .edge_indices()
+        .filter(|&e| pairs[g[e]].dof == 1)
+        .filter_map(|e| g.edge_endpoints(e).map(|(a, b)| (a.index(), b.index())))
+        .collect();
+    // Camera-link1, base-link1, link1-link2 (nodes are body + 1).
+    assert_eq!(single_dof, vec![(0, 2), (1, 2), (2, 3)]);
+    assert_eq!(paper_chain(3, pairs), Some(vec![0, 1, 2]));
+    let tree = spanning_tree(3, pairs).expect("tree");
+    assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+    assert!(tree.root_is_static);
+}

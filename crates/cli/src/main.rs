@@ -10,6 +10,27 @@ use kinetree_pipeline::{
 };
 use std::path::{Path, PathBuf};
 
+/// `println!` through [`emit`].
+macro_rules! emitln {
+    ($($arg:tt)*) => {
+        emit(&format!("{}\n", format!($($arg)*)))
+    };
+}
+
+/// Prints to stdout; a closed pipe (`kinetree run | head`) ends the program quietly instead of
+/// panicking as `print!` does.
+fn emit(text: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error writing to stdout: {e}");
+        std::process::exit(1);
+    }
+}
+
 #[derive(Debug, Parser)]
 #[command(
     name = "kinetree",
@@ -92,22 +113,26 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
     })?;
     let outcome = run_experiment(&cfg, &base)?;
     let model = &outcome.discovery.model;
-    println!(
+    emitln!(
         "experiment {}: {}",
-        cfg.experiment.name, cfg.experiment.description
+        cfg.experiment.name,
+        cfg.experiment.description
     );
-    print!("{}", summary(model));
-    println!(
+    emit(&summary(model));
+    emitln!(
         "\nTable I: non-zero singular values of translation (T, m), rotation (R, rad) and centre (C, m)"
     );
-    print!("{}", table_text(model));
+    emit(&table_text(model));
     if let Some(e) = &outcome.evaluation {
-        println!(
+        emitln!(
             "\nagainst the simulator's truth: ARI {:.3}, bodies {}/{}, structure exact: {}",
-            e.ari, e.n_bodies_found, e.n_bodies_true, e.structure_exact
+            e.ari,
+            e.n_bodies_found,
+            e.n_bodies_true,
+            e.structure_exact
         );
         for j in &e.joints {
-            println!(
+            emitln!(
                 "  true joint {}: found {}, type ok {}, axis error {}, joint RMS {}",
                 j.joint,
                 j.found,
@@ -120,7 +145,7 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
     }
     let dir = results.join(&cfg.experiment.name);
     write_results(&cfg, &outcome, &dir)?;
-    println!("\nwrote {}", dir.display());
+    emitln!("\nwrote {}", dir.display());
     Ok(())
 }
 
@@ -147,9 +172,9 @@ fn main() -> Result<()> {
             }
             let t = kinetree_io::read_tracks(&tracks)?;
             let d = Pipeline::from_config(&cfg)?.run(&t)?;
-            print!("{}", summary(&d.model));
+            emit(&summary(&d.model));
             kinetree_io::write_json(&output, &d.model)?;
-            println!("wrote {}", output.display());
+            emitln!("wrote {}", output.display());
             Ok(())
         }
         Command::Simulate {
@@ -190,7 +215,7 @@ fn main() -> Result<()> {
             if let Some(t) = truth {
                 kinetree_io::write_json(&output.join("truth.json"), &t)?;
             }
-            println!(
+            emitln!(
                 "wrote {} frames x {} points ({:.0} % occluded) to {}",
                 tracks.n_frames(),
                 tracks.n_points(),

@@ -28,6 +28,12 @@ pub enum Warning {
         /// The points of the cluster.
         points: Vec<usize>,
     },
+    /// Points the clustering had discarded but whose tracks one body's poses explain; they
+    /// were attached to it.
+    PointsAttached {
+        /// The points.
+        points: Vec<usize>,
+    },
     /// A body that could not be registered in enough frames; its points are discarded.
     BodyDropped {
         /// The body's points.
@@ -89,6 +95,10 @@ impl std::fmt::Display for Warning {
                     points.len()
                 )
             }
+            Warning::PointsAttached { points } => write!(
+                f,
+                "point(s) {points:?} discarded by the clustering were attached to the one body whose poses explain them"
+            ),
             Warning::BodyDropped { points, reason } => {
                 write!(f, "body with points {points:?} dropped: {reason}")
             }

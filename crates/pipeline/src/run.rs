@@ -180,6 +180,7 @@ impl Pipeline {
         let mut poses;
         let mut pairs;
         let mut round = 0;
+        let mut attach_done = false;
         loop {
             poses = self.pose.estimate(&PoseInput {
                 tracks,
@@ -201,6 +202,17 @@ impl Pipeline {
                 }
                 seg = seg.without_bodies(&drop);
                 continue;
+            }
+            if !attach_done {
+                // Once: give discarded points to the one body whose poses explain them.
+                attach_done = true;
+                let (refined, attached) =
+                    kinetree_pose::attach_unassigned(tracks, &poses, &seg, sigma);
+                if !attached.is_empty() {
+                    warnings.push(Warning::PointsAttached { points: attached });
+                    seg = refined;
+                    continue;
+                }
             }
             if seg.n_bodies() == 0 {
                 return Err(Error::Degenerate(

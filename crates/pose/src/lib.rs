@@ -1,7 +1,9 @@
 //! Body pose estimation: Kabsch-Umeyama registration against per-body reference shapes.
 
+mod attach;
 mod kabsch;
 mod reference;
 
+pub use attach::{MIN_SHARED_FRAMES, attach_unassigned, misfit_bound, point_misfit};
 pub use kabsch::{centroid, kabsch, rotation_std_per_sigma, spread};
 pub use reference::{KabschParams, KabschPoses};

@@ -22,7 +22,8 @@ fn body(name: &str, centre: [f64; 3], half_extents: [f64; 3]) -> BodySpec {
 /// revolute joints, 23 keypoints at box corners (the base corner that always faces away from
 /// the camera has none), constant joint torques over `T = 100` steps at 30 Hz so each angle
 /// grows quadratically (link 1 about one full turn, link 2 about half a turn relative to
-/// link 1), 1 mm noise, and a camera placed so the links occlude each other part of the time.
+/// link 1), 1 mm noise, and a camera placed so that link 2 passes in front of link 1, and the
+/// links in front of the base, part of the time.
 pub fn paper_arm(seed: u64) -> Scenario {
     let mut base = body("base", [0.0, 0.0, 0.05], [0.15, 0.15, 0.05]);
     base.skip_corners = vec![2];

@@ -113,6 +113,8 @@ pub struct GroundTruth {
     pub occluded_fraction: f64,
     /// Frames in which each keypoint is visible.
     pub visible_frames: Vec<usize>,
+    /// Frames in which each keypoint, in view, is hidden behind another body.
+    pub occluded_by_other_body: Vec<usize>,
 }
 
 impl GroundTruth {
@@ -230,6 +232,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
         *d = rng.random_bool(s.dropout);
     }
     let mut frames = Vec::with_capacity(s.n_frames);
+    let mut occluded_by_other_body = vec![0usize; n];
     for k in 0..s.n_frames {
         let q: Vec<f64> = joint_positions.iter().map(|p| p[k]).collect();
         let poses = s.mechanism.forward(&q);
@@ -246,14 +249,20 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
             let pc = cam * world;
             let in_view =
                 pc.z > 1e-6 && (pc.x / pc.z).abs() <= tan_h && (pc.y / pc.z).abs() <= tan_v;
-            let occluded = in_view
-                && s.mechanism.bodies.iter().enumerate().any(|(b, spec)| {
-                    let o = body_from_world[b] * eye;
-                    let d = body_from_world[b] * world - o;
-                    spec.shape
-                        .segment_entry(&o, &d, 1e-7)
-                        .is_some_and(|e| e < 1.0 - 1e-9)
-                });
+            let hides = |b: usize| {
+                let o = body_from_world[b] * eye;
+                let d = body_from_world[b] * world - o;
+                s.mechanism.bodies[b]
+                    .shape
+                    .segment_entry(&o, &d, 1e-7)
+                    .is_some_and(|e| e < 1.0 - 1e-9)
+            };
+            let own = point_body[i];
+            let by_other = in_view && (0..s.mechanism.bodies.len()).any(|b| b != own && hides(b));
+            let occluded = by_other || (in_view && hides(own));
+            if by_other {
+                occluded_by_other_body[i] += 1;
+            }
             let noisy = Point3::new(
                 pc.x + noise.sample(&mut rng),
                 pc.y + noise.sample(&mut rng),
@@ -275,6 +284,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
             cam_from_world: cam,
             occluded_fraction,
             visible_frames,
+            occluded_by_other_body,
         },
     })
 }

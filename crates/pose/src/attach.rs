@@ -1,0 +1,113 @@
+//! Re-attaching discarded points to the one body whose poses explain their track.
+
+use kinetree_core::nalgebra::{Point3, Vector3};
+use kinetree_core::{BodyPoses, Segmentation, Tracks};
+
+/// Fewest frames a point must share with a body to be scored against it.
+pub const MIN_SHARED_FRAMES: usize = 3;
+
+/// How well body `body`'s poses explain `point` as a rigid part of it: `(chi^2 / k, k)`.
+///
+/// The point's observations are mapped into the body frame, `z_t = cam_from_body(t)^-1 p(t)`,
+/// and scattered about their weighted mean. The unit is the predicted variance
+/// `sigma^2 (1 + trans^2 + (rot |z_t|)^2)`: the point's own noise, plus the pose's translation
+/// and rotation noise at the point's lever arm. For a rigidly attached point `chi^2 / k` is
+/// about 1, with `k = 3 (frames - 1)` degrees of freedom. Returns `None` with fewer than
+/// [`MIN_SHARED_FRAMES`] shared frames.
+pub fn point_misfit(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    body: usize,
+    point: usize,
+    sigma: f64,
+) -> Option<(f64, f64)> {
+    let track = &poses.bodies[body];
+    let mut z: Vec<(Point3<f64>, f64)> = Vec::new();
+    for t in 0..poses.n_frames {
+        let (Some(p), Some(pose), Some(q)) = (
+            tracks.get(t, point),
+            track.cam_from_body[t],
+            track.quality[t],
+        ) else {
+            continue;
+        };
+        let zt = pose.inverse_transform_point(&p);
+        let lever = q.rot_std_per_sigma * zt.coords.norm();
+        z.push((
+            zt,
+            sigma * sigma * (1.0 + q.trans_std_per_sigma.powi(2) + lever * lever),
+        ));
+    }
+    if z.len() < MIN_SHARED_FRAMES {
+        return None;
+    }
+    let wsum: f64 = z.iter().map(|(_, v)| 1.0 / v).sum();
+    let mean: Vector3<f64> = z.iter().map(|(p, v)| p.coords / *v).sum::<Vector3<f64>>() / wsum;
+    let chi2: f64 = z
+        .iter()
+        .map(|(p, v)| (p.coords - mean).norm_squared() / v)
+        .sum();
+    let k = 3.0 * (z.len() - 1) as f64;
+    Some((chi2 / k, k))
+}
+
+/// Upper bound on `chi^2_k / k` for a rigidly attached point: the Wilson-Hilferty quantile at
+/// `z` standard deviations, times `slack` for the approximations in the predicted variance.
+pub fn misfit_bound(k: f64, z: f64, slack: f64) -> f64 {
+    let c = 2.0 / (9.0 * k);
+    slack * (1.0 - c + z * c.sqrt()).powi(3)
+}
+
+/// Gives every unassigned point (seen in at least [`MIN_SHARED_FRAMES`] frames with some body)
+/// to the body whose poses explain it, when exactly one body does ([`point_misfit`] below
+/// [`misfit_bound`] with `z = 4`, slack 2). Assigned points are never moved. A point near a
+/// joint axis can fit two bodies, and such points stay unassigned. Returns the new
+/// segmentation and the points attached.
+///
+/// Pairwise tests discard a point whose own noise happened to be high over its few visible
+/// frames, because every pair it belongs to shares that noise. This test looks at the point
+/// alone, against poses fitted on many points.
+///
+/// Complexity: O(N B T).
+pub fn attach_unassigned(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    seg: &Segmentation,
+    sigma: f64,
+) -> (Segmentation, Vec<usize>) {
+    let nb = poses.bodies.len();
+    let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
+    let mut attached = Vec::new();
+    for (i, label) in labels.iter_mut().enumerate() {
+        if label.is_some() {
+            continue;
+        }
+        let fitting: Vec<usize> = (0..nb)
+            .filter(|&b| {
+                point_misfit(tracks, poses, b, i, sigma)
+                    .is_some_and(|(m, k)| m <= misfit_bound(k, 4.0, 2.0))
+            })
+            .collect();
+        if let [b] = fitting[..] {
+            *label = Some(b);
+            attached.push(i);
+        }
+    }
+    if attached.is_empty() {
+        return (seg.clone(), attached);
+    }
+    // Every body keeps at least the three points it had, so no minimum size applies here.
+    let mut out = Segmentation::from_raw(&labels, 1);
+    out.discarded_groups = seg
+        .discarded_groups
+        .iter()
+        .map(|g| {
+            g.iter()
+                .copied()
+                .filter(|i| !attached.contains(i))
+                .collect::<Vec<_>>()
+        })
+        .filter(|g| !g.is_empty())
+        .collect();
+    (out, attached)
+}
