@@ -68,33 +68,6 @@ pub fn relative_poses(
         .collect()
 }
 
-/// Relative motion of `b` with respect to `a`, expressed in `a`'s body frame and taken as the
-/// identity at `reference_frame`: `D_k = X_k X_ref^-1` with `X_k = a_from_b(k)`.
-///
-/// For a revolute joint every `D_k` is a rotation about one fixed line of `a`'s frame; for a
-/// prismatic joint a translation along one fixed direction. Returns `None` when `b` is not
-/// registered together with `a` at `reference_frame`.
-pub fn relative_motion(
-    poses: &BodyPoses,
-    a: Option<usize>,
-    b: usize,
-    reference_frame: usize,
-) -> Option<Vec<Option<Isometry3<f64>>>> {
-    let x = relative_poses(poses, a, b);
-    let x_ref_inv = x.get(reference_frame).copied().flatten()?.inverse();
-    Some(
-        x.into_iter()
-            .map(|xk| xk.map(|xk| xk * x_ref_inv))
-            .collect(),
-    )
-}
-
-/// First frame at which both `a` and `b` are registered.
-pub fn first_common_frame(poses: &BodyPoses, a: Option<usize>, b: usize) -> Option<usize> {
-    (0..poses.n_frames)
-        .find(|&t| cam_from(poses, a, t).is_some() && cam_from(poses, Some(b), t).is_some())
-}
-
 /// Flips `v` so that its component of largest magnitude is positive (a deterministic sign for
 /// axes, which are only defined up to sign).
 pub fn canonical_sign(v: Vector3<f64>) -> Vector3<f64> {

@@ -244,3 +244,54 @@ impl Tracks {
         Ok(out)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> Tracks {
+        let mut xyz: Vec<f64> = (0..4 * 3 * 3).map(|k| k as f64 * 0.01).collect();
+        xyz[(3 + 2) * 3..(3 + 2) * 3 + 3].copy_from_slice(&[f64::NAN; 3]); // frame 1, point 2
+        Tracks::new(4, 3, xyz).expect("valid")
+    }
+
+    #[test]
+    fn get_hides_nan_and_counts_visibility() {
+        let t = sample();
+        assert_eq!(t.get(1, 2), None);
+        assert_eq!(t.get(0, 1), Some(Point3::new(0.03, 0.04, 0.05)));
+        assert_eq!(t.get(9, 0), None, "out of range is None, not a panic");
+        assert_eq!(t.visible_count(2), 3);
+        assert!((t.occluded_fraction() - 1.0 / 12.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn select_frames_and_map_points_keep_occlusion() {
+        let t = sample();
+        let s = t.select_frames(&[3, 1]).expect("select");
+        assert_eq!(s.n_frames(), 2);
+        assert_eq!(s.get(0, 0), t.get(3, 0));
+        assert_eq!(s.get(1, 2), None);
+        assert!(matches!(
+            t.select_frames(&[0, 7]),
+            Err(Error::InvalidParameter { .. })
+        ));
+        assert!(matches!(
+            t.select_frames(&[0]),
+            Err(Error::TooFewFrames { .. })
+        ));
+        let mm = t
+            .map_points(|p| Point3::from(p.coords * 1000.0))
+            .expect("scale");
+        assert_eq!(mm.get(1, 2), None);
+        let (a, b) = (
+            mm.get(2, 1).expect("visible"),
+            t.get(2, 1).expect("visible"),
+        );
+        assert!((a.coords - b.coords * 1000.0).norm() < 1e-9);
+        assert!(matches!(
+            t.map_points(|_| Point3::new(f64::INFINITY, 0.0, 0.0)),
+            Err(Error::NonFinite { .. })
+        ));
+    }
+}

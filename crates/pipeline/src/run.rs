@@ -250,7 +250,7 @@ impl Pipeline {
             seg = seg.merged(&group);
             round += 1;
         }
-        let model = self.assemble(tracks, &stats, &seg, &poses, pairs, sigma, source, warnings)?;
+        let model = self.assemble(tracks, &seg, &poses, pairs, sigma, source, warnings)?;
         Ok(Discovery {
             body_order: model.1,
             model: model.0,
@@ -265,7 +265,6 @@ impl Pipeline {
     fn assemble(
         &self,
         tracks: &Tracks,
-        _stats: &PairStats,
         seg: &Segmentation,
         poses: &BodyPoses,
         pairs: Vec<PairDof>,

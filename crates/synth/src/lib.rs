@@ -8,7 +8,7 @@ mod scenario;
 
 pub use mechanism::{BodySpec, BoxShape, JointSpec, JointType, Mechanism};
 pub use named::{RandomParams, paper_arm, random_scenario};
-pub use scenario::{Camera, GroundTruth, Scenario, SynthData, Trajectory, is_angular, simulate};
+pub use scenario::{Camera, GroundTruth, Scenario, SynthData, Trajectory, simulate};
 
 #[cfg(test)]
 mod tests {

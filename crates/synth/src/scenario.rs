@@ -1,6 +1,6 @@
 //! Scenarios: a mechanism, joint trajectories, a camera, occlusion and noise, from a seed.
 
-use crate::mechanism::{JointType, Mechanism};
+use crate::mechanism::Mechanism;
 use kinetree_core::{Error, Result, Tracks};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -302,9 +302,4 @@ pub(crate) fn random_unit(rng: &mut ChaCha8Rng) -> Vector3<f64> {
             return v / n;
         }
     }
-}
-
-/// Whether a joint type moves in radians (revolute) or metres (prismatic).
-pub fn is_angular(t: JointType) -> bool {
-    t == JointType::Revolute
 }
