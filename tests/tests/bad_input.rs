@@ -216,3 +216,36 @@ fn bad_pipeline_parameters_are_typed_errors() {
         "{e}"
     );
 }
+
+#[test]
+fn constant_and_sparse_data_give_typed_errors() {
+    use kinetree_pipeline::{Pipeline, PipelineConfig};
+    // Four points that never move and carry no noise.
+    let frame = [0.0, 0.0, 1.0, 0.1, 0.0, 1.0, 0.0, 0.1, 1.0, 0.1, 0.1, 1.1];
+    let xyz: Vec<f64> = (0..5).flat_map(|_| frame).collect();
+    let constant = Tracks::new(5, 4, xyz).expect("valid");
+    let estimate = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+    let e = estimate.run(&constant).expect_err("no noise to estimate");
+    assert!(
+        matches!(&e, Error::Degenerate(m) if m.contains("constant")),
+        "{e}"
+    );
+    // With a given noise level the same data are one static body.
+    let given = Pipeline::from_config(&PipelineConfig {
+        noise_sigma_m: Some(0.001),
+        ..PipelineConfig::default()
+    })
+    .expect("pipeline");
+    let m = given.run(&constant).expect("one static body").model;
+    assert_eq!(m.bodies.len(), 1);
+    assert_eq!(m.static_body, Some(0));
+    assert!(m.joints.is_empty());
+    // Each point visible in a single frame: nothing can be paired.
+    let mut xyz = vec![f64::NAN; 3 * 3 * 3];
+    for k in 0..3 {
+        xyz[(k * 3 + k) * 3..(k * 3 + k) * 3 + 3].copy_from_slice(&[0.1 * k as f64, 0.0, 1.0]);
+    }
+    let sparse = Tracks::new(3, 3, xyz).expect("valid");
+    assert!(matches!(given.run(&sparse), Err(Error::Degenerate(_))));
+    assert!(matches!(estimate.run(&sparse), Err(Error::Degenerate(_))));
+}

@@ -44,6 +44,12 @@ pub fn estimate_noise_sigma(stats: &PairStats) -> Result<f64> {
         })
         .collect();
     let need = (stats.n_points / 2).max(3);
+    let seen_often = stats.count.iter().filter(|&&c| c >= 3).count();
+    if z.is_empty() && seen_often > 0 {
+        return Err(Error::Degenerate(format!(
+            "cannot estimate the noise level: all {seen_often} pairs seen in 3+ frames keep exactly constant distances (noise-free or constant data); give the noise level explicitly"
+        )));
+    }
     if z.len() < need {
         return Err(Error::Degenerate(format!(
             "cannot estimate the noise level: only {} pairs are seen together in 3+ frames (need {need})",
