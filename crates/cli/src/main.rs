@@ -125,10 +125,11 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
     emit(&table_text(model));
     if let Some(e) = &outcome.evaluation {
         emitln!(
-            "\nagainst the simulator's truth: ARI {:.3}, bodies {}/{}, structure exact: {}",
+            "\nagainst the simulator's truth: ARI {:.3}, bodies {}/{}, joints exact: {}, structure exact: {}",
             e.ari,
             e.n_bodies_found,
             e.n_bodies_true,
+            e.joints_exact,
             e.structure_exact
         );
         for j in &e.joints {

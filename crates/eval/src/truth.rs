@@ -35,7 +35,11 @@ pub struct Evaluation {
     pub n_bodies_true: usize,
     /// Number of bodies found.
     pub n_bodies_found: usize,
-    /// Same bodies, the true base as static root, and every joint found with its type.
+    /// The right number of bodies (each the majority of a different true body), the true base
+    /// static, and every joint found between the right bodies with its type; points may
+    /// still be misassigned.
+    pub joints_exact: bool,
+    /// `joints_exact` and every point on its true body (ARI 1).
     pub structure_exact: bool,
     /// Per true joint.
     pub joints: Vec<JointEval>,
@@ -127,6 +131,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
         n_points_scored: scored.len(),
         n_bodies_true: truth.n_bodies(),
         n_bodies_found: model.bodies.len(),
+        joints_exact: all_ok,
         structure_exact: all_ok && (ari - 1.0).abs() < 1e-12,
         joints,
     }
