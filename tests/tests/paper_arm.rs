@@ -96,3 +96,35 @@ fn table_one_pattern_matches_the_paper() {
         );
     }
 }
+
+#[test]
+fn paper_arm_with_the_chi2_tester() {
+    use kinetree_dof::Chi2RankParams;
+    use kinetree_pipeline::config::DofConfig;
+    let mut cfg =
+        ExperimentConfig::from_toml(PAPER_EXPERIMENT_TOML).expect("embedded config parses");
+    cfg.pipeline.dof = DofConfig::Chi2Rank(Chi2RankParams::default());
+    let out = run_experiment(&cfg, Path::new(".")).expect("runs");
+    let m = &out.discovery.model;
+    assert_eq!(m.stages.dof, "chi2_rank");
+    check_paper_structure(m, out.truth.as_ref().expect("synthetic"));
+    // The chi-square rule reports its statistics, and rigid base vs camera sits near 1.
+    let base = m.pair(None, 0).expect("pair");
+    assert!(base.rotation.threshold.is_none());
+    let chi = base.rotation.chi2_per_dof[0];
+    assert!(chi > 0.3 && chi < base.rotation.chi2_bound[0], "{chi}");
+}
+
+#[test]
+fn model_json_round_trips() {
+    let out = paper_outcome(2, false);
+    let path = std::env::temp_dir().join(format!("kinetree-model-{}.json", std::process::id()));
+    kinetree_io::write_json(&path, &out.discovery.model).expect("write");
+    let back = kinetree_io::read_model(&path).expect("read back");
+    assert_eq!(back.bodies, out.discovery.model.bodies);
+    assert_eq!(back.point_body, out.discovery.model.point_body);
+    assert_eq!(back.joints.len(), 2);
+    assert_eq!(back.pairs.len(), out.discovery.model.pairs.len());
+    // Tests with no data (empty centre tests) survive the trip too.
+    assert!(back.pairs.iter().any(|p| p.centre.n_columns == 0));
+}

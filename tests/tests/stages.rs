@@ -125,3 +125,84 @@ fn dof_graph_and_tree_on_the_paper_arm() {
     assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
     assert!(tree.root_is_static);
 }
+
+/// Poses of one body that turns about a fixed axis (or slides along one) relative to a
+/// static one, noise-free but with realistic pose precision.
+fn one_dof_poses(prismatic: bool) -> kinetree_core::BodyPoses {
+    use kinetree_core::nalgebra::Matrix3;
+    use kinetree_core::{BodyPoses, BodyTrack, PoseQuality};
+    let n_frames = 60;
+    let axis = Vector3::new(0.3, -0.5, 0.8).normalize();
+    let pivot = Vector3::new(0.2, 0.1, 1.5);
+    let quality = Some(PoseQuality {
+        n_visible: 8,
+        rms_residual_m: 0.0,
+        rot_std_per_sigma: 10.0,
+        trans_std_per_sigma: 0.5,
+        rot_cov_per_sigma2: Matrix3::identity() * 100.0,
+        origin_cov_per_sigma2: Matrix3::identity() * 0.25,
+    });
+    let track = |poses: Vec<Option<Isometry3<f64>>>| BodyTrack {
+        points: vec![],
+        shape: vec![],
+        reference_frame: 0,
+        quality: vec![quality; poses.len()],
+        cam_from_body: poses,
+        frames_too_few_points: 0,
+        frames_degenerate: 0,
+    };
+    let base = Isometry3::translation(0.0, 0.0, 2.0);
+    let moving: Vec<Option<Isometry3<f64>>> = (0..n_frames)
+        .map(|k| {
+            let q = (k as f64 * 0.15).sin();
+            let motion = if prismatic {
+                Isometry3::translation(axis.x * q * 0.1, axis.y * q * 0.1, axis.z * q * 0.1)
+            } else {
+                Translation3::from(pivot)
+                    * UnitQuaternion::from_scaled_axis(axis * q)
+                    * Translation3::from(-pivot)
+            };
+            Some(base * motion * Isometry3::translation(0.4, 0.0, 0.0))
+        })
+        .collect();
+    BodyPoses {
+        n_frames,
+        bodies: vec![track(vec![Some(base); n_frames]), track(moving)],
+    }
+}
+
+#[test]
+fn exact_one_dof_motions_give_rank_one_with_both_testers() {
+    use kinetree_core::{DofInput, DofTester, JointKind};
+    use kinetree_dof::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
+    let testers: Vec<Box<dyn DofTester>> = vec![
+        Box::new(SvdRank::new(SvdRankParams::default()).expect("params")),
+        Box::new(Chi2Rank::new(Chi2RankParams::default()).expect("params")),
+    ];
+    for t in &testers {
+        for prismatic in [false, true] {
+            let poses = one_dof_poses(prismatic);
+            let input = DofInput {
+                poses: &poses,
+                noise_sigma_m: 1e-4,
+            };
+            let p = t.test_pair(&input, Some(0), 1).expect("test");
+            assert_eq!(p.dof, 1, "{} prismatic={prismatic}: {p:?}", t.name());
+            let truth = Vector3::new(0.3, -0.5, 0.8).normalize();
+            match (&p.joint, prismatic) {
+                (JointKind::Revolute { axis, .. }, false)
+                | (JointKind::Prismatic { axis }, true) => {
+                    assert!(
+                        axis.dot(&truth).abs() > 1.0 - 1e-9,
+                        "{} axis {axis:?}",
+                        t.name()
+                    );
+                }
+                (other, _) => panic!("{}: wrong joint {other:?}", t.name()),
+            }
+            // The static base has no DoF relative to the camera.
+            let s = t.test_pair(&input, None, 0).expect("test");
+            assert_eq!(s.joint, JointKind::Rigid, "{}", t.name());
+        }
+    }
+}

@@ -1,6 +1,6 @@
 //! Body poses over time and the per-pair relative-motion tests.
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// How well one body was registered in one frame.
@@ -16,6 +16,13 @@ pub struct PoseQuality {
     /// Standard deviation of the body origin's position (per coordinate) per unit of
     /// per-coordinate noise, dimensionless.
     pub trans_std_per_sigma: f64,
+    /// Covariance of the rotation error (a body-frame rotation vector) per unit noise
+    /// variance: `J^-1`, with `J = sum (|q|^2 I - q q^T)` over the visible points centred on
+    /// their centroid. Multiply by `sigma^2` to get rad^2.
+    pub rot_cov_per_sigma2: Matrix3<f64>,
+    /// Covariance of the body origin's position error (body frame) per unit noise variance:
+    /// `I / n + [c]x J^-1 [c]x^T`, with `c` the visible points' centroid.
+    pub origin_cov_per_sigma2: Matrix3<f64>,
 }
 
 /// One body's reference shape and its pose in every frame.
@@ -55,20 +62,28 @@ pub struct BodyPoses {
     pub bodies: Vec<BodyTrack>,
 }
 
-/// One rank decision on a 3 x K (or 1 x K) data matrix.
+/// One rank decision on a 3 x K (or 2 x K, 1 x K) data matrix.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RankTest {
     /// Singular values of the centred matrix in physical units (metres or radians),
     /// descending.
     pub singular_values: Vec<f64>,
-    /// Singular values after each column was divided by its predicted noise std-dev.
+    /// Singular values after each column was divided by its worst-direction noise std-dev.
     pub whitened: Vec<f64>,
-    /// Threshold on the whitened singular values.
-    pub threshold: f64,
-    /// Number of whitened singular values above the threshold.
+    /// Threshold on the whitened singular values (the thresholded-SVD rule); `None` for the
+    /// chi-square rule or when there was no data.
+    pub threshold: Option<f64>,
+    /// The decided rank.
     pub rank: usize,
     /// Number of columns (frames) used.
     pub n_columns: usize,
+    /// Chi-square rule: weighted residual per degree of freedom of the best rank-`r` fit,
+    /// for `r = 0, 1, ..`; empty for the thresholded-SVD rule.
+    #[serde(default)]
+    pub chi2_per_dof: Vec<f64>,
+    /// Chi-square rule: the bound each `chi2_per_dof[r]` had to meet for rank `r`.
+    #[serde(default)]
+    pub chi2_bound: Vec<f64>,
 }
 
 impl RankTest {
@@ -77,18 +92,32 @@ impl RankTest {
         Self {
             singular_values: Vec::new(),
             whitened: Vec::new(),
-            threshold: f64::INFINITY,
+            threshold: None,
             rank: 0,
             n_columns: 0,
+            chi2_per_dof: Vec::new(),
+            chi2_bound: Vec::new(),
         }
     }
 
-    /// Ratio of the largest rejected whitened singular value to the threshold (< 1 when the
-    /// decision is clear; near 1 when the next rank almost passed).
+    /// How close the decision came to the next rank: below 1 when the decision is clear,
+    /// near 1 when it almost went the other way. Thresholded SVD: the largest rejected
+    /// whitened singular value over the threshold. Chi-square: the accepted rank's misfit over
+    /// its bound (0 when the full rank was needed).
     pub fn next_rank_ratio(&self) -> f64 {
-        self.whitened
-            .get(self.rank)
-            .map_or(0.0, |s| s / self.threshold)
+        if !self.chi2_per_dof.is_empty() {
+            return match (
+                self.chi2_per_dof.get(self.rank),
+                self.chi2_bound.get(self.rank),
+            ) {
+                (Some(s), Some(b)) if *b > 0.0 => s / b,
+                _ => 0.0,
+            };
+        }
+        match (self.whitened.get(self.rank), self.threshold) {
+            (Some(s), Some(t)) if t > 0.0 => s / t,
+            _ => 0.0,
+        }
     }
 }
 

@@ -1,7 +1,7 @@
 //! Relative degree-of-freedom tests between bodies and the camera frame.
 
 mod rank;
-mod svd_rank;
+mod tester;
 
-pub use rank::{principal_direction, rank_test};
-pub use svd_rank::{SvdRank, SvdRankParams};
+pub use rank::{RankRule, chi2_per_dof_quantile, principal_direction, rank_test};
+pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};

@@ -1,51 +1,217 @@
-//! Noise-whitened rank tests on 3 x K and 1 x K data matrices.
+//! Rank tests on centred 3 x K (or 2 x K, 1 x K) data matrices with per-column noise
+//! covariances.
 
 use kinetree_core::RankTest;
-use kinetree_core::nalgebra::{DMatrix, Vector3};
+use kinetree_core::nalgebra::{DMatrix, Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
 
-/// Rank of the centred columns `cols` after dividing each by its noise std-dev `stds[k]`.
+/// How a rank is decided.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "rule", rename_all = "snake_case")]
+pub enum RankRule {
+    /// The paper's thresholded SVD, made scale-free: divide each centred column by its
+    /// worst-direction noise std-dev and count singular values above
+    /// `kappa (sqrt(K) + sqrt(d))` (the largest singular value of a `d x K` unit-noise
+    /// matrix is about `sqrt(K) + sqrt(d)`).
+    Whitened {
+        /// Threshold in noise std-devs of RMS amplitude.
+        kappa: f64,
+    },
+    /// A chi-square test with the full per-column covariance: fit the best rank-`r`
+    /// subspace in the Mahalanobis metric of every column and accept the smallest `r` whose
+    /// residual `chi^2 / dof` is below the Wilson-Hilferty quantile at `z` standard
+    /// deviations, times `slack` for the linearisations in the noise model.
+    Chi2 {
+        /// Standard normal quantile of the test (4: p about 3e-5).
+        z: f64,
+        /// Tolerance factor on `chi^2 / dof`.
+        slack: f64,
+    },
+}
+
+/// Upper quantile of `chi^2_k / k` at `z` standard normal deviations (Wilson-Hilferty).
+pub fn chi2_per_dof_quantile(k: f64, z: f64) -> f64 {
+    let c = 2.0 / (9.0 * k.max(1.0));
+    (1.0 - c + z * c.sqrt()).powi(3)
+}
+
+fn sorted_singular_values(m: DMatrix<f64>) -> Vec<f64> {
+    let mut s: Vec<f64> = m.singular_values().iter().copied().collect();
+    s.sort_by(|a, b| b.total_cmp(a));
+    s
+}
+
+fn worst_std(cov: &Matrix3<f64>, dim: usize) -> f64 {
+    let v = match dim {
+        1 => cov[(0, 0)],
+        2 => cov.fixed_view::<2, 2>(0, 0).symmetric_eigenvalues().max(),
+        _ => cov.symmetric_eigenvalues().max(),
+    };
+    v.max(1e-300).sqrt()
+}
+
+/// Inverse of a covariance restricted to its first `dim` coordinates (identity elsewhere).
+fn information(cov: &Matrix3<f64>, dim: usize) -> Matrix3<f64> {
+    let mut c = *cov;
+    for i in dim..3 {
+        for j in 0..3 {
+            c[(i, j)] = if i == j { 1.0 } else { 0.0 };
+            c[(j, i)] = if i == j { 1.0 } else { 0.0 };
+        }
+    }
+    c.try_inverse().unwrap_or_else(Matrix3::zeros)
+}
+
+fn top_eigenvector(m: &Matrix3<f64>, largest: bool) -> Vector3<f64> {
+    let e = m.symmetric_eigen();
+    let i = if largest {
+        e.eigenvalues.imax()
+    } else {
+        e.eigenvalues.imin()
+    };
+    e.eigenvectors.column(i).into_owned()
+}
+
+/// Weighted residuals of the best rank-0, 1 and 2 subspaces (through the origin) of the
+/// centred columns, each column weighted by its information matrix `omega`. Returns
+/// `(chi2 for r = 0..dim, best line direction)`.
+fn weighted_residuals(
+    x: &[Vector3<f64>],
+    omega: &[Matrix3<f64>],
+    cov: &[Matrix3<f64>],
+    dim: usize,
+) -> (Vec<f64>, Vector3<f64>) {
+    let s0: f64 = x.iter().zip(omega).map(|(x, o)| x.dot(&(o * x))).sum();
+    let scatter: Matrix3<f64> = x.iter().map(|x| x * x.transpose()).sum();
+    // r = 1: alternating least squares for the line direction.
+    let mut u = top_eigenvector(&scatter, true);
+    for _ in 0..30 {
+        let mut a = Matrix3::zeros();
+        let mut b = Vector3::zeros();
+        for (x, o) in x.iter().zip(omega) {
+            let den = u.dot(&(o * u));
+            if den <= 0.0 {
+                continue;
+            }
+            let c = u.dot(&(o * x)) / den;
+            a += o * (c * c);
+            b += o * x * c;
+        }
+        match a.try_inverse() {
+            Some(inv) => {
+                let next = inv * b;
+                if next.norm() > 0.0 && next.iter().all(|v| v.is_finite()) {
+                    u = next.normalize();
+                }
+            }
+            None => break,
+        }
+    }
+    let s1: f64 = x
+        .iter()
+        .zip(omega)
+        .map(|(x, o)| {
+            let den = u.dot(&(o * u));
+            let num = u.dot(&(o * x));
+            x.dot(&(o * x)) - if den > 0.0 { num * num / den } else { 0.0 }
+        })
+        .sum::<f64>()
+        .max(0.0);
+    let mut out = vec![s0, s1];
+    if dim == 3 {
+        // r = 2: the plane's normal, by reweighted smallest eigenvectors.
+        let mut n = top_eigenvector(&scatter, false);
+        for _ in 0..30 {
+            let m: Matrix3<f64> = x
+                .iter()
+                .zip(cov)
+                .map(|(x, c)| x * x.transpose() / n.dot(&(c * n)).max(1e-300))
+                .sum();
+            n = top_eigenvector(&m, false);
+        }
+        let s2: f64 = x
+            .iter()
+            .zip(cov)
+            .map(|(x, c)| n.dot(x).powi(2) / n.dot(&(c * n)).max(1e-300))
+            .sum();
+        out.push(s2);
+    }
+    out.truncate(dim);
+    (out, u)
+}
+
+/// Rank of the centred columns `cols` (only their first `dim` coordinates carry data) with
+/// per-column noise covariances `covs`, by `rule`.
 ///
-/// For a `d x K` matrix of independent unit-variance noise the largest singular value is about
-/// `sqrt(K) + sqrt(d)`; a direction counts when its whitened singular value exceeds
-/// `kappa (sqrt(K) + sqrt(d))`, i.e. when its RMS amplitude exceeds `kappa` noise std-devs.
 /// Centring makes the test affine: a line that misses the origin still has rank 1, and a
-/// constant error in the reference frame does not add a rank.
-pub fn rank_test(cols: &[Vector3<f64>], stds: &[f64], dim: usize, kappa: f64) -> RankTest {
+/// constant error in the reference frame does not add a rank. The singular values are
+/// always reported (raw, and after dividing each column by its worst-direction std-dev);
+/// for [`RankRule::Chi2`] the test also reports `chi2_per_dof` and `chi2_bound` for every
+/// rank below `dim`.
+pub fn rank_test(
+    cols: &[Vector3<f64>],
+    covs: &[Matrix3<f64>],
+    dim: usize,
+    rule: RankRule,
+) -> RankTest {
     let k = cols.len();
     if k < 2 {
         return RankTest::empty();
     }
     let mean: Vector3<f64> = cols.iter().sum::<Vector3<f64>>() / k as f64;
-    let raw = DMatrix::from_fn(dim, k, |r, c| cols[c][r] - mean[r]);
-    let white = DMatrix::from_fn(dim, k, |r, c| (cols[c][r] - mean[r]) / stds[c]);
-    let sv = |m: DMatrix<f64>| -> Vec<f64> {
-        let mut s: Vec<f64> = m.singular_values().iter().copied().collect();
-        s.sort_by(|a, b| b.total_cmp(a));
-        s
-    };
-    let singular_values = sv(raw);
-    let whitened = sv(white);
-    let threshold = kappa * ((k as f64).sqrt() + (dim as f64).sqrt());
-    let rank = whitened.iter().filter(|&&s| s > threshold).count();
-    RankTest {
-        singular_values,
-        whitened,
-        threshold,
-        rank,
-        n_columns: k,
+    let centred: Vec<Vector3<f64>> = cols.iter().map(|c| c - mean).collect();
+    let stds: Vec<f64> = covs.iter().map(|c| worst_std(c, dim)).collect();
+    let singular_values = sorted_singular_values(DMatrix::from_fn(dim, k, |r, c| centred[c][r]));
+    let whitened = sorted_singular_values(DMatrix::from_fn(dim, k, |r, c| centred[c][r] / stds[c]));
+    let kf = (k - 1) as f64;
+    match rule {
+        RankRule::Whitened { kappa } => {
+            let threshold = kappa * ((k as f64).sqrt() + (dim as f64).sqrt());
+            let rank = whitened.iter().filter(|&&s| s > threshold).count();
+            RankTest {
+                singular_values,
+                whitened,
+                threshold: Some(threshold),
+                rank,
+                n_columns: k,
+                chi2_per_dof: Vec::new(),
+                chi2_bound: Vec::new(),
+            }
+        }
+        RankRule::Chi2 { z, slack } => {
+            let omega: Vec<Matrix3<f64>> = covs.iter().map(|c| information(c, dim)).collect();
+            let (chi2, _) = weighted_residuals(&centred, &omega, covs, dim);
+            let d = dim as f64;
+            let mut per_dof = Vec::with_capacity(dim);
+            let mut bound = Vec::with_capacity(dim);
+            for (r, s) in chi2.iter().enumerate() {
+                let rf = r as f64;
+                let dof = ((d - rf) * kf - rf * (d - rf)).max(1.0);
+                per_dof.push(s / dof);
+                bound.push(slack * chi2_per_dof_quantile(dof, z));
+            }
+            let rank = (0..dim).find(|&r| per_dof[r] <= bound[r]).unwrap_or(dim);
+            RankTest {
+                singular_values,
+                whitened,
+                threshold: None,
+                rank,
+                n_columns: k,
+                chi2_per_dof: per_dof,
+                chi2_bound: bound,
+            }
+        }
     }
 }
 
-/// Leading left singular vector of the (uncentred) columns weighted by `1 / stds`: the
-/// best-fitting line through the origin.
-pub fn principal_direction(cols: &[Vector3<f64>], stds: &[f64]) -> Option<Vector3<f64>> {
-    let mut m = kinetree_core::nalgebra::Matrix3::zeros();
-    for (c, s) in cols.iter().zip(stds) {
-        let w = c / *s;
+/// Best-fitting line through the origin of the (uncentred) columns, each weighted by the
+/// inverse of its worst-direction noise variance.
+pub fn principal_direction(cols: &[Vector3<f64>], covs: &[Matrix3<f64>]) -> Option<Vector3<f64>> {
+    let mut m = Matrix3::zeros();
+    for (c, cov) in cols.iter().zip(covs) {
+        let w = c / worst_std(cov, 3);
         m += w * w.transpose();
     }
-    let eig = m.symmetric_eigen();
-    let i = eig.eigenvalues.imax();
-    let v: Vector3<f64> = eig.eigenvectors.column(i).into_owned();
+    let v = top_eigenvector(&m, true);
     (v.norm() > 0.0 && v.iter().all(|x| x.is_finite())).then(|| v.normalize())
 }

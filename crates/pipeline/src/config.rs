@@ -3,7 +3,7 @@
 use kinetree_clustering::{Hierarchical, HierarchicalParams};
 use kinetree_core::{Clustering, Dissimilarity, DofTester, Error, PoseEstimator, Result};
 use kinetree_dissimilarity::{DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams};
-use kinetree_dof::{SvdRank, SvdRankParams};
+use kinetree_dof::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
 use kinetree_pose::{KabschParams, KabschPoses};
 use kinetree_synth::RandomParams;
 use serde::{Deserialize, Serialize};
@@ -97,8 +97,10 @@ impl PoseConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum DofConfig {
-    /// SVD ranks with noise-derived thresholds.
+    /// The paper's SVD ranks with noise-derived thresholds.
     SvdRank(SvdRankParams),
+    /// The same tests decided by chi-square with full per-frame covariances.
+    Chi2Rank(Chi2RankParams),
 }
 
 impl Default for DofConfig {
@@ -115,6 +117,7 @@ impl DofConfig {
     pub fn build(&self) -> Result<Box<dyn DofTester>> {
         Ok(match self {
             Self::SvdRank(p) => Box::new(SvdRank::new(*p)?),
+            Self::Chi2Rank(p) => Box::new(Chi2Rank::new(*p)?),
         })
     }
 }

@@ -61,20 +61,23 @@ pub fn spread(p: &[Point3<f64>]) -> [f64; 3] {
     [e[0], e[1], e[2]]
 }
 
-/// Worst-axis rotation std-dev per unit of per-coordinate noise for a fit on `p`:
-/// `1 / sqrt(lambda_min(J))` with `J = sum (|q|^2 I - q q^T)`, `q` centred (the inverse
-/// Fisher information of the rotation, linearised).
-pub fn rotation_std_per_sigma(p: &[Point3<f64>]) -> f64 {
+/// Rotation-error covariance per unit noise variance for a Kabsch fit on `p`: `J^-1` with
+/// `J = sum (|q|^2 I - q q^T)` over the points centred on their centroid (the inverse Fisher
+/// information of the rotation, linearised). `None` when `J` is singular (collinear points).
+pub fn rotation_cov_per_sigma2(p: &[Point3<f64>]) -> Option<Matrix3<f64>> {
     let c = centroid(p);
     let mut j = Matrix3::zeros();
     for q in p {
         let d = q - c;
         j += Matrix3::identity() * d.norm_squared() - d * d.transpose();
     }
-    let lmin = j.symmetric_eigenvalues().min();
-    if lmin > 0.0 {
-        1.0 / lmin.sqrt()
-    } else {
-        f64::INFINITY
-    }
+    j.try_inverse()
+}
+
+/// Worst-axis rotation std-dev per unit of per-coordinate noise for a fit on `p`:
+/// `sqrt(lambda_max(J^-1))`, infinite for collinear points.
+pub fn rotation_std_per_sigma(p: &[Point3<f64>]) -> f64 {
+    rotation_cov_per_sigma2(p).map_or(f64::INFINITY, |c| {
+        c.symmetric_eigenvalues().max().max(0.0).sqrt()
+    })
 }

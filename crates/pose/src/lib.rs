@@ -5,5 +5,5 @@ mod kabsch;
 mod reference;
 
 pub use attach::{MIN_SHARED_FRAMES, attach_unassigned, misfit_bound, point_misfit};
-pub use kabsch::{centroid, kabsch, rotation_std_per_sigma, spread};
+pub use kabsch::{centroid, kabsch, rotation_cov_per_sigma2, rotation_std_per_sigma, spread};
 pub use reference::{KabschParams, KabschPoses};

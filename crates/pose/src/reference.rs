@@ -1,7 +1,7 @@
 //! Per-body reference shapes built from all frames, and the pose estimator on top of them.
 
-use crate::kabsch::{centroid, kabsch, rotation_std_per_sigma, spread};
-use kinetree_core::nalgebra::{Isometry3, Point3, Translation3};
+use crate::kabsch::{centroid, kabsch, rotation_cov_per_sigma2, spread};
+use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, Translation3};
 use kinetree_core::{
     BodyPoses, BodyTrack, Error, PoseEstimator, PoseInput, PoseQuality, Result, Tracks,
 };
@@ -173,13 +173,20 @@ impl KabschPoses {
                 .sum::<f64>()
                 / n)
                 .sqrt();
-            let rot = rotation_std_per_sigma(&src);
-            let c_vis = centroid(&src).coords.norm();
+            // A fit on collinear points never gets here (see `usable`); a huge finite variance keeps
+            // the matrix free of the NaN that infinity times zero would put off the diagonal.
+            let rot_cov =
+                rotation_cov_per_sigma2(&src).unwrap_or_else(|| Matrix3::identity() * 1e12);
+            let c = centroid(&src).coords.cross_matrix();
+            let origin_cov = Matrix3::identity() / n + c * rot_cov * c.transpose();
+            let worst = |m: &Matrix3<f64>| m.symmetric_eigenvalues().max().max(0.0).sqrt();
             quality[t] = Some(PoseQuality {
                 n_visible: vis.len(),
                 rms_residual_m: rms,
-                rot_std_per_sigma: rot,
-                trans_std_per_sigma: (1.0 / n + (rot * c_vis).powi(2)).sqrt(),
+                rot_std_per_sigma: worst(&rot_cov),
+                trans_std_per_sigma: worst(&origin_cov),
+                rot_cov_per_sigma2: rot_cov,
+                origin_cov_per_sigma2: origin_cov,
             });
         }
         BodyTrack {

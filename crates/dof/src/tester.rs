@@ -1,0 +1,454 @@
+//! The DoF testers: relative-motion columns with their noise, rank rules, joint typing.
+
+use crate::rank::{RankRule, principal_direction, rank_test};
+use kinetree_core::geom::{angle_about, canonical_sign, log_so3, relative_poses};
+use kinetree_core::nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
+use kinetree_core::{
+    BodyPoses, DofInput, DofTester, Error, JointKind, PairDof, PoseQuality, RankTest, Result,
+};
+use serde::{Deserialize, Serialize};
+
+/// Per-frame relative motion of body `b` in frame `a`, with the noise of every column.
+#[derive(Debug, Clone)]
+struct PairColumns {
+    reference_frame: usize,
+    /// Index of the reference frame among the columns.
+    reference_index: usize,
+    /// Displacement of `b`'s origin in `a`'s body frame, and its covariance (m^2).
+    u: Vec<Vector3<f64>>,
+    u_cov: Vec<Matrix3<f64>>,
+    /// Axis-angle of the relative rotation, and its covariance (rad^2).
+    rot: Vec<Vector3<f64>>,
+    rot_cov: Vec<Matrix3<f64>>,
+    q_rel: Vec<UnitQuaternion<f64>>,
+    y_ref: Vector3<f64>,
+}
+
+fn quality(poses: &BodyPoses, a: Option<usize>, t: usize) -> Option<PoseQuality> {
+    a.and_then(|b| poses.bodies[b].quality[t])
+}
+
+fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Result<PairColumns> {
+    let n_bodies = poses.bodies.len();
+    if b >= n_bodies || a.is_some_and(|a| a >= n_bodies || a == b) {
+        return Err(Error::InvalidParameter {
+            name: "pair".into(),
+            message: format!("no pair ({a:?}, {b}) among {n_bodies} bodies"),
+        });
+    }
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(Error::InvalidParameter {
+            name: "noise_sigma_m".into(),
+            message: format!("must be finite and positive, got {sigma}"),
+        });
+    }
+    let x = relative_poses(poses, a, b);
+    let frames: Vec<usize> = (0..poses.n_frames).filter(|&t| x[t].is_some()).collect();
+    if frames.len() < 2 {
+        return Err(Error::Degenerate(format!(
+            "frames {a:?} and body {b} have poses together in {} frame(s); two are needed",
+            frames.len()
+        )));
+    }
+    let s2 = sigma * sigma;
+    let zero = Matrix3::zeros();
+    let mut rot_cov = Vec::with_capacity(frames.len());
+    let mut u_cov = Vec::with_capacity(frames.len());
+    for &t in &frames {
+        let Some(xk) = x[t] else { continue };
+        let r_x = xk.rotation.to_rotation_matrix().into_inner();
+        let qa = quality(poses, a, t);
+        let qb = quality(poses, Some(b), t);
+        let (ja, oa) = qa.map_or((zero, zero), |q| {
+            (q.rot_cov_per_sigma2, q.origin_cov_per_sigma2)
+        });
+        let (jb, ob) = qb.map_or((zero, zero), |q| {
+            (q.rot_cov_per_sigma2, q.origin_cov_per_sigma2)
+        });
+        // Relative rotation error in a's frame: -alpha + R_x beta.
+        rot_cov.push((ja + r_x * jb * r_x.transpose()) * s2);
+        // b's origin in a's frame: a's origin error, b's origin error, and a's rotation error
+        // at the lever arm y.
+        let y = xk.translation.vector.cross_matrix();
+        u_cov.push((oa + r_x * ob * r_x.transpose() + y * ja * y.transpose()) * s2);
+    }
+    // Reference: the common frame with the most precise relative rotation.
+    let r = (0..frames.len())
+        .min_by(|&i, &j| rot_cov[i].trace().total_cmp(&rot_cov[j].trace()))
+        .unwrap_or(0);
+    let reference_frame = frames[r];
+    let x_ref = x[reference_frame].ok_or_else(|| Error::Numerical("lost reference pose".into()))?;
+    let y_ref = x_ref.translation.vector;
+    let mut u = Vec::with_capacity(frames.len());
+    let mut rot = Vec::with_capacity(frames.len());
+    let mut q_rel = Vec::with_capacity(frames.len());
+    let rot_cov_ref = rot_cov[r];
+    for (i, &t) in frames.iter().enumerate() {
+        let Some(xk) = x[t] else { continue };
+        u.push(xk.translation.vector - y_ref);
+        let q: UnitQuaternion<f64> = xk.rotation * x_ref.rotation.inverse();
+        let phi = log_so3(&q.to_rotation_matrix());
+        // Q_k = R_k R_ref^T has left error eps_k - Q_k eps_ref, and log(exp(d) Q) moves by
+        // J_l^-1(log Q) d: at large angles that amplifies the error (up to pi/2 at pi) and
+        // turns it about the axis, which matters for the anisotropic errors of thin bodies.
+        let qm = q.to_rotation_matrix().into_inner();
+        let jinv = inverse_left_jacobian(&phi);
+        let cov = rot_cov[i] + qm * rot_cov_ref * qm.transpose();
+        rot_cov[i] = jinv * cov * jinv.transpose();
+        rot.push(phi);
+        q_rel.push(q);
+    }
+    Ok(PairColumns {
+        reference_frame,
+        reference_index: r,
+        u,
+        u_cov,
+        rot,
+        rot_cov,
+        q_rel,
+        y_ref,
+    })
+}
+
+/// Inverse left Jacobian of SO(3) at `phi = theta a`:
+/// `(theta/2) cot(theta/2) I + (1 - (theta/2) cot(theta/2)) a a^T - [phi/2]x`.
+fn inverse_left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = phi.norm();
+    let half = phi.cross_matrix() * 0.5;
+    if theta < 1e-6 {
+        return Matrix3::identity() - half;
+    }
+    let a = phi / theta;
+    let h = theta / 2.0;
+    let c = h / h.tan();
+    Matrix3::identity() * c + a * a.transpose() * (1.0 - c) - half
+}
+
+/// Settings shared by the testers: which frames count for the centre of rotation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CentreSettings {
+    min_angle_rad: f64,
+    min_angle_in_std: f64,
+}
+
+/// Types the joint between `a` and `b` from the rank decisions of `rule`.
+fn classify(
+    c: &PairColumns,
+    a: Option<usize>,
+    b: usize,
+    rule: RankRule,
+    centre_settings: CentreSettings,
+) -> Result<PairDof> {
+    let translation = rank_test(&c.u, &c.u_cov, 3, rule);
+    let rotation = rank_test(&c.rot, &c.rot_cov, 3, rule);
+    let mut centre = RankTest::empty();
+    let mut sliding = RankTest::empty();
+    let mut joint = JointKind::MultiDof;
+    let dof;
+    let fit_ratio;
+    match rotation.rank {
+        0 => {
+            dof = translation.rank;
+            fit_ratio = rotation
+                .next_rank_ratio()
+                .max(translation.next_rank_ratio());
+            if translation.rank == 0 {
+                joint = JointKind::Rigid;
+            } else if translation.rank == 1 {
+                let axis = principal_direction(&c.u, &c.u_cov)
+                    .ok_or_else(|| Error::Numerical("prismatic axis".into()))?;
+                joint = JointKind::Prismatic {
+                    axis: canonical_sign(axis),
+                };
+            }
+        }
+        1 => {
+            let axis = canonical_sign(
+                principal_direction(&c.rot, &c.rot_cov)
+                    .ok_or_else(|| Error::Numerical("rotation axis".into()))?,
+            );
+            // Basis of the plane perpendicular to the axis, for the centre columns.
+            let e1 = axis
+                .cross(&Vector3::x())
+                .try_normalize(1e-6)
+                .unwrap_or_else(|| axis.cross(&Vector3::y()).normalize());
+            let e2 = axis.cross(&e1);
+            let basis = Matrix3::from_rows(&[e1.transpose(), e2.transpose(), axis.transpose()]);
+            let mut w = Vec::new();
+            let mut w_cov = Vec::new();
+            let mut a_mat = Matrix3::zeros();
+            let mut b_vec = Vector3::zeros();
+            let mut z = Vec::with_capacity(c.u.len());
+            let mut z_cov = Vec::with_capacity(c.u.len());
+            let thetas: Vec<f64> = c.q_rel.iter().map(|q| angle_about(q, &axis)).collect();
+            // Uncertainty of the fitted axis, (sum theta^2 Omega)^-1 across the axis: a tilt
+            // times a large displacement looks like sliding.
+            let across = Matrix3::identity() - axis * axis.transpose();
+            let info: Matrix3<f64> = thetas
+                .iter()
+                .zip(&c.rot_cov)
+                .map(|(t, cov)| cov.try_inverse().unwrap_or_else(Matrix3::zeros) * (t * t))
+                .sum();
+            let axis_cov = across * info.try_inverse().unwrap_or_else(Matrix3::zeros) * across;
+            for (k, &theta) in thetas.iter().enumerate() {
+                let m = c.q_rel[k].to_rotation_matrix().into_inner() - Matrix3::identity();
+                let info = c.u_cov[k].try_inverse().unwrap_or_else(Matrix3::identity);
+                a_mat += m.transpose() * info * m;
+                b_vec += m.transpose() * info * c.u[k];
+                let mut zc = Matrix3::identity();
+                zc[(0, 0)] = axis.dot(&(c.u_cov[k] * axis)) + c.u[k].dot(&(axis_cov * c.u[k]));
+                z.push(Vector3::new(axis.dot(&c.u[k]), 0.0, 0.0));
+                z_cov.push(zc);
+                let rot_std = c.rot_cov[k].symmetric_eigenvalues().max().max(0.0).sqrt();
+                let min_angle = centre_settings
+                    .min_angle_rad
+                    .max(centre_settings.min_angle_in_std * rot_std);
+                if theta.abs() < min_angle {
+                    continue;
+                }
+                let gain = 2.0 * (theta.abs() / 2.0).sin();
+                if let Ok(pinv) = m.pseudo_inverse(0.5 * gain) {
+                    let v = pinv * c.u[k];
+                    // Noise of w = (R - I)^+ u: from u (this frame's and the reference's,
+                    // which P varies per frame so centring cannot remove it) and from the
+                    // rotation error inside (R - I), whose derivative is P [R v]x.
+                    let r_v = (c.q_rel[k] * v).cross_matrix();
+                    let jac = pinv * r_v;
+                    let cov_w = pinv * (c.u_cov[k] + c.u_cov[c.reference_index]) * pinv.transpose()
+                        + jac * (c.rot_cov[k] + c.rot_cov[c.reference_index]) * jac.transpose();
+                    let wk = basis * v;
+                    let mut cov = basis * cov_w * basis.transpose();
+                    // Only the two in-plane coordinates carry data.
+                    for i in 0..3 {
+                        cov[(2, i)] = if i == 2 { 1.0 } else { 0.0 };
+                        cov[(i, 2)] = if i == 2 { 1.0 } else { 0.0 };
+                    }
+                    w.push(Vector3::new(wk.x, wk.y, 0.0));
+                    w_cov.push(cov);
+                }
+            }
+            centre = rank_test(&w, &w_cov, 2, rule);
+            sliding = rank_test(&z, &z_cov, 1, rule);
+            dof = (1 + centre.rank + sliding.rank).min(6);
+            fit_ratio = rotation
+                .next_rank_ratio()
+                .max(centre.next_rank_ratio())
+                .max(sliding.next_rank_ratio());
+            if centre.rank == 0 && sliding.rank == 0 {
+                // Least-squares centre: u_k = (R_k - I)(y_ref - c), regularised along the
+                // axis so the pivot is the point of the axis level with b's origin.
+                let scale = a_mat.trace().max(1e-300);
+                let reg = a_mat + axis * axis.transpose() * scale;
+                let v = reg
+                    .try_inverse()
+                    .map(|inv| inv * b_vec)
+                    .unwrap_or_else(Vector3::zeros);
+                joint = JointKind::Revolute {
+                    axis,
+                    pivot: Point3::from(c.y_ref - v),
+                };
+            }
+        }
+        _ => {
+            dof = (rotation.rank + translation.rank).min(6);
+            fit_ratio = rotation.next_rank_ratio();
+        }
+    }
+    Ok(PairDof {
+        a,
+        b,
+        reference_frame: c.reference_frame,
+        translation,
+        rotation,
+        centre,
+        sliding,
+        dof,
+        joint,
+        fit_ratio,
+    })
+}
+
+fn check_positive(name: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::InvalidParameter {
+            name: name.into(),
+            message: format!("must be finite and positive, got {v}"),
+        })
+    }
+}
+
+/// Parameters of [`SvdRank`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SvdRankParams {
+    /// A direction counts when its RMS amplitude exceeds this many noise std-devs.
+    pub kappa: f64,
+    /// Frames whose relative rotation is below this angle (radians) are skipped for the centre
+    /// of rotation, where `(R - I)` is ill-conditioned...
+    pub min_centre_angle_rad: f64,
+    /// ... and so are frames whose rotation is below this many rotation-noise std-devs.
+    pub min_centre_angle_in_std: f64,
+}
+
+impl Default for SvdRankParams {
+    fn default() -> Self {
+        Self {
+            kappa: 3.0,
+            min_centre_angle_rad: 0.05,
+            min_centre_angle_in_std: 5.0,
+        }
+    }
+}
+
+impl SvdRankParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a non-positive or non-finite value.
+    pub fn validate(&self) -> Result<()> {
+        check_positive("kappa", self.kappa)?;
+        check_positive("min_centre_angle_rad", self.min_centre_angle_rad)?;
+        check_positive("min_centre_angle_in_std", self.min_centre_angle_in_std)
+    }
+}
+
+/// The paper's SVD rank tests (Sec. III-B) with noise-derived thresholds.
+///
+/// For body `b` relative to frame `a` (camera or body), over the frames where both have a
+/// pose, let `X_k = a_from_b(k)` and let `r` be the common frame with the most precise
+/// relative rotation. Four matrices are tested:
+/// - translation columns `u_k = y_k - y_r`, the displacement of `b`'s origin (its centroid)
+///   in `a`'s body frame: rank 0 rigid, 1 prismatic, 2 for a circle;
+/// - rotation columns `log(R_k R_r^T)` (axis-angle through quaternions): rank 1 for a fixed
+///   axis;
+/// - centre columns `(R_k R_r^T - I)^+ u_k` over frames with enough rotation: rank 0 when
+///   the centre of rotation is fixed (since `u_k = (R - I)(y_r - c)`);
+/// - sliding, the translation along the rotation axis: rank 1 for a screw or cylindrical
+///   motion.
+///
+/// Ranks follow [`RankRule::Whitened`]: each column is divided by its worst-direction noise
+/// std-dev, propagated from the per-frame pose covariances
+/// ([`kinetree_core::PoseQuality`]) times `noise_sigma_m^2`.
+///
+/// Complexity: O(T) per pair.
+#[derive(Debug, Clone)]
+pub struct SvdRank {
+    params: SvdRankParams,
+}
+
+impl SvdRank {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: SvdRankParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl DofTester for SvdRank {
+    fn name(&self) -> &str {
+        "svd_rank"
+    }
+
+    fn test_pair(&self, input: &DofInput<'_>, a: Option<usize>, b: usize) -> Result<PairDof> {
+        let c = pair_columns(input.poses, a, b, input.noise_sigma_m)?;
+        classify(
+            &c,
+            a,
+            b,
+            RankRule::Whitened {
+                kappa: self.params.kappa,
+            },
+            CentreSettings {
+                min_angle_rad: self.params.min_centre_angle_rad,
+                min_angle_in_std: self.params.min_centre_angle_in_std,
+            },
+        )
+    }
+}
+
+/// Parameters of [`Chi2Rank`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Chi2RankParams {
+    /// Standard normal quantile of each test.
+    pub z: f64,
+    /// Tolerance factor on `chi^2 / dof` for what the noise model leaves out (reference-shape
+    /// error, linearisation). On random 3- and 7-joint mechanisms, 1.5 rejected true sliding-free
+    /// revolute joints (chi^2/dof 2.5-3.8 against a bound of 2.5); 2.5 and 4 gave the same
+    /// results.
+    pub slack: f64,
+    /// As [`SvdRankParams::min_centre_angle_rad`].
+    pub min_centre_angle_rad: f64,
+    /// As [`SvdRankParams::min_centre_angle_in_std`].
+    pub min_centre_angle_in_std: f64,
+}
+
+impl Default for Chi2RankParams {
+    fn default() -> Self {
+        Self {
+            z: 4.0,
+            slack: 2.5,
+            min_centre_angle_rad: 0.05,
+            min_centre_angle_in_std: 5.0,
+        }
+    }
+}
+
+impl Chi2RankParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a non-positive or non-finite value.
+    pub fn validate(&self) -> Result<()> {
+        check_positive("z", self.z)?;
+        check_positive("slack", self.slack)?;
+        check_positive("min_centre_angle_rad", self.min_centre_angle_rad)?;
+        check_positive("min_centre_angle_in_std", self.min_centre_angle_in_std)
+    }
+}
+
+/// The same four tests as [`SvdRank`], decided by chi-square with the full per-frame noise
+/// covariance ([`RankRule::Chi2`]). A thin body's rotation is well determined about two axes
+/// and poorly about its long axis; scalar whitening by the worst axis hides real motion about
+/// the good axes, while the Mahalanobis fit weighs each direction by its own precision.
+///
+/// Complexity: O(T) per pair (a few dozen 3 x 3 iterations per frame).
+#[derive(Debug, Clone)]
+pub struct Chi2Rank {
+    params: Chi2RankParams,
+}
+
+impl Chi2Rank {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: Chi2RankParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl DofTester for Chi2Rank {
+    fn name(&self) -> &str {
+        "chi2_rank"
+    }
+
+    fn test_pair(&self, input: &DofInput<'_>, a: Option<usize>, b: usize) -> Result<PairDof> {
+        let c = pair_columns(input.poses, a, b, input.noise_sigma_m)?;
+        classify(
+            &c,
+            a,
+            b,
+            RankRule::Chi2 {
+                z: self.params.z,
+                slack: self.params.slack,
+            },
+            CentreSettings {
+                min_angle_rad: self.params.min_centre_angle_rad,
+                min_angle_in_std: self.params.min_centre_angle_in_std,
+            },
+        )
+    }
+}
