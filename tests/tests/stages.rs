@@ -206,3 +206,53 @@ fn exact_one_dof_motions_give_rank_one_with_both_testers() {
         }
     }
 }
+
+#[test]
+fn log_p_value_does_not_saturate_where_q_does() {
+    use kinetree_dissimilarity::{LogPValue, LogPValueParams, MAX_LOG_P, f_test_log_p};
+    let data = simulate(&paper_arm(5)).expect("simulate");
+    let stats = pair_stats(&data.tracks);
+    let input = DissimilarityInput {
+        tracks: &data.tracks,
+        stats: &stats,
+        noise_sigma_m: 0.001,
+    };
+    let lp = LogPValue::new(LogPValueParams::default())
+        .expect("params")
+        .compute(&input)
+        .expect("log p");
+    let q = FTest::new(FTestParams::default())
+        .expect("params")
+        .compute(&input)
+        .expect("q");
+    let body = &data.truth.point_body;
+    let mut rigid = Vec::new();
+    let mut saturated = Vec::new();
+    for i in 0..body.len() {
+        for j in i + 1..body.len() {
+            let (Some(l), Some(qv)) = (lp.get(i, j), q.get(i, j)) else {
+                continue;
+            };
+            if body[i] == body[j] {
+                rigid.push(l);
+            } else if qv == 1.0 {
+                saturated.push(l);
+            }
+        }
+    }
+    let mean = rigid.iter().sum::<f64>() / rigid.len() as f64;
+    assert!(
+        (mean - 1.0 / std::f64::consts::LN_10).abs() < 0.15,
+        "rigid mean -log10 p {mean}"
+    );
+    // Pairs whose q is exactly 1 still differ in evidence.
+    saturated.sort_by(f64::total_cmp);
+    assert!(saturated.len() > 10);
+    assert!(
+        saturated[saturated.len() - 1] > 2.0 * saturated[0],
+        "{saturated:?}"
+    );
+    assert!(saturated.iter().all(|&v| v > 15.0 && v <= MAX_LOG_P));
+    assert!(f_test_log_p(f64::NAN, 10, 1e-6).is_nan());
+    assert_eq!(f_test_log_p(1e308, 10_000, 1e-12), MAX_LOG_P);
+}

@@ -7,6 +7,9 @@ mod measures;
 mod noise;
 mod stats;
 
-pub use measures::{DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams, f_test_q};
+pub use measures::{
+    DistanceStd, DistanceVariance, FTest, FTestParams, LogPValue, LogPValueParams, MAX_LOG_P,
+    SpreadParams, f_test_log_p, f_test_q,
+};
 pub use noise::{estimate_noise_sigma, refine_noise_sigma};
 pub use stats::pair_stats;

@@ -110,6 +110,105 @@ impl Dissimilarity for FTest {
     }
 }
 
+/// Parameters of [`LogPValue`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogPValueParams {
+    /// Average `-log10 p` above which two groups of points stop looking rigid (default cut for
+    /// the clusterer). Under the null hypothesis `-log10 p` has mean `1 / ln 10 = 0.43`.
+    pub cut: f64,
+}
+
+impl Default for LogPValueParams {
+    fn default() -> Self {
+        Self { cut: 2.0 }
+    }
+}
+
+impl LogPValueParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] when `cut` is not finite and above 0.5.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.cut.is_finite() && self.cut > 0.5) {
+            return Err(Error::InvalidParameter {
+                name: "cut".into(),
+                message: format!("must be finite and above 0.5, got {}", self.cut),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The largest `-log10 p` reported; the survival function underflows near 1e-308.
+pub const MAX_LOG_P: f64 = 300.0;
+
+/// `-log10` of the F-test's p-value, the survival function of `F(T_ij - 1, T_ij - 1)` at
+/// `s_ij^2 / sigma_d^2`: the paper's q made into evidence that does not saturate. q rounds to
+/// exactly 1 once `p < 5e-17`, so every clearly moving pair looks the same; here the evidence
+/// keeps growing (capped at [`MAX_LOG_P`]), and in an average over pairs a few strongly moving
+/// pairs outweigh many that barely move.
+#[derive(Debug, Clone)]
+pub struct LogPValue {
+    params: LogPValueParams,
+}
+
+impl LogPValue {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: LogPValueParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+/// `-log10 p` for one pair; NaN for unusable input, [`MAX_LOG_P`] where `p` underflows.
+pub fn f_test_log_p(var_m2: f64, count: u32, distance_variance_m2: f64) -> f64 {
+    if count < 2 || !var_m2.is_finite() {
+        return f64::NAN;
+    }
+    let ratio = var_m2 / distance_variance_m2;
+    let dof = f64::from(count - 1);
+    if !ratio.is_finite() || ratio * dof > 1e300 {
+        return MAX_LOG_P;
+    }
+    match FisherSnedecor::new(dof, dof) {
+        Ok(f) => {
+            let p = f.sf(ratio);
+            if p > 0.0 {
+                (-p.log10()).clamp(0.0, MAX_LOG_P)
+            } else {
+                MAX_LOG_P
+            }
+        }
+        Err(_) => f64::NAN,
+    }
+}
+
+impl Dissimilarity for LogPValue {
+    fn name(&self) -> &str {
+        "log_p_value"
+    }
+
+    fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
+        let vd = check_sigma(input.noise_sigma_m)?;
+        let s = input.stats;
+        let values = s
+            .var_m2
+            .iter()
+            .zip(&s.count)
+            .map(|(&v, &c)| f_test_log_p(v, c, vd))
+            .collect();
+        Ok(DissimilarityMatrix {
+            n_points: s.n_points,
+            values,
+            suggested_cut: self.params.cut,
+            measure: self.name().into(),
+        })
+    }
+}
+
 /// Parameters of [`DistanceStd`] and [`DistanceVariance`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

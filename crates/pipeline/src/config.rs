@@ -2,7 +2,9 @@
 
 use kinetree_clustering::{Hierarchical, HierarchicalParams};
 use kinetree_core::{Clustering, Dissimilarity, DofTester, Error, PoseEstimator, Result};
-use kinetree_dissimilarity::{DistanceStd, DistanceVariance, FTest, FTestParams, SpreadParams};
+use kinetree_dissimilarity::{
+    DistanceStd, DistanceVariance, FTest, FTestParams, LogPValue, LogPValueParams, SpreadParams,
+};
 use kinetree_dof::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
 use kinetree_pose::{KabschParams, KabschPoses};
 use kinetree_synth::RandomParams;
@@ -15,12 +17,19 @@ use std::path::PathBuf;
 pub enum DissimilarityConfig {
     /// The paper's F-test q.
     FTest(FTestParams),
+    /// `-log10` of the F-test p-value (does not saturate).
+    LogPValue(LogPValueParams),
     /// Distance std-dev.
     DistanceStd(SpreadParams),
     /// Distance variance.
     DistanceVariance(SpreadParams),
 }
 
+/// The default is the paper's `f_test`. `log_p_value` does not saturate and got every joint
+/// right about as often: on 120 random mechanisms (20 seeds each of 3, 5 and 7-joint chains,
+/// 7-joint trees, 5 mm noise, prismatic-heavy) 91 against 88, better at 5 mm (16 against 12)
+/// and worse on 7-joint trees (8 against 10). No measured reason to leave the paper's
+/// measure.
 impl Default for DissimilarityConfig {
     fn default() -> Self {
         Self::FTest(FTestParams::default())
@@ -35,6 +44,7 @@ impl DissimilarityConfig {
     pub fn build(&self) -> Result<Box<dyn Dissimilarity>> {
         Ok(match self {
             Self::FTest(p) => Box::new(FTest::new(*p)?),
+            Self::LogPValue(p) => Box::new(LogPValue::new(*p)?),
             Self::DistanceStd(p) => Box::new(DistanceStd::new(*p)?),
             Self::DistanceVariance(p) => Box::new(DistanceVariance::new(*p)?),
         })

@@ -53,6 +53,48 @@ const REASSIGN_MIN_PAIRS: usize = 2;
 /// Noise re-estimation rounds after segmentation.
 const NOISE_ROUNDS: usize = 2;
 
+/// Groups of bodies to merge because they move rigidly together: complete linkage over the
+/// `Rigid` body pairs, clearest first. Two groups merge only when every pair across them
+/// tests rigid, so one body with poor poses (which "tests rigid" against everything because
+/// its noise hides all motion) cannot chain unrelated bodies together. Returns a group id per
+/// body.
+fn rigid_groups(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
+    let rigid = |a: usize, b: usize| {
+        pairs.iter().any(|p| {
+            matches!(p.joint, JointKind::Rigid)
+                && ((p.a == Some(a) && p.b == b) || (p.a == Some(b) && p.b == a))
+        })
+    };
+    let mut candidates: Vec<&PairDof> = pairs
+        .iter()
+        .filter(|p| p.a.is_some() && matches!(p.joint, JointKind::Rigid))
+        .collect();
+    candidates.sort_by(|x, y| {
+        x.fit_ratio
+            .total_cmp(&y.fit_ratio)
+            .then((x.a, x.b).cmp(&(y.a, y.b)))
+    });
+    let mut group: Vec<usize> = (0..n_bodies).collect();
+    for p in candidates {
+        let Some(a) = p.a else { continue };
+        let (ga, gb) = (group[a], group[p.b]);
+        if ga == gb {
+            continue;
+        }
+        let in_a: Vec<usize> = (0..n_bodies).filter(|&b| group[b] == ga).collect();
+        let in_b: Vec<usize> = (0..n_bodies).filter(|&b| group[b] == gb).collect();
+        let all_rigid = in_a.iter().all(|&x| in_b.iter().all(|&y| rigid(x, y)));
+        if all_rigid {
+            for g in &mut group {
+                if *g == gb {
+                    *g = ga;
+                }
+            }
+        }
+    }
+    group
+}
+
 impl Pipeline {
     /// Builds every stage from a config.
     ///
@@ -221,21 +263,8 @@ impl Pipeline {
             }
             pairs = self.all_pairs(&poses, sigma)?;
             let nb = seg.n_bodies();
-            let mut group: Vec<usize> = (0..nb).collect();
-            let mut merged_any = false;
-            for p in &pairs {
-                if let (Some(a), JointKind::Rigid) = (p.a, &p.joint) {
-                    let (ga, gb) = (group[a], group[p.b]);
-                    if ga != gb {
-                        merged_any = true;
-                        for g in &mut group {
-                            if *g == gb {
-                                *g = ga;
-                            }
-                        }
-                    }
-                }
-            }
+            let group = rigid_groups(nb, &pairs);
+            let merged_any = group.iter().enumerate().any(|(b, &g)| g != b);
             if !merged_any || round >= MAX_MERGE_ROUNDS {
                 break;
             }
@@ -420,5 +449,48 @@ impl Pipeline {
             warnings,
         };
         Ok((model, order))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::rigid_groups;
+    use kinetree_core::{JointKind, PairDof, RankTest};
+
+    fn pair(a: usize, b: usize, joint: JointKind, fit_ratio: f64) -> PairDof {
+        PairDof {
+            a: Some(a),
+            b,
+            reference_frame: 0,
+            translation: RankTest::empty(),
+            rotation: RankTest::empty(),
+            centre: RankTest::empty(),
+            sliding: RankTest::empty(),
+            dof: usize::from(!matches!(joint, JointKind::Rigid)),
+            joint,
+            fit_ratio,
+        }
+    }
+
+    #[test]
+    fn a_poorly_posed_body_cannot_chain_moving_bodies_together() {
+        // Body 1 "tests rigid" against 0 and 2 (its noise hides everything), while 0 and 2
+        // clearly move relative to each other.
+        let pairs = vec![
+            pair(0, 1, JointKind::Rigid, 0.2),
+            pair(1, 2, JointKind::Rigid, 0.5),
+            pair(0, 2, JointKind::MultiDof, 0.1),
+        ];
+        let g = rigid_groups(3, &pairs);
+        assert_eq!(g[0], g[1], "the clearest rigid pair merges");
+        assert_ne!(g[0], g[2], "but 0 and 2 stay apart");
+        // When every cross pair is rigid, all three merge.
+        let all = vec![
+            pair(0, 1, JointKind::Rigid, 0.2),
+            pair(1, 2, JointKind::Rigid, 0.5),
+            pair(0, 2, JointKind::Rigid, 0.1),
+        ];
+        let g = rigid_groups(3, &all);
+        assert!(g.iter().all(|&x| x == g[0]));
     }
 }
