@@ -1,6 +1,9 @@
-//! Dissimilarity measures: the paper's F-test q, and the distance std-dev and variance.
+//! Dissimilarity measures: the paper's F-test q, its -log10 p-value, and the distance
+//! std-dev and variance.
 
-use kinetree_core::{Dissimilarity, DissimilarityInput, DissimilarityMatrix, Error, Result};
+use kinetree_core::{
+    Dissimilarity, DissimilarityInput, DissimilarityMatrix, Error, PairStats, Result,
+};
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
@@ -71,19 +74,48 @@ impl FTest {
     }
 }
 
-/// q for one pair; guards the inputs statrs panics on (NaN, overflowing ratios).
-pub fn f_test_q(var_m2: f64, count: u32, distance_variance_m2: f64) -> f64 {
+/// The F statistic of one pair, after the guards statrs needs (it panics on NaN and on
+/// ratios whose product with the degrees of freedom overflows).
+enum FStatistic {
+    /// Fewer than two joint observations or a non-finite variance: no value.
+    Unknown,
+    /// A ratio too large to evaluate: the pair certainly moves.
+    Overflow,
+    /// The distribution `F(T_ij - 1, T_ij - 1)` and the ratio `s_ij^2 / sigma_d^2`.
+    Value(FisherSnedecor, f64),
+}
+
+fn f_statistic(var_m2: f64, count: u32, distance_variance_m2: f64) -> FStatistic {
     if count < 2 || !var_m2.is_finite() {
-        return f64::NAN;
+        return FStatistic::Unknown;
     }
     let ratio = var_m2 / distance_variance_m2;
     let dof = f64::from(count - 1);
     if !ratio.is_finite() || ratio * dof > 1e300 {
-        return 1.0;
+        return FStatistic::Overflow;
     }
     match FisherSnedecor::new(dof, dof) {
-        Ok(f) => f.cdf(ratio),
-        Err(_) => f64::NAN,
+        Ok(f) => FStatistic::Value(f, ratio),
+        Err(_) => FStatistic::Unknown,
+    }
+}
+
+/// Applies a per-pair function of `(variance, count, sigma_d^2)` to every pair.
+fn per_pair(stats: &PairStats, distance_variance_m2: f64, f: fn(f64, u32, f64) -> f64) -> Vec<f64> {
+    stats
+        .var_m2
+        .iter()
+        .zip(&stats.count)
+        .map(|(&v, &c)| f(v, c, distance_variance_m2))
+        .collect()
+}
+
+/// q for one pair: NaN when unknown, 1 when the ratio overflows.
+pub fn f_test_q(var_m2: f64, count: u32, distance_variance_m2: f64) -> f64 {
+    match f_statistic(var_m2, count, distance_variance_m2) {
+        FStatistic::Unknown => f64::NAN,
+        FStatistic::Overflow => 1.0,
+        FStatistic::Value(f, ratio) => f.cdf(ratio),
     }
 }
 
@@ -95,12 +127,7 @@ impl Dissimilarity for FTest {
     fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
         let vd = check_sigma(input.noise_sigma_m)?;
         let s = input.stats;
-        let values = s
-            .var_m2
-            .iter()
-            .zip(&s.count)
-            .map(|(&v, &c)| f_test_q(v, c, vd))
-            .collect();
+        let values = per_pair(s, vd, f_test_q);
         Ok(DissimilarityMatrix {
             n_points: s.n_points,
             values,
@@ -163,18 +190,12 @@ impl LogPValue {
     }
 }
 
-/// `-log10 p` for one pair; NaN for unusable input, [`MAX_LOG_P`] where `p` underflows.
+/// `-log10 p` for one pair: NaN when unknown, [`MAX_LOG_P`] where `p` underflows.
 pub fn f_test_log_p(var_m2: f64, count: u32, distance_variance_m2: f64) -> f64 {
-    if count < 2 || !var_m2.is_finite() {
-        return f64::NAN;
-    }
-    let ratio = var_m2 / distance_variance_m2;
-    let dof = f64::from(count - 1);
-    if !ratio.is_finite() || ratio * dof > 1e300 {
-        return MAX_LOG_P;
-    }
-    match FisherSnedecor::new(dof, dof) {
-        Ok(f) => {
+    match f_statistic(var_m2, count, distance_variance_m2) {
+        FStatistic::Unknown => f64::NAN,
+        FStatistic::Overflow => MAX_LOG_P,
+        FStatistic::Value(f, ratio) => {
             let p = f.sf(ratio);
             if p > 0.0 {
                 (-p.log10()).clamp(0.0, MAX_LOG_P)
@@ -182,7 +203,6 @@ pub fn f_test_log_p(var_m2: f64, count: u32, distance_variance_m2: f64) -> f64 {
                 MAX_LOG_P
             }
         }
-        Err(_) => f64::NAN,
     }
 }
 
@@ -194,12 +214,7 @@ impl Dissimilarity for LogPValue {
     fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
         let vd = check_sigma(input.noise_sigma_m)?;
         let s = input.stats;
-        let values = s
-            .var_m2
-            .iter()
-            .zip(&s.count)
-            .map(|(&v, &c)| f_test_log_p(v, c, vd))
-            .collect();
+        let values = per_pair(s, vd, f_test_log_p);
         Ok(DissimilarityMatrix {
             n_points: s.n_points,
             values,
