@@ -51,6 +51,21 @@ impl BodyTrack {
     pub fn n_registered(&self) -> usize {
         self.cam_from_body.iter().filter(|p| p.is_some()).count()
     }
+
+    /// Median over registered frames of the fit's RMS residual, metres.
+    pub fn median_residual_m(&self) -> Option<f64> {
+        let mut r: Vec<f64> = self
+            .quality
+            .iter()
+            .flatten()
+            .map(|q| q.rms_residual_m)
+            .collect();
+        if r.is_empty() {
+            return None;
+        }
+        r.sort_by(f64::total_cmp);
+        Some(r[r.len() / 2])
+    }
 }
 
 /// Poses of every body over every frame, produced by a [`PoseEstimator`](crate::PoseEstimator).

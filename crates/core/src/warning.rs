@@ -34,6 +34,14 @@ pub enum Warning {
         /// The points.
         points: Vec<usize>,
     },
+    /// A body whose fit residuals were far above the noise (it mixed points of bodies that
+    /// move apart) was split in two.
+    BodySplit {
+        /// The body's points before the split.
+        points: Vec<usize>,
+        /// Its median fit residual in units of `sigma`.
+        residual_in_sigma: f64,
+    },
     /// A body that could not be registered in enough frames; its points are discarded.
     BodyDropped {
         /// The body's points.
@@ -98,6 +106,13 @@ impl std::fmt::Display for Warning {
             Warning::PointsAttached { points } => write!(
                 f,
                 "point(s) {points:?} discarded by the clustering were attached to the one body whose poses explain them"
+            ),
+            Warning::BodySplit {
+                points,
+                residual_in_sigma,
+            } => write!(
+                f,
+                "body with points {points:?} fitted with a median residual of {residual_in_sigma:.1} sigma and was split in two"
             ),
             Warning::BodyDropped { points, reason } => {
                 write!(f, "body with points {points:?} dropped: {reason}")

@@ -6,9 +6,9 @@ use kinetree_core::model::{
     Body, Joint, NoiseInfo, NoiseSource, Ranks, SCHEMA_VERSION, StageNames,
 };
 use kinetree_core::{
-    BodyPoses, Clustering, ClusteringInput, Dissimilarity, DissimilarityInput, DissimilarityMatrix,
-    DofInput, DofTester, Error, JointKind, Model, PairDof, PairStats, PoseEstimator, PoseInput,
-    Result, Segmentation, Tracks, Warning,
+    BodyPoses, BodyTrack, Clustering, ClusteringInput, Dissimilarity, DissimilarityInput,
+    DissimilarityMatrix, DofInput, DofTester, Error, JointKind, Model, PairDof, PairStats,
+    PoseEstimator, PoseInput, Result, Segmentation, Tracks, Warning,
 };
 use kinetree_dissimilarity::{estimate_noise_sigma, pair_stats, refine_noise_sigma};
 
@@ -53,12 +53,97 @@ const REASSIGN_MIN_PAIRS: usize = 2;
 /// Noise re-estimation rounds after segmentation.
 const NOISE_ROUNDS: usize = 2;
 
+/// A body whose median fit residual exceeds this many noise std-devs mixes points of bodies
+/// that move apart (a rigid body fits at 1.2-1.6 sigma).
+const SPLIT_RESIDUAL_IN_SIGMA: f64 = 3.0;
+/// Rounds of splitting before giving up (a non-rigid body would otherwise be split forever).
+const MAX_SPLIT_ROUNDS: usize = 8;
+
+/// Splits every body whose fit residual shows it mixes bodies: average linkage on the body's
+/// own sub-matrix, cut into two clusters (a side of fewer than three points is discarded).
+/// The two parts, by one point each, go into `cannot_link` so the rigid merge does not
+/// rejoin them (a part with poor poses can "test rigid" against a body it moves against).
+/// Returns `None` when no body needs splitting.
+fn split_mixed_bodies(
+    dmat: &DissimilarityMatrix,
+    seg: &Segmentation,
+    poses: &BodyPoses,
+    sigma: f64,
+    warnings: &mut Vec<Warning>,
+    cannot_link: &mut Vec<(usize, usize)>,
+) -> Result<Option<Segmentation>> {
+    let splitter =
+        kinetree_clustering::Hierarchical::new(kinetree_clustering::HierarchicalParams {
+            n_clusters: Some(2),
+            ..kinetree_clustering::HierarchicalParams::default()
+        })?;
+    let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
+    let mut next_id = seg.n_bodies();
+    let mut any = false;
+    for (b, track) in poses.bodies.iter().enumerate() {
+        let Some(residual) = track.median_residual_m() else {
+            continue;
+        };
+        let ratio = residual / sigma;
+        if ratio <= SPLIT_RESIDUAL_IN_SIGMA || track.points.len() < 4 {
+            continue;
+        }
+        let pts = &track.points;
+        let n = pts.len();
+        let mut values = Vec::with_capacity(kinetree_core::n_pairs(n));
+        for (x, &i) in pts.iter().enumerate() {
+            for &j in &pts[x + 1..] {
+                values.push(dmat.get(i, j).unwrap_or(f64::NAN));
+            }
+        }
+        let sub = DissimilarityMatrix {
+            n_points: n,
+            values,
+            suggested_cut: dmat.suggested_cut,
+            measure: dmat.measure.clone(),
+        };
+        let parts = splitter.cluster(&ClusteringInput {
+            dissimilarity: &sub,
+            seed: 0,
+        })?;
+        if parts.n_bodies() == 0 {
+            continue;
+        }
+        any = true;
+        warnings.push(Warning::BodySplit {
+            points: pts.clone(),
+            residual_in_sigma: ratio,
+        });
+        for (x, &i) in pts.iter().enumerate() {
+            labels[i] = match parts.body_of(x) {
+                Some(0) => Some(b),
+                Some(_) => Some(next_id),
+                None => None,
+            };
+        }
+        let members = parts.members();
+        if let [first, second] = &members[..] {
+            cannot_link.push((pts[first[0]], pts[second[0]]));
+        }
+        next_id += 1;
+    }
+    if !any {
+        return Ok(None);
+    }
+    let mut out = Segmentation::from_raw(&labels, kinetree_core::MIN_BODY_POINTS);
+    out.discarded_groups
+        .extend(seg.discarded_groups.iter().cloned());
+    out.discarded_groups.sort();
+    Ok(Some(out))
+}
+
 /// Groups of bodies to merge because they move rigidly together: complete linkage over the
 /// `Rigid` body pairs, clearest first. Two groups merge only when every pair across them
 /// tests rigid, so one body with poor poses (which "tests rigid" against everything because
-/// its noise hides all motion) cannot chain unrelated bodies together. Returns a group id per
+/// its noise hides all motion) cannot chain unrelated bodies together. Bodies listed together
+/// in `forbidden` (parts of an earlier split) never end in one group. Returns a group id per
 /// body.
-fn rigid_groups(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
+fn rigid_groups(n_bodies: usize, pairs: &[PairDof], forbidden: &[(usize, usize)]) -> Vec<usize> {
     let rigid = |a: usize, b: usize| {
         pairs.iter().any(|p| {
             matches!(p.joint, JointKind::Rigid)
@@ -84,6 +169,10 @@ fn rigid_groups(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
         let in_a: Vec<usize> = (0..n_bodies).filter(|&b| group[b] == ga).collect();
         let in_b: Vec<usize> = (0..n_bodies).filter(|&b| group[b] == gb).collect();
         let all_rigid = in_a.iter().all(|&x| in_b.iter().all(|&y| rigid(x, y)));
+        let split_before = forbidden.iter().any(|&(p, q)| {
+            (in_a.contains(&p) && in_b.contains(&q)) || (in_a.contains(&q) && in_b.contains(&p))
+        });
+        let all_rigid = all_rigid && !split_before;
         if all_rigid {
             for g in &mut group {
                 if *g == gb {
@@ -159,6 +248,34 @@ impl Pipeline {
         Ok(out)
     }
 
+    /// Whether the union of `bodies` fits as one rigid body: its median pose residual stays
+    /// within [`SPLIT_RESIDUAL_IN_SIGMA`] noise std-devs.
+    fn fits_as_one(
+        &self,
+        tracks: &Tracks,
+        poses: &BodyPoses,
+        bodies: &[usize],
+        sigma: f64,
+    ) -> Result<bool> {
+        let mut raw = vec![None; tracks.n_points()];
+        for &b in bodies {
+            for &p in &poses.bodies[b].points {
+                raw[p] = Some(0);
+            }
+        }
+        let union = Segmentation::from_raw(&raw, 1);
+        let fitted = self.pose.estimate(&PoseInput {
+            tracks,
+            segmentation: &union,
+            noise_sigma_m: sigma,
+        })?;
+        Ok(fitted
+            .bodies
+            .first()
+            .and_then(BodyTrack::median_residual_m)
+            .is_some_and(|r| r <= SPLIT_RESIDUAL_IN_SIGMA * sigma))
+    }
+
     /// Runs the whole pipeline.
     ///
     /// # Errors
@@ -223,6 +340,8 @@ impl Pipeline {
         let mut pairs;
         let mut round = 0;
         let mut attach_done = false;
+        let mut split_rounds = 0;
+        let mut cannot_link: Vec<(usize, usize)> = Vec::new();
         loop {
             poses = self.pose.estimate(&PoseInput {
                 tracks,
@@ -245,6 +364,15 @@ impl Pipeline {
                 seg = seg.without_bodies(&drop);
                 continue;
             }
+            if split_rounds < MAX_SPLIT_ROUNDS
+                && let Some(split) =
+                    split_mixed_bodies(&dmat, &seg, &poses, sigma, &mut warnings, &mut cannot_link)?
+            {
+                split_rounds += 1;
+                seg = split;
+                attach_done = false;
+                continue;
+            }
             if !attach_done {
                 // Once: give discarded points to the one body whose poses explain them.
                 attach_done = true;
@@ -263,7 +391,30 @@ impl Pipeline {
             }
             pairs = self.all_pairs(&poses, sigma)?;
             let nb = seg.n_bodies();
-            let group = rigid_groups(nb, &pairs);
+            let mut forbidden: Vec<(usize, usize)> = cannot_link
+                .iter()
+                .filter_map(|&(p, q)| Some((seg.body_of(p)?, seg.body_of(q)?)))
+                .collect();
+            // A merge stands only if the merged body still fits like one rigid body.
+            let group = loop {
+                let group = rigid_groups(nb, &pairs, &forbidden);
+                let mut rejected = false;
+                for g in 0..nb {
+                    let members: Vec<usize> = (0..nb).filter(|&b| group[b] == g).collect();
+                    if members.len() < 2 || self.fits_as_one(tracks, &poses, &members, sigma)? {
+                        continue;
+                    }
+                    rejected = true;
+                    for (x, &p) in members.iter().enumerate() {
+                        for &q in &members[x + 1..] {
+                            forbidden.push((p, q));
+                        }
+                    }
+                }
+                if !rejected {
+                    break group;
+                }
+            };
             let merged_any = group.iter().enumerate().any(|(b, &g)| g != b);
             if !merged_any || round >= MAX_MERGE_ROUNDS {
                 break;
@@ -402,6 +553,7 @@ impl Pipeline {
                 is_static: statics.contains(&b),
                 parent: tree.parent[b].map(|p| new_id[p]),
                 frames_registered: poses.bodies[b].n_registered(),
+                median_residual_m: poses.bodies[b].median_residual_m(),
             })
             .collect();
         let point_body = seg
@@ -481,7 +633,7 @@ mod tests {
             pair(1, 2, JointKind::Rigid, 0.5),
             pair(0, 2, JointKind::MultiDof, 0.1),
         ];
-        let g = rigid_groups(3, &pairs);
+        let g = rigid_groups(3, &pairs, &[]);
         assert_eq!(g[0], g[1], "the clearest rigid pair merges");
         assert_ne!(g[0], g[2], "but 0 and 2 stay apart");
         // When every cross pair is rigid, all three merge.
@@ -490,7 +642,10 @@ mod tests {
             pair(1, 2, JointKind::Rigid, 0.5),
             pair(0, 2, JointKind::Rigid, 0.1),
         ];
-        let g = rigid_groups(3, &all);
+        let g = rigid_groups(3, &all, &[]);
         assert!(g.iter().all(|&x| x == g[0]));
+        // ... unless two of them were split apart before.
+        let g = rigid_groups(3, &all, &[(0, 2)]);
+        assert_ne!(g[0], g[2]);
     }
 }
