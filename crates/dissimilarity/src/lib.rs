@@ -12,4 +12,4 @@ pub use measures::{
     SpreadParams, f_test_log_p, f_test_q,
 };
 pub use noise::{estimate_noise_sigma, refine_noise_sigma};
-pub use stats::pair_stats;
+pub use stats::{PairStatsAccumulator, pair_stats, pair_stats_reference};
