@@ -27,6 +27,14 @@ pub struct PairStatsAccumulator {
     m2: Vec<f64>,
 }
 
+/// One row of the running statistics (pairs `(i, j)`, `j > i`), owned by one thread.
+struct RowMut<'a> {
+    i: usize,
+    count: &'a mut [u32],
+    mean: &'a mut [f64],
+    m2: &'a mut [f64],
+}
+
 /// One chunk of frames as structure-of-arrays.
 struct Chunk {
     n: usize,
@@ -145,7 +153,7 @@ impl PairStatsAccumulator {
     fn add_chunk(&mut self, c: &Chunk) {
         let n = self.n;
         // Split the condensed arrays into rows so each thread owns whole rows.
-        let mut rows: Vec<(usize, &mut [u32], &mut [f64], &mut [f64])> = Vec::with_capacity(n);
+        let mut rows: Vec<RowMut<'_>> = Vec::with_capacity(n);
         let (mut count, mut mean, mut m2) =
             (&mut self.count[..], &mut self.mean[..], &mut self.m2[..]);
         for i in 0..n.saturating_sub(1) {
@@ -153,45 +161,49 @@ impl PairStatsAccumulator {
             let (a, rest_c) = count.split_at_mut(len);
             let (b, rest_m) = mean.split_at_mut(len);
             let (d, rest_m2) = m2.split_at_mut(len);
-            rows.push((i, a, b, d));
+            rows.push(RowMut {
+                i,
+                count: a,
+                mean: b,
+                m2: d,
+            });
             count = rest_c;
             mean = rest_m;
             m2 = rest_m2;
         }
-        rows.par_iter_mut()
-            .with_min_len(4)
-            .for_each(|(i, count, mean, m2)| {
-                let i = *i;
-                let len = n - i - 1;
-                // Shift: the running mean where known, else this chunk's first joint distance.
-                let mut shift = vec![0.0; len];
-                for j in 0..len {
-                    shift[j] = if count[j] > 0 {
-                        mean[j]
-                    } else {
-                        first_distance(c, i, i + 1 + j).unwrap_or(0.0)
-                    };
+        rows.par_iter_mut().with_min_len(4).for_each(|row| {
+            let RowMut { i, count, mean, m2 } = row;
+            let i = *i;
+            let len = n - i - 1;
+            // Shift: the running mean where known, else this chunk's first joint distance.
+            let mut shift = vec![0.0; len];
+            for j in 0..len {
+                shift[j] = if count[j] > 0 {
+                    mean[j]
+                } else {
+                    first_distance(c, i, i + 1 + j).unwrap_or(0.0)
+                };
+            }
+            let mut cnt = vec![0.0; len];
+            let mut s1 = vec![0.0; len];
+            let mut s2 = vec![0.0; len];
+            accumulate_row(c, i, &shift, &mut cnt, &mut s1, &mut s2);
+            for j in 0..len {
+                if cnt[j] == 0.0 {
+                    continue;
                 }
-                let mut cnt = vec![0.0; len];
-                let mut s1 = vec![0.0; len];
-                let mut s2 = vec![0.0; len];
-                accumulate_row(c, i, &shift, &mut cnt, &mut s1, &mut s2);
-                for j in 0..len {
-                    if cnt[j] == 0.0 {
-                        continue;
-                    }
-                    // Chan et al.: merge (n_a, mean_a, M2_a) with the chunk's (n_b, mean_b, M2_b).
-                    let nb = cnt[j];
-                    let mean_b = shift[j] + s1[j] / nb;
-                    let m2_b = (s2[j] - s1[j] * s1[j] / nb).max(0.0);
-                    let na = f64::from(count[j]);
-                    let total = na + nb;
-                    let delta = mean_b - mean[j];
-                    mean[j] += delta * nb / total;
-                    m2[j] += m2_b + delta * delta * na * nb / total;
-                    count[j] += nb as u32;
-                }
-            });
+                // Chan et al.: merge (n_a, mean_a, M2_a) with the chunk's (n_b, mean_b, M2_b).
+                let nb = cnt[j];
+                let mean_b = shift[j] + s1[j] / nb;
+                let m2_b = (s2[j] - s1[j] * s1[j] / nb).max(0.0);
+                let na = f64::from(count[j]);
+                let total = na + nb;
+                let delta = mean_b - mean[j];
+                mean[j] += delta * nb / total;
+                m2[j] += m2_b + delta * delta * na * nb / total;
+                count[j] += nb as u32;
+            }
+        });
     }
 
     /// The statistics: count, mean distance (NaN without observations) and sample variance
