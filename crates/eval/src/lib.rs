@@ -1,5 +1,6 @@
 //! Metrics against ground truth: clustering agreement, axis and pivot errors, joint RMS.
 
+pub mod conformance;
 mod truth;
 
 pub use truth::{Evaluation, JointEval, evaluate};
