@@ -31,3 +31,40 @@ fn noise_estimate_within_ten_percent_from_a_tenth_to_ten_millimetres() {
         }
     }
 }
+
+#[test]
+fn noise_free_data_keeps_its_bodies() {
+    use kinetree_synth::{JointDraw, MechanismSpec};
+    // Found by the property suite: without noise, rigid pairs have exactly zero variance and
+    // the estimate used to come from moving pairs (13 mm here), merging every body into one.
+    let joint = |parent_pick: f64| JointDraw {
+        parent_pick,
+        revolute: false,
+        axis: [0.0; 3],
+        size_m: 0.02,
+        n_points: 4,
+        amplitude: 0.0,
+        phase: 0.0,
+    };
+    let spec = MechanismSpec {
+        joints: vec![joint(0.0), joint(0.58)],
+        tree: false,
+        noise_sigma_m: 0.0,
+        dropout: 0.0,
+        seed: 2_353_299_102_759_370_406,
+    };
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let m = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    assert!(
+        m.noise.sigma_m < 1e-6,
+        "noise-free data estimated at {} m",
+        m.noise.sigma_m
+    );
+    let e = kinetree_eval::evaluate(&m, &data.truth);
+    assert_eq!(e.n_bodies_found, 3, "{e:?}");
+    assert!(e.joints_exact, "{e:?}");
+}

@@ -21,6 +21,10 @@ fn median(v: &mut [f64]) -> f64 {
 /// partners, so the band holds at least `N` pairs), moves to the densest window starting within
 /// one width of it, and takes that window's median.
 ///
+/// When at least that many pairs keep their distance to machine precision (`std <= 1e-12`
+/// of the distance: noise-free data), the estimate is a floor of `1e-9` of their typical
+/// distance instead.
+///
 /// This is a first guess; [`refine_noise_sigma`] improves it once bodies are known.
 ///
 /// # Errors
@@ -38,7 +42,25 @@ pub fn estimate_noise_sigma(stats: &PairStats) -> Result<f64> {
         })
         .collect();
     let need = (stats.n_points / 2).max(3);
+    // Noise-free data (a simulator without noise): rigid pairs keep their distance to machine
+    // precision and the log-variance band below is empty, so report a floor instead of
+    // mistaking moving pairs for the band.
+    let mut exact: Vec<f64> = stats
+        .var_m2
+        .iter()
+        .zip(&stats.count)
+        .zip(&stats.mean_m)
+        .filter(|((v, c), m)| {
+            **c >= 3 && v.is_finite() && m.is_finite() && **m > 0.0 && v.sqrt() <= 1e-12 * **m
+        })
+        .map(|(_, m)| *m)
+        .collect();
     let seen_often = stats.count.iter().filter(|&&c| c >= 3).count();
+    // Some pairs exact and some moving: noise-free motion. All exact: constant data, handled
+    // below as an error (there is nothing to tell the noise from).
+    if exact.len() >= need && exact.len() < seen_often {
+        return Ok(1e-9 * median(&mut exact));
+    }
     if z.is_empty() && seen_often > 0 {
         return Err(Error::Degenerate(format!(
             "cannot estimate the noise level: all {seen_often} pairs seen in 3+ frames keep exactly constant distances (noise-free or constant data); give the noise level explicitly"

@@ -5,10 +5,14 @@
 mod mechanism;
 mod named;
 mod scenario;
+mod spec;
+#[cfg(feature = "proptest")]
+pub mod strategies;
 
 pub use mechanism::{BodySpec, BoxShape, JointSpec, JointType, Mechanism};
 pub use named::{RandomParams, paper_arm, random_scenario};
 pub use scenario::{Camera, GroundTruth, Scenario, SynthData, Trajectory, simulate};
+pub use spec::{JointDraw, MechanismSpec, SPEC_FRAMES};
 
 #[cfg(test)]
 mod tests {

@@ -68,6 +68,10 @@ pub struct BodySpec {
     /// Extra keypoints at random places on the box surface.
     #[serde(default)]
     pub extra_points: usize,
+    /// Keypoints at random places inside the box (general position; use without
+    /// self-occlusion, which would always hide them).
+    #[serde(default)]
+    pub interior_points: usize,
 }
 
 /// Joint type.

@@ -15,6 +15,7 @@ fn body(name: &str, centre: [f64; 3], half_extents: [f64; 3]) -> BodySpec {
         },
         skip_corners: Vec::new(),
         extra_points: 0,
+        interior_points: 0,
     }
 }
 
@@ -65,6 +66,7 @@ pub fn paper_arm(seed: u64) -> Scenario {
         noise_sigma_m: 0.001,
         dropout: 0.0,
         seed,
+        self_occlusion: true,
     }
 }
 
@@ -200,5 +202,6 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
         noise_sigma_m: p.noise_sigma_m,
         dropout: p.dropout,
         seed: p.seed,
+        self_occlusion: true,
     }
 }

@@ -96,6 +96,14 @@ pub struct Scenario {
     pub dropout: f64,
     /// Seed of every random choice.
     pub seed: u64,
+    /// Whether bodies hide points behind them (ray casting against every box). Without it,
+    /// only the field of view and `dropout` hide points; keypoints may then lie inside boxes.
+    #[serde(default = "default_true")]
+    pub self_occlusion: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 /// The truth behind a simulated data set.
@@ -170,6 +178,17 @@ fn keypoints(m: &Mechanism, rng: &mut ChaCha8Rng) -> (Vec<Point3<f64>>, Vec<usiz
                 rng.random_range(-1.0..1.0),
             );
             u[axis] = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            pts.push(Point3::from(
+                Vector3::from(spec.shape.centre) + u.component_mul(&h),
+            ));
+            body.push(b);
+        }
+        for _ in 0..spec.interior_points {
+            let u = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
             pts.push(Point3::from(
                 Vector3::from(spec.shape.centre) + u.component_mul(&h),
             ));
@@ -258,8 +277,10 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
                     .is_some_and(|e| e < 1.0 - 1e-9)
             };
             let own = point_body[i];
-            let by_other = in_view && (0..s.mechanism.bodies.len()).any(|b| b != own && hides(b));
-            let occluded = by_other || (in_view && hides(own));
+            let by_other = in_view
+                && s.self_occlusion
+                && (0..s.mechanism.bodies.len()).any(|b| b != own && hides(b));
+            let occluded = by_other || (in_view && s.self_occlusion && hides(own));
             if by_other {
                 occluded_by_other_body[i] += 1;
             }

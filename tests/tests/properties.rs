@@ -1,0 +1,272 @@
+//! Property tests over random inputs and random prismatic/revolute mechanisms.
+//!
+//! Each property runs 64 cases by default; `PROPTEST_CASES=640 cargo test --release -p
+//! kinetree-tests --test properties` runs a deep pass. Failing cases are saved under
+//! `tests/proptest-regressions/` and replayed first on every run.
+
+use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use kinetree_core::{JointKind, PairDof, RankTest};
+use kinetree_dissimilarity::f_test_q;
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_pose::kabsch;
+use kinetree_synth::{simulate, strategies};
+use proptest::prelude::*;
+
+fn cases() -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(64)
+}
+
+fn config() -> ProptestConfig {
+    ProptestConfig {
+        cases: cases(),
+        ..ProptestConfig::default()
+    }
+}
+
+fn point() -> impl Strategy<Value = Point3<f64>> {
+    [-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64].prop_map(|[x, y, z]| Point3::new(x, y, z))
+}
+
+fn isometry() -> impl Strategy<Value = Isometry3<f64>> {
+    (
+        [-2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64],
+        [-3.0..3.0f64, -3.0..3.0f64, -3.0..3.0f64],
+    )
+        .prop_map(|(t, r)| {
+            Isometry3::from_parts(
+                Translation3::new(t[0], t[1], t[2]),
+                UnitQuaternion::from_scaled_axis(Vector3::from(r)),
+            )
+        })
+}
+
+/// Points whose second principal spread is at least 5 cm (not collinear).
+fn general_points() -> impl Strategy<Value = Vec<Point3<f64>>> {
+    proptest::collection::vec(point(), 4..12)
+        .prop_filter("non-collinear", |p| kinetree_pose::spread(p)[1] > 0.05)
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn kabsch_is_exact_and_equivariant(src in general_points(), truth in isometry(), g in isometry()) {
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| truth * p).collect();
+        let est = kabsch(&src, &dst).expect("fit");
+        for (s, d) in src.iter().zip(&dst) {
+            prop_assert!((est * s - d).norm() < 1e-9);
+        }
+        // Moving both sets by g gives g * est * g^-1.
+        let gs: Vec<Point3<f64>> = src.iter().map(|p| g * p).collect();
+        let gd: Vec<Point3<f64>> = dst.iter().map(|p| g * p).collect();
+        let moved = kabsch(&gs, &gd).expect("fit");
+        let expected = g * est * g.inverse();
+        for s in &src {
+            prop_assert!((moved * s - expected * s).norm() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn q_is_monotone_in_the_variance(count in 2u32..3000, a in 1e-9..1e-4f64, b in 1e-9..1e-4f64) {
+        let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+        let vd = 2e-6;
+        prop_assert!(f_test_q(lo, count, vd) <= f_test_q(hi, count, vd));
+        let q = f_test_q(lo, count, vd);
+        prop_assert!((0.0..=1.0).contains(&q));
+    }
+
+    #[test]
+    fn exact_one_dof_motions_have_one_dof(
+        axis in [-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64],
+        pivot in [-0.5..0.5f64, -0.5..0.5f64, -0.5..0.5f64],
+        amplitude in 0.3..2.5f64,
+        revolute in any::<bool>(),
+        shape in general_points(),
+    ) {
+        use kinetree_core::{BodyPoses, BodyTrack, DofInput, DofTester};
+        let axis = Vector3::from(axis);
+        prop_assume!(axis.norm() > 0.2);
+        let axis = axis.normalize();
+        let n_frames = 80;
+        let base = Isometry3::translation(0.0, 0.0, 2.0);
+        let quality = |pts: &[Point3<f64>]| {
+            let rot = kinetree_pose::rotation_cov_per_sigma2(pts).expect("non-collinear");
+            let c = kinetree_pose::centroid(pts).coords.cross_matrix();
+            let origin = kinetree_core::nalgebra::Matrix3::identity() / pts.len() as f64 + c * rot * c.transpose();
+            kinetree_core::PoseQuality {
+                n_visible: pts.len(),
+                rms_residual_m: 0.0,
+                rot_std_per_sigma: rot.symmetric_eigenvalues().max().sqrt(),
+                trans_std_per_sigma: origin.symmetric_eigenvalues().max().sqrt(),
+                rot_cov_per_sigma2: rot,
+                origin_cov_per_sigma2: origin,
+            }
+        };
+        let q = quality(&shape);
+        let track = |poses: Vec<Option<Isometry3<f64>>>| BodyTrack {
+            points: vec![],
+            shape: shape.clone(),
+            reference_frame: 0,
+            quality: vec![Some(q); poses.len()],
+            cam_from_body: poses,
+            frames_too_few_points: 0,
+            frames_degenerate: 0,
+        };
+        let pivot = Vector3::from(pivot);
+        let moving: Vec<Option<Isometry3<f64>>> = (0..n_frames)
+            .map(|k| {
+                let s = amplitude * (k as f64 * 0.11).sin();
+                let m = if revolute {
+                    Translation3::from(pivot) * UnitQuaternion::from_scaled_axis(axis * s) * Translation3::from(-pivot)
+                } else {
+                    Isometry3::translation(axis.x * s * 0.1, axis.y * s * 0.1, axis.z * s * 0.1)
+                };
+                Some(base * m * Isometry3::translation(0.3, 0.1, 0.0))
+            })
+            .collect();
+        let poses = BodyPoses { n_frames, bodies: vec![track(vec![Some(base); n_frames]), track(moving)] };
+        let tester = kinetree_dof::SvdRank::new(kinetree_dof::SvdRankParams::default()).expect("params");
+        let p = tester.test_pair(&DofInput { poses: &poses, noise_sigma_m: 1e-5 }, Some(0), 1).expect("test");
+        prop_assert_eq!(p.dof, 1, "{:?}", p);
+        match (&p.joint, revolute) {
+            (JointKind::Revolute { axis: a, .. }, true) | (JointKind::Prismatic { axis: a }, false) => {
+                prop_assert!(a.dot(&axis).abs() > 1.0 - 1e-6);
+            }
+            (other, _) => prop_assert!(false, "wrong joint {:?}", other),
+        }
+    }
+
+    #[test]
+    fn tree_extraction_returns_a_tree(
+        n in 1usize..9,
+        kinds in proptest::collection::vec((0usize..4, 0.0..1.0f64), 45),
+        has_static in any::<bool>(),
+    ) {
+        let mut pairs = Vec::new();
+        let mut k = 0;
+        let pair = |a: Option<usize>, b: usize, kind: usize, fit: f64| {
+            let joint = match kind {
+                0 => JointKind::Rigid,
+                1 => JointKind::Revolute { axis: Vector3::z(), pivot: Point3::origin() },
+                2 => JointKind::Prismatic { axis: Vector3::x() },
+                _ => JointKind::MultiDof,
+            };
+            PairDof {
+                a, b, reference_frame: 0,
+                translation: RankTest::empty(), rotation: RankTest::empty(),
+                centre: RankTest::empty(), sliding: RankTest::empty(),
+                dof: match kind { 0 => 0, 1 | 2 => 1, _ => 3 }, joint, fit_ratio: fit,
+            }
+        };
+        for b in 0..n {
+            let (kind, fit) = kinds[k % kinds.len()];
+            k += 1;
+            let kind = if b == 0 && has_static { 0 } else if kind == 0 { 3 } else { kind };
+            pairs.push(pair(None, b, kind, fit));
+        }
+        for a in 0..n {
+            for b in a + 1..n {
+                let (kind, fit) = kinds[k % kinds.len()];
+                k += 1;
+                pairs.push(pair(Some(a), b, if kind == 0 { 3 } else { kind }, fit));
+            }
+        }
+        let tree = kinetree_structure::spanning_tree(n, &pairs).expect("tree");
+        let edges = tree.parent.iter().filter(|p| p.is_some()).count();
+        prop_assert_eq!(edges, n - 1);
+        prop_assert!(tree.parent[tree.root].is_none());
+        prop_assert_eq!(tree.root_is_static, has_static);
+        // Walking up from any body reaches the root without a cycle.
+        for b in 0..n {
+            let mut x = b;
+            let mut steps = 0;
+            while let Some(p) = tree.parent[x] {
+                x = p;
+                steps += 1;
+                prop_assert!(steps <= n);
+            }
+            prop_assert_eq!(x, tree.root);
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// On any mechanism of the strategies (1-8 joints, chains and trees, noise 0-5 mm, 0-40 %
+    /// occlusion) the pipeline never panics, and a model it returns is consistent: labels name
+    /// existing bodies, bodies partition the labelled points, parents form a tree rooted at
+    /// `root_body`, every joint has one position slot per frame. (That the model is *right* is
+    /// measured, not yet asserted: 166/200 of these mechanisms get every joint right, see the
+    /// issue notes.)
+    #[test]
+    fn any_mechanism_gives_a_consistent_model(spec in strategies::any_mechanism()) {
+        let data = simulate(&spec.scenario()).expect("simulate");
+        let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+        let Ok(d) = pipeline.run(&data.tracks) else { return Ok(()) };
+        let m = &d.model;
+        let nb = m.bodies.len();
+        for (i, &b) in m.point_body.iter().enumerate() {
+            prop_assert!(b >= -1 && b < nb as i64);
+            if b >= 0 {
+                prop_assert!(m.bodies[b as usize].points.contains(&i));
+            }
+        }
+        prop_assert_eq!(m.bodies.iter().map(|b| b.points.len()).sum::<usize>(), m.point_body.iter().filter(|&&b| b >= 0).count());
+        prop_assert!(m.bodies[m.root_body].parent.is_none());
+        for j in &m.joints {
+            prop_assert_eq!(j.positions.len(), m.n_frames);
+            prop_assert_eq!(m.bodies[j.child].parent, Some(j.parent));
+        }
+        for b in &m.bodies {
+            let mut x = b.id;
+            let mut steps = 0;
+            while let Some(p) = m.bodies[x].parent {
+                x = p;
+                steps += 1;
+                prop_assert!(steps <= nb);
+            }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// The end-to-end property the suite is building towards: every body and joint recovered
+    /// with its type. Tolerances follow the noise and the geometry: the single-frame rotation
+    /// noise of the smallest body, `r = sigma / (size / 2 * sqrt(points))`, bounds how well any
+    /// frame's orientation (and so an axis reported in the camera frame) is known. Axes must be
+    /// within `2 deg + 3 r`; joint positions within `0.05 rad + 3 r` RMS (revolute) or
+    /// `5 mm + 3 sqrt(2) sigma` (prismatic). Ignored in CI because it holds for about 83 % of
+    /// these mechanisms today (166/200 measured, session 1): run it with
+    /// `cargo test --release -p kinetree-tests --test properties -- --ignored` to get a
+    /// minimal failing mechanism.
+    #[test]
+    #[ignore = "holds for about 83 % of mechanisms; see the doc comment"]
+    fn any_mechanism_is_recovered(spec in strategies::any_mechanism()) {
+        let data = simulate(&spec.scenario()).expect("simulate");
+        let sigma = spec.effective_noise_sigma_m();
+        let r = spec
+            .joints
+            .iter()
+            .map(|j| sigma / (0.5 * j.size_m.clamp(0.02, 0.5) * (j.n_points.clamp(4, 12) as f64).sqrt()))
+            .fold(0.0, f64::max);
+        let d = Pipeline::from_config(&PipelineConfig::default())
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover");
+        let e = kinetree_eval::evaluate(&d.model, &data.truth);
+        prop_assert!(e.joints_exact, "{:?}", e);
+        for (j, draw) in e.joints.iter().zip(&spec.joints) {
+            let axis = j.axis_error_deg.unwrap_or(f64::INFINITY);
+            prop_assert!(axis < 2.0 + 3.0 * r.to_degrees(), "joint {} axis {axis} deg (r = {r})", j.joint);
+            let rms = j.position_rms.unwrap_or(f64::INFINITY);
+            let tol = if draw.revolute { 0.05 + 3.0 * r } else { 0.005 + 3.0 * 2f64.sqrt() * sigma };
+            prop_assert!(rms < tol, "joint {} rms {rms} (tolerance {tol})", j.joint);
+        }
+    }
+}
