@@ -1,8 +1,8 @@
 //! Property tests over random inputs and random prismatic/revolute mechanisms.
 //!
 //! Each property runs 64 cases by default; `PROPTEST_CASES=640 cargo test --release -p
-//! kinetree-tests --test properties` runs a deep pass. Failing cases are saved under
-//! `tests/proptest-regressions/` and replayed first on every run.
+//! kinetree-tests --test properties` runs a deep pass. Failing cases are saved in
+//! `properties.proptest-regressions` beside this file and replayed first on every run.
 
 use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use kinetree_core::{JointKind, PairDof, RankTest};
