@@ -109,6 +109,9 @@ fn paper_arm_with_the_chi2_tester() {
     assert_eq!(m.stages.dof, "chi2_rank");
     check_paper_structure(m, out.truth.as_ref().expect("synthetic"));
     // The chi-square rule reports its statistics, and rigid base vs camera sits near 1.
+    // The reports render chi-square tests too (the pivot test has no singular values).
+    assert!(kinetree_pipeline::report::table_text(m).contains("F0"));
+    assert!(kinetree_pipeline::report::table_markdown(m).contains("F0"));
     let base = m.pair(None, 0).expect("pair");
     assert!(base.rotation.threshold.is_none());
     let chi = base.rotation.chi2_per_dof[0];

@@ -22,6 +22,11 @@ struct PairColumns {
     rot_cov: Vec<Matrix3<f64>>,
     q_rel: Vec<UnitQuaternion<f64>>,
     y_ref: Vector3<f64>,
+    /// Per frame: `a_from_b` (rotation, translation) and the body-frame (rotation, origin)
+    /// covariances of `a` and `b` (m^2, rad^2), for the reference-free pivot test.
+    x_abs: Vec<(Matrix3<f64>, Vector3<f64>)>,
+    a_cov: Vec<(Matrix3<f64>, Matrix3<f64>)>,
+    b_cov: Vec<(Matrix3<f64>, Matrix3<f64>)>,
 }
 
 fn quality(poses: &BodyPoses, a: Option<usize>, t: usize) -> Option<PoseQuality> {
@@ -54,6 +59,9 @@ fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Re
     let zero = Matrix3::zeros();
     let mut rot_cov = Vec::with_capacity(frames.len());
     let mut u_cov = Vec::with_capacity(frames.len());
+    let mut x_abs = Vec::with_capacity(frames.len());
+    let mut a_cov = Vec::with_capacity(frames.len());
+    let mut b_cov = Vec::with_capacity(frames.len());
     for &t in &frames {
         let Some(xk) = x[t] else { continue };
         let r_x = xk.rotation.to_rotation_matrix().into_inner();
@@ -65,6 +73,9 @@ fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Re
         let (jb, ob) = qb.map_or((zero, zero), |q| {
             (q.rot_cov_per_sigma2, q.origin_cov_per_sigma2)
         });
+        x_abs.push((r_x, xk.translation.vector));
+        a_cov.push((ja * s2, oa * s2));
+        b_cov.push((jb * s2, ob * s2));
         // Relative rotation error in a's frame: -alpha + R_x beta.
         rot_cov.push((ja + r_x * jb * r_x.transpose()) * s2);
         // b's origin in a's frame: a's origin error, b's origin error, and a's rotation error
@@ -72,9 +83,17 @@ fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Re
         let y = xk.translation.vector.cross_matrix();
         u_cov.push((oa + r_x * ob * r_x.transpose() + y * ja * y.transpose()) * s2);
     }
-    // Reference: the common frame with the most precise relative rotation.
-    let r = (0..frames.len())
-        .min_by(|&i, &j| rot_cov[i].trace().total_cmp(&rot_cov[j].trace()))
+    // Reference: the earliest common frame with the most precise relative rotation. The
+    // precision depends only on which points are visible, so many frames tie exactly up to
+    // rounding; breaking ties by rounding made the choice (and a borderline decision) change
+    // under a rigid motion of the whole scene.
+    let best = rot_cov
+        .iter()
+        .map(Matrix3::trace)
+        .fold(f64::INFINITY, f64::min);
+    let r = rot_cov
+        .iter()
+        .position(|c| c.trace() <= best * (1.0 + 1e-9))
         .unwrap_or(0);
     let reference_frame = frames[r];
     let x_ref = x[reference_frame].ok_or_else(|| Error::Numerical("lost reference pose".into()))?;
@@ -107,7 +126,68 @@ fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Re
         rot_cov,
         q_rel,
         y_ref,
+        x_abs,
+        a_cov,
+        b_cov,
     })
+}
+
+/// Reference-free test for a fixed pivot: is there a point fixed in both bodies, `c` in
+/// `a`'s frame and `w` in `b`'s, with `c = R_k w + y_k` in every frame? Weighted least squares
+/// in `(c, w)` (one gauge direction along the axis, fixed by a tiny ridge), each frame weighted
+/// by the covariance of the transformed pivot: pose noise of `a` at lever `c` plus pose noise
+/// of `b` at lever `w`. Three passes (the weights depend on the pivot). Returns
+/// `(chi^2 / dof, dof)` with `dof = 3K - 5`. No reference frame enters, so the result does
+/// not depend on which frame is the reference; a screw or a moving centre leaves a large
+/// residual.
+fn pivot_test(c: &PairColumns) -> Option<(f64, f64)> {
+    use kinetree_core::nalgebra::{SMatrix, SVector};
+    let k = c.x_abs.len();
+    if k < 3 {
+        return None;
+    }
+    let point_cov = |(rot, origin): &(Matrix3<f64>, Matrix3<f64>), p: &Vector3<f64>| {
+        let px = p.cross_matrix();
+        origin + px * rot * px.transpose()
+    };
+    let mut theta = SVector::<f64, 6>::zeros();
+    let mut chi2 = 0.0;
+    for pass in 0..3 {
+        let cc: Vector3<f64> = theta.fixed_rows::<3>(0).into_owned();
+        let ww: Vector3<f64> = theta.fixed_rows::<3>(3).into_owned();
+        let mut normal = SMatrix::<f64, 6, 6>::zeros();
+        let mut rhs = SVector::<f64, 6>::zeros();
+        let mut rows = Vec::with_capacity(k);
+        for f in 0..k {
+            let (r, y) = &c.x_abs[f];
+            let cov = if pass == 0 {
+                Matrix3::identity()
+            } else {
+                point_cov(&c.a_cov[f], &cc) + r * point_cov(&c.b_cov[f], &ww) * r.transpose()
+            };
+            let w = cov.try_inverse().unwrap_or_else(Matrix3::zeros);
+            let mut m = SMatrix::<f64, 3, 6>::zeros();
+            m.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&Matrix3::identity());
+            m.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-r));
+            normal += m.transpose() * w * m;
+            rhs += m.transpose() * w * y;
+            rows.push((m, w));
+        }
+        let ridge = normal.trace().max(1e-300) * 1e-9;
+        let reg = normal + SMatrix::<f64, 6, 6>::identity() * ridge;
+        theta = reg.try_inverse()? * rhs;
+        chi2 = rows
+            .iter()
+            .zip(&c.x_abs)
+            .map(|((m, w), (_, y))| {
+                let res = m * theta - y;
+                res.dot(&(w * res))
+            })
+            .sum();
+    }
+    let dof = (3 * k - 5) as f64;
+    chi2.is_finite().then_some((chi2 / dof, dof))
 }
 
 /// Inverse left Jacobian of SO(3) at `phi = theta a`:
@@ -227,8 +307,27 @@ fn classify(
                     w_cov.push(cov);
                 }
             }
-            centre = rank_test(&w, &w_cov, 2, rule);
-            sliding = rank_test(&z, &z_cov, 1, rule);
+            match rule {
+                RankRule::Chi2 { z: zq, slack } => {
+                    // One reference-free test covers a moving centre and sliding.
+                    if let Some((per_dof, dof)) = pivot_test(c) {
+                        let bound = slack * crate::rank::chi2_per_dof_quantile(dof, zq);
+                        centre = RankTest {
+                            singular_values: Vec::new(),
+                            whitened: Vec::new(),
+                            threshold: None,
+                            rank: usize::from(per_dof > bound),
+                            n_columns: c.x_abs.len(),
+                            chi2_per_dof: vec![per_dof],
+                            chi2_bound: vec![bound],
+                        };
+                    }
+                }
+                RankRule::Whitened { .. } => {
+                    centre = rank_test(&w, &w_cov, 2, rule);
+                    sliding = rank_test(&z, &z_cov, 1, rule);
+                }
+            }
             dof = (1 + centre.rank + sliding.rank).min(6);
             fit_ratio = rotation
                 .next_rank_ratio()

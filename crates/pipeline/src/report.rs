@@ -3,15 +3,23 @@
 use kinetree_core::{Model, RankTest};
 use std::fmt::Write;
 
+/// The non-zero singular values of a test, or for a chi-square test without singular values
+/// (the pivot test) its `chi2/dof`.
 fn values(t: &RankTest) -> String {
     if t.rank == 0 {
         return "-".into();
     }
-    t.singular_values[..t.rank]
-        .iter()
-        .map(|v| format!("{v:.1}"))
-        .collect::<Vec<_>>()
-        .join(", ")
+    if let Some(vals) = t.singular_values.get(..t.rank) {
+        return vals
+            .iter()
+            .map(|v| format!("{v:.1}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+    }
+    match t.chi2_per_dof.last() {
+        Some(c) => format!("chi2/dof {c:.1}"),
+        None => format!("rank {}", t.rank),
+    }
 }
 
 /// The cells of Table I: for rows F0 (camera) .. F(n-1) and columns F1 .. Fn, the non-zero
