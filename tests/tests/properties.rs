@@ -200,7 +200,7 @@ proptest! {
     /// occlusion) the pipeline never panics, and a model it returns is consistent: labels name
     /// existing bodies, bodies partition the labelled points, parents form a tree rooted at
     /// `root_body`, every joint has one position slot per frame. (That the model is *right* is
-    /// measured, not yet asserted: 166/200 of these mechanisms get every joint right, see the
+    /// measured, not yet asserted: 190/200 of these mechanisms get every joint right, see the
     /// issue notes.)
     #[test]
     fn any_mechanism_gives_a_consistent_model(spec in strategies::any_mechanism()) {
@@ -241,12 +241,12 @@ proptest! {
     /// noise of the smallest body, `r = sigma / (size / 2 * sqrt(points))`, bounds how well any
     /// frame's orientation (and so an axis reported in the camera frame) is known. Axes must be
     /// within `2 deg + 3 r`; joint positions within `0.05 rad + 3 r` RMS (revolute) or
-    /// `5 mm + 3 sqrt(2) sigma` (prismatic). Ignored in CI because it holds for about 83 % of
-    /// these mechanisms today (166/200 measured, session 1): run it with
+    /// `5 mm + 3 sqrt(2) sigma` (prismatic). Ignored in CI because it holds for about 95 % of
+    /// these mechanisms today (190/200 joints exact measured, session 1): run it with
     /// `cargo test --release -p kinetree-tests --test properties -- --ignored` to get a
     /// minimal failing mechanism.
     #[test]
-    #[ignore = "holds for about 83 % of mechanisms; see the doc comment"]
+    #[ignore = "holds for about 95 % of mechanisms; see the doc comment"]
     fn any_mechanism_is_recovered(spec in strategies::any_mechanism()) {
         let data = simulate(&spec.scenario()).expect("simulate");
         let sigma = spec.effective_noise_sigma_m();
