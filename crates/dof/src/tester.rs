@@ -235,7 +235,11 @@ fn classify(
             if translation.rank == 0 {
                 joint = JointKind::Rigid;
             } else if translation.rank == 1 {
-                let axis = principal_direction(&c.u, &c.u_cov)
+                // Fit the line to the centred displacements, as the rank test did: the
+                // uncentred columns are anchored at the reference frame's own noisy position.
+                let mean: Vector3<f64> = c.u.iter().sum::<Vector3<f64>>() / c.u.len() as f64;
+                let centred: Vec<Vector3<f64>> = c.u.iter().map(|u| u - mean).collect();
+                let axis = principal_direction(&centred, &c.u_cov)
                     .ok_or_else(|| Error::Numerical("prismatic axis".into()))?;
                 joint = JointKind::Prismatic {
                     axis: canonical_sign(axis),
