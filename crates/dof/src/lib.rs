@@ -3,5 +3,8 @@
 mod rank;
 mod tester;
 
-pub use rank::{RankRule, chi2_per_dof_quantile, principal_direction, rank_test};
+pub use rank::{
+    RankRule, chi2_per_dof_quantile, mahalanobis_line, principal_direction, rank_test,
+    weighted_direction,
+};
 pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};

@@ -72,18 +72,13 @@ fn top_eigenvector(m: &Matrix3<f64>, largest: bool) -> Vector3<f64> {
     e.eigenvectors.column(i).into_owned()
 }
 
-/// Weighted residuals of the best rank-0, 1 and 2 subspaces (through the origin) of the
-/// centred columns, each column weighted by its information matrix `omega`. Returns
-/// `(chi2 for r = 0..dim, best line direction)`.
-fn weighted_residuals(
-    x: &[Vector3<f64>],
-    omega: &[Matrix3<f64>],
-    cov: &[Matrix3<f64>],
-    dim: usize,
-) -> (Vec<f64>, Vector3<f64>) {
-    let s0: f64 = x.iter().zip(omega).map(|(x, o)| x.dot(&(o * x))).sum();
+/// Direction of the line through the origin that best fits the columns `x`, each weighted by
+/// its information matrix (inverse covariance) `omega`: alternating least squares on
+/// `x_k = c_k u`, started from the unweighted principal direction. Unlike a fit with one scalar
+/// weight per column, it follows anisotropic noise (a slender body's rotation is poorly known
+/// about its long axis).
+pub fn mahalanobis_line(x: &[Vector3<f64>], omega: &[Matrix3<f64>]) -> Vector3<f64> {
     let scatter: Matrix3<f64> = x.iter().map(|x| x * x.transpose()).sum();
-    // r = 1: alternating least squares for the line direction.
     let mut u = top_eigenvector(&scatter, true);
     for _ in 0..30 {
         let mut a = Matrix3::zeros();
@@ -107,6 +102,29 @@ fn weighted_residuals(
             None => break,
         }
     }
+    u
+}
+
+/// Best-fitting line through the origin of `cols` with full per-column covariances `covs`
+/// ([`mahalanobis_line`]); `None` for degenerate input.
+pub fn weighted_direction(cols: &[Vector3<f64>], covs: &[Matrix3<f64>]) -> Option<Vector3<f64>> {
+    let omega: Vec<Matrix3<f64>> = covs.iter().map(|c| information(c, 3)).collect();
+    let u = mahalanobis_line(cols, &omega);
+    (u.norm() > 0.0 && u.iter().all(|x| x.is_finite())).then(|| u.normalize())
+}
+
+/// Weighted residuals of the best rank-0, 1 and 2 subspaces (through the origin) of the
+/// centred columns, each column weighted by its information matrix `omega`. Returns
+/// `(chi2 for r = 0..dim, best line direction)`.
+fn weighted_residuals(
+    x: &[Vector3<f64>],
+    omega: &[Matrix3<f64>],
+    cov: &[Matrix3<f64>],
+    dim: usize,
+) -> (Vec<f64>, Vector3<f64>) {
+    let s0: f64 = x.iter().zip(omega).map(|(x, o)| x.dot(&(o * x))).sum();
+    let scatter: Matrix3<f64> = x.iter().map(|x| x * x.transpose()).sum();
+    let u = mahalanobis_line(x, omega);
     let s1: f64 = x
         .iter()
         .zip(omega)

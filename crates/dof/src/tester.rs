@@ -1,6 +1,6 @@
 //! The DoF testers: relative-motion columns with their noise, rank rules, joint typing.
 
-use crate::rank::{RankRule, principal_direction, rank_test};
+use crate::rank::{RankRule, rank_test, weighted_direction};
 use kinetree_core::geom::{angle_about, canonical_sign, log_so3, relative_poses};
 use kinetree_core::nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 use kinetree_core::{
@@ -239,7 +239,7 @@ fn classify(
                 // uncentred columns are anchored at the reference frame's own noisy position.
                 let mean: Vector3<f64> = c.u.iter().sum::<Vector3<f64>>() / c.u.len() as f64;
                 let centred: Vec<Vector3<f64>> = c.u.iter().map(|u| u - mean).collect();
-                let axis = principal_direction(&centred, &c.u_cov)
+                let axis = weighted_direction(&centred, &c.u_cov)
                     .ok_or_else(|| Error::Numerical("prismatic axis".into()))?;
                 joint = JointKind::Prismatic {
                     axis: canonical_sign(axis),
@@ -248,7 +248,7 @@ fn classify(
         }
         1 => {
             let axis = canonical_sign(
-                principal_direction(&c.rot, &c.rot_cov)
+                weighted_direction(&c.rot, &c.rot_cov)
                     .ok_or_else(|| Error::Numerical("rotation axis".into()))?,
             );
             // Basis of the plane perpendicular to the axis, for the centre columns.
