@@ -3,8 +3,5 @@
 mod rank;
 mod tester;
 
-pub use rank::{
-    RankRule, chi2_per_dof_quantile, mahalanobis_line, principal_direction, rank_test,
-    weighted_direction,
-};
+pub use rank::{RankRule, chi2_per_dof_quantile, mahalanobis_line, rank_test, weighted_direction};
 pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};

@@ -221,15 +221,3 @@ pub fn rank_test(
         }
     }
 }
-
-/// Best-fitting line through the origin of the (uncentred) columns, each weighted by the
-/// inverse of its worst-direction noise variance.
-pub fn principal_direction(cols: &[Vector3<f64>], covs: &[Matrix3<f64>]) -> Option<Vector3<f64>> {
-    let mut m = Matrix3::zeros();
-    for (c, cov) in cols.iter().zip(covs) {
-        let w = c / worst_std(cov, 3);
-        m += w * w.transpose();
-    }
-    let v = top_eigenvector(&m, true);
-    (v.norm() > 0.0 && v.iter().all(|x| x.is_finite())).then(|| v.normalize())
-}
