@@ -100,6 +100,21 @@ fn f_statistic(var_m2: f64, count: u32, distance_variance_m2: f64) -> FStatistic
     }
 }
 
+/// The matrix of `values` over `stats`'s points, with the measure's default cut.
+fn matrix(
+    stats: &PairStats,
+    values: Vec<f64>,
+    suggested_cut: f64,
+    measure: &str,
+) -> DissimilarityMatrix {
+    DissimilarityMatrix {
+        n_points: stats.n_points,
+        values,
+        suggested_cut,
+        measure: measure.into(),
+    }
+}
+
 /// Applies a per-pair function of `(variance, count, sigma_d^2)` to every pair.
 fn per_pair(stats: &PairStats, distance_variance_m2: f64, f: fn(f64, u32, f64) -> f64) -> Vec<f64> {
     stats
@@ -127,13 +142,12 @@ impl Dissimilarity for FTest {
     fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
         let vd = check_sigma(input.noise_sigma_m)?;
         let s = input.stats;
-        let values = per_pair(s, vd, f_test_q);
-        Ok(DissimilarityMatrix {
-            n_points: s.n_points,
-            values,
-            suggested_cut: self.params.cut,
-            measure: self.name().into(),
-        })
+        Ok(matrix(
+            s,
+            per_pair(s, vd, f_test_q),
+            self.params.cut,
+            self.name(),
+        ))
     }
 }
 
@@ -214,13 +228,12 @@ impl Dissimilarity for LogPValue {
     fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
         let vd = check_sigma(input.noise_sigma_m)?;
         let s = input.stats;
-        let values = per_pair(s, vd, f_test_log_p);
-        Ok(DissimilarityMatrix {
-            n_points: s.n_points,
-            values,
-            suggested_cut: self.params.cut,
-            measure: self.name().into(),
-        })
+        Ok(matrix(
+            s,
+            per_pair(s, vd, f_test_log_p),
+            self.params.cut,
+            self.name(),
+        ))
     }
 }
 
@@ -279,12 +292,13 @@ impl Dissimilarity for DistanceStd {
     fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
         let vd = check_sigma(input.noise_sigma_m)?;
         let s = input.stats;
-        Ok(DissimilarityMatrix {
-            n_points: s.n_points,
-            values: s.var_m2.iter().map(|v| v.sqrt()).collect(),
-            suggested_cut: self.params.cut_in_noise_std * vd.sqrt(),
-            measure: self.name().into(),
-        })
+        let values = s.var_m2.iter().map(|v| v.sqrt()).collect();
+        Ok(matrix(
+            s,
+            values,
+            self.params.cut_in_noise_std * vd.sqrt(),
+            self.name(),
+        ))
     }
 }
 
@@ -311,11 +325,7 @@ impl Dissimilarity for DistanceVariance {
     fn compute(&self, input: &DissimilarityInput<'_>) -> Result<DissimilarityMatrix> {
         let vd = check_sigma(input.noise_sigma_m)?;
         let s = input.stats;
-        Ok(DissimilarityMatrix {
-            n_points: s.n_points,
-            values: s.var_m2.clone(),
-            suggested_cut: self.params.cut_in_noise_std.powi(2) * vd,
-            measure: self.name().into(),
-        })
+        let cut = self.params.cut_in_noise_std.powi(2) * vd;
+        Ok(matrix(s, s.var_m2.clone(), cut, self.name()))
     }
 }
