@@ -119,3 +119,99 @@ fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
         );
     }
 }
+
+#[test]
+fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
+    use kinetree_core::JointKind;
+    use kinetree_synth::{
+        BodySpec, BoxShape, Camera, JointSpec, JointType, Mechanism, Scenario, Trajectory,
+    };
+    // Base -> carriage sliding along x -> arm turning about z (perpendicular to the slide).
+    // Relative to the base the arm's centre of rotation moves along a line (centre rank 1):
+    // the base-arm pair must not be taken for a joint.
+    let body = |name: &str, centre: [f64; 3], half: [f64; 3], n: usize| BodySpec {
+        name: name.into(),
+        shape: BoxShape {
+            centre,
+            half_extents: half,
+        },
+        skip_corners: (0..8).collect(),
+        extra_points: 0,
+        interior_points: n,
+    };
+    let scenario = Scenario {
+        mechanism: Mechanism {
+            bodies: vec![
+                body("base", [0.0, 0.0, -0.05], [0.3, 0.2, 0.05], 8),
+                body("carriage", [0.0, 0.0, 0.05], [0.1, 0.08, 0.05], 8),
+                body("arm", [0.15, 0.0, 0.15], [0.15, 0.03, 0.03], 8),
+            ],
+            joints: vec![
+                JointSpec {
+                    parent: 0,
+                    child: 1,
+                    joint_type: JointType::Prismatic,
+                    axis: [1.0, 0.0, 0.0],
+                    anchor: [0.0; 3],
+                },
+                JointSpec {
+                    parent: 1,
+                    child: 2,
+                    joint_type: JointType::Revolute,
+                    axis: [0.0, 0.0, 1.0],
+                    anchor: [0.0, 0.0, 0.15],
+                },
+            ],
+        },
+        trajectories: vec![
+            Trajectory::Sine {
+                offset: 0.0,
+                amplitude: 0.12,
+                frequency_hz: 0.3,
+                phase_rad: 0.0,
+            },
+            Trajectory::Sine {
+                offset: 0.0,
+                amplitude: 1.0,
+                frequency_hz: 0.55,
+                phase_rad: 1.0,
+            },
+        ],
+        n_frames: 200,
+        frame_rate_hz: 30.0,
+        camera: Camera {
+            eye: [1.5, -1.5, 1.2],
+            target: [0.0, 0.0, 0.1],
+            up: [0.0, 0.0, 1.0],
+            fov_h_deg: 90.0,
+            fov_v_deg: 80.0,
+        },
+        noise_sigma_m: 0.001,
+        dropout: 0.1,
+        seed: 5,
+        self_occlusion: false,
+    };
+    let data = simulate(&scenario).expect("simulate");
+    for dof in ["", "[dof]\nkind = \"svd_rank\"\n"] {
+        let cfg = kinetree_pipeline::config::pipeline_from_toml(dof).expect("config");
+        let d = Pipeline::from_config(&cfg)
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover");
+        let e = evaluate(&d.model, &data.truth);
+        assert!(e.joints_exact, "{dof:?}: {e:?}");
+        let base = d.model.static_body.expect("static base");
+        let arm = (0..d.model.bodies.len())
+            .find(|&b| d.model.bodies[b].points.contains(&16))
+            .expect("arm body");
+        let pair = d.model.pair(Some(base), arm).expect("base-arm pair");
+        assert!(
+            !matches!(
+                pair.joint,
+                JointKind::Revolute { .. } | JointKind::Prismatic { .. }
+            ),
+            "{dof:?}: base-arm taken for a joint: {:?}",
+            pair.joint
+        );
+    }
+}
