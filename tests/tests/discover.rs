@@ -215,3 +215,37 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
         );
     }
 }
+
+#[test]
+fn heavy_occlusion_keeps_most_mechanisms_right() {
+    use proptest::strategy::{Just, Strategy, ValueTree};
+    use proptest::test_runner::TestRunner;
+    // Issue 3's occlusion regime: 50 % and 60 % of observations hidden in bursts. Measured in
+    // session 1: 35/40 chains of 2-5 joints with every joint right at both levels, and 16/20
+    // on the first 20 used here. The bound (one fewer) catches a regression without depending
+    // on any one mechanism.
+    const N: usize = 20;
+    const MIN_RIGHT: usize = 15;
+    for dropout in [0.5, 0.6] {
+        let mut runner = TestRunner::deterministic();
+        let mut right = 0;
+        for _ in 0..N {
+            let spec = kinetree_synth::strategies::mechanism(2..=5, Just(false))
+                .new_tree(&mut runner)
+                .expect("draw")
+                .current();
+            let mut scenario = spec.scenario();
+            scenario.dropout = dropout;
+            let data = simulate(&scenario).expect("simulate");
+            let occluded = data.truth.occluded_fraction;
+            assert!((occluded - dropout).abs() < 0.05, "occluded {occluded}");
+            if let Ok(d) = Pipeline::from_config(&PipelineConfig::default())
+                .expect("pipeline")
+                .run(&data.tracks)
+            {
+                right += usize::from(evaluate(&d.model, &data.truth).joints_exact);
+            }
+        }
+        assert!(right >= MIN_RIGHT, "{dropout}: {right}/{N} mechanisms right");
+    }
+}
