@@ -246,6 +246,9 @@ fn heavy_occlusion_keeps_most_mechanisms_right() {
                 right += usize::from(evaluate(&d.model, &data.truth).joints_exact);
             }
         }
-        assert!(right >= MIN_RIGHT, "{dropout}: {right}/{N} mechanisms right");
+        assert!(
+            right >= MIN_RIGHT,
+            "{dropout}: {right}/{N} mechanisms right"
+        );
     }
 }
