@@ -168,3 +168,52 @@ fn dropping_every_other_frame_gives_the_same_structure() {
 fn dropping_every_other_frame_seed_3_known_failure() {
     check_halved(3);
 }
+
+#[test]
+fn a_moving_camera_gives_the_same_joints_and_no_static_body() {
+    use kinetree_core::Warning;
+    for seed in SEEDS {
+        let (tracks, expected) = base(seed);
+        // A different rigid motion of the whole scene in every frame: nothing is static.
+        let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
+            .map(|t| {
+                let s = t as f64 * 0.05;
+                let camera = Isometry3::from_parts(
+                    Translation3::new(0.3 * s.sin(), 0.2 * (0.7 * s).cos(), 0.1 * s),
+                    UnitQuaternion::from_scaled_axis(Vector3::new(0.2 * s.sin(), 0.4 * s, 0.1)),
+                );
+                (0..tracks.n_points())
+                    .map(|i| tracks.get(t, i).map(|p| camera * p))
+                    .collect()
+            })
+            .collect();
+        let moving = Tracks::from_points(&frames).expect("moving camera");
+        let identity: Vec<usize> = (0..tracks.n_points()).collect();
+        let m = discover(&moving, Some(0.001));
+        let got = structure(&m, &identity);
+        assert_eq!(got.bodies, expected.bodies, "seed {seed}");
+        assert!(m.static_body.is_none(), "seed {seed}");
+        assert!(
+            m.warnings
+                .iter()
+                .any(|w| matches!(w, Warning::NoStaticBody { .. }))
+        );
+        // Same joints up to direction (the root may be another body now).
+        let undirected = |s: &Structure| {
+            let mut j: Vec<(Vec<usize>, Vec<usize>, String)> = s
+                .joints
+                .iter()
+                .map(|(a, b, t)| {
+                    if a < b {
+                        (a.clone(), b.clone(), t.clone())
+                    } else {
+                        (b.clone(), a.clone(), t.clone())
+                    }
+                })
+                .collect();
+            j.sort();
+            j
+        };
+        assert_eq!(undirected(&got), undirected(&expected), "seed {seed}");
+    }
+}
