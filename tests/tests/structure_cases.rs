@@ -1,0 +1,229 @@
+//! Structure cases issue 4 names: joints past one full turn, a body hidden in frame 0, a
+//! 3 cm finger-like prismatic joint, a body with three children.
+
+use kinetree_eval::evaluate;
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_synth::{
+    BodySpec, BoxShape, Camera, JointSpec, JointType, Mechanism, Scenario, Trajectory, simulate,
+};
+
+fn body(centre: [f64; 3], half: [f64; 3], points: usize) -> BodySpec {
+    BodySpec {
+        name: String::new(),
+        shape: BoxShape {
+            centre,
+            half_extents: half,
+        },
+        skip_corners: (0..8).collect(),
+        extra_points: 0,
+        interior_points: points,
+    }
+}
+
+fn joint(
+    parent: usize,
+    child: usize,
+    revolute: bool,
+    axis: [f64; 3],
+    anchor: [f64; 3],
+) -> JointSpec {
+    JointSpec {
+        parent,
+        child,
+        joint_type: if revolute {
+            JointType::Revolute
+        } else {
+            JointType::Prismatic
+        },
+        axis,
+        anchor,
+    }
+}
+
+fn sine(amplitude: f64, frequency_hz: f64, phase_rad: f64) -> Trajectory {
+    Trajectory::Sine {
+        offset: 0.0,
+        amplitude,
+        frequency_hz,
+        phase_rad,
+    }
+}
+
+fn scenario(mechanism: Mechanism, trajectories: Vec<Trajectory>, noise: f64) -> Scenario {
+    Scenario {
+        mechanism,
+        trajectories,
+        n_frames: 200,
+        frame_rate_hz: 30.0,
+        camera: Camera {
+            eye: [1.6, -1.8, 1.4],
+            target: [0.0, 0.0, 0.2],
+            up: [0.0, 0.0, 1.0],
+            fov_h_deg: 90.0,
+            fov_v_deg: 80.0,
+        },
+        noise_sigma_m: noise,
+        dropout: 0.1,
+        seed: 3,
+        self_occlusion: false,
+    }
+}
+
+fn base() -> BodySpec {
+    body([0.0, 0.0, -0.05], [0.25, 0.25, 0.05], 8)
+}
+
+fn discover(s: &Scenario) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
+    let data = simulate(s).expect("simulate");
+    let m = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model;
+    let e = evaluate(&m, &data.truth);
+    (m, e)
+}
+
+#[test]
+fn revolute_turning_more_than_one_full_turn_is_unwrapped() {
+    // Constant torque from rest to 11 rad (1.75 turns), as the paper arm's link 1 but further.
+    let mechanism = Mechanism {
+        bodies: vec![base(), body([0.15, 0.0, 0.1], [0.15, 0.04, 0.04], 8)],
+        joints: vec![joint(0, 1, true, [0.0, 0.3, 1.0], [0.0, 0.0, 0.05])],
+    };
+    let s = scenario(
+        mechanism,
+        vec![Trajectory::Quadratic { final_value: 11.0 }],
+        0.001,
+    );
+    let (m, e) = discover(&s);
+    assert!(e.joints_exact, "{e:?}");
+    let j = &e.joints[0];
+    assert!(j.axis_error_deg.is_some_and(|a| a < 1.0), "{j:?}");
+    assert!(j.position_rms.is_some_and(|r| r < 0.02), "{j:?}");
+    let range = m.joints[0].range.expect("range");
+    assert!(
+        (range[1] - range[0] - 11.0).abs() < 0.1,
+        "unwrapped range {range:?}"
+    );
+}
+
+#[test]
+fn a_body_hidden_in_frame_zero_still_gets_its_joint() {
+    let mechanism = Mechanism {
+        bodies: vec![
+            base(),
+            body([0.15, 0.0, 0.1], [0.15, 0.04, 0.04], 8),
+            body([0.3, 0.15, 0.1], [0.04, 0.15, 0.04], 8),
+        ],
+        joints: vec![
+            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
+            joint(1, 2, false, [0.0, 1.0, 0.2], [0.3, 0.0, 0.1]),
+        ],
+    };
+    let s = scenario(
+        mechanism,
+        vec![sine(0.8, 0.25, 0.3), sine(0.08, 0.45, 1.0)],
+        0.001,
+    );
+    let mut data = simulate(&s).expect("simulate");
+    // Hide body 2 (points 16-23) in the first 15 frames.
+    let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
+        (0..data.tracks.n_frames())
+            .map(|t| {
+                (0..data.tracks.n_points())
+                    .map(|i| {
+                        if t < 15 && i >= 16 {
+                            None
+                        } else {
+                            data.tracks.get(t, i)
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+    data.tracks = kinetree_core::Tracks::from_points(&frames).expect("tracks");
+    let m = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model;
+    let e = evaluate(&m, &data.truth);
+    assert!(e.structure_exact, "{e:?}");
+    let j = m
+        .joints
+        .iter()
+        .find(|j| m.bodies[j.child].points.contains(&16))
+        .expect("joint");
+    assert!(
+        j.positions[..15].iter().all(Option::is_none),
+        "no position while hidden"
+    );
+    assert!(j.reference_frame >= 15);
+    assert!(e.joints[1].position_rms.is_some_and(|r| r < 0.003), "{e:?}");
+}
+
+#[test]
+fn a_three_centimetre_finger_slide_is_prismatic() {
+    // A gripper: a palm turning on the base and a finger sliding 3 cm (1.5 cm amplitude).
+    let mechanism = Mechanism {
+        bodies: vec![
+            base(),
+            body([0.1, 0.0, 0.08], [0.08, 0.06, 0.03], 8),
+            body([0.2, 0.03, 0.08], [0.03, 0.01, 0.01], 6),
+        ],
+        joints: vec![
+            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
+            joint(1, 2, false, [0.0, 1.0, 0.0], [0.2, 0.0, 0.08]),
+        ],
+    };
+    let s = scenario(
+        mechanism,
+        vec![sine(0.7, 0.2, 0.0), sine(0.015, 0.55, 0.5)],
+        0.0005,
+    );
+    let (_, e) = discover(&s);
+    assert!(e.joints_exact, "{e:?}");
+    let finger = &e.joints[1];
+    assert!(finger.axis_error_deg.is_some_and(|a| a < 3.0), "{finger:?}");
+    assert!(finger.position_rms.is_some_and(|r| r < 0.001), "{finger:?}");
+}
+
+#[test]
+fn a_body_with_three_children_is_a_tree() {
+    // A hand: a palm on a wrist joint, three fingers turning on the palm.
+    let mechanism = Mechanism {
+        bodies: vec![
+            base(),
+            body([0.0, 0.0, 0.15], [0.08, 0.08, 0.1], 8),
+            body([-0.06, 0.0, 0.35], [0.015, 0.015, 0.08], 6),
+            body([0.0, 0.0, 0.35], [0.015, 0.015, 0.08], 6),
+            body([0.06, 0.0, 0.35], [0.015, 0.015, 0.08], 6),
+        ],
+        joints: vec![
+            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
+            joint(1, 2, true, [1.0, 0.0, 0.0], [-0.06, 0.0, 0.26]),
+            joint(1, 3, true, [1.0, 0.2, 0.0], [0.0, 0.0, 0.26]),
+            joint(1, 4, true, [1.0, -0.2, 0.0], [0.06, 0.0, 0.26]),
+        ],
+    };
+    let s = scenario(
+        mechanism,
+        vec![
+            sine(0.6, 0.15, 0.0),
+            sine(0.7, 0.35, 0.4),
+            sine(0.7, 0.55, 1.1),
+            sine(0.7, 0.75, 2.0),
+        ],
+        0.001,
+    );
+    let (m, e) = discover(&s);
+    assert!(e.joints_exact, "{e:?}");
+    let palm = m.joints[0].child;
+    assert_eq!(
+        m.joints.iter().filter(|j| j.parent == palm).count(),
+        3,
+        "three fingers on the palm"
+    );
+    assert!(m.chain.is_none(), "a tree is not a chain");
+}
