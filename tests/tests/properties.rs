@@ -110,6 +110,7 @@ proptest! {
             points: vec![],
             shape: shape.clone(),
             reference_frame: 0,
+            placed: vec![true; shape.len()],
             quality: vec![Some(q); poses.len()],
             cam_from_body: poses,
             frames_too_few_points: 0,

@@ -145,6 +145,7 @@ fn one_dof_poses(prismatic: bool) -> kinetree_core::BodyPoses {
     let track = |poses: Vec<Option<Isometry3<f64>>>| BodyTrack {
         points: vec![],
         shape: vec![],
+        placed: vec![],
         reference_frame: 0,
         quality: vec![quality; poses.len()],
         cam_from_body: poses,
@@ -255,4 +256,29 @@ fn log_p_value_does_not_saturate_where_q_does() {
     assert!(saturated.iter().all(|&v| v > 15.0 && v <= MAX_LOG_P));
     assert!(f_test_log_p(f64::NAN, 10, 1e-6).is_nan());
     assert_eq!(f_test_log_p(1e308, 10_000, 1e-12), MAX_LOG_P);
+}
+
+#[test]
+fn the_rank_checked_kabsch_rejects_collinear_points() {
+    use kinetree_core::geom::kabsch_with_rank_check;
+    let line: Vec<Point3<f64>> = (0..5)
+        .map(|k| Point3::new(k as f64 * 0.1, 0.0, 0.0))
+        .collect();
+    let moved: Vec<Point3<f64>> = line
+        .iter()
+        .map(|p| Point3::new(p.x, p.y + 1.0, p.z))
+        .collect();
+    assert!(kabsch_with_rank_check(&line, &moved, 1e-6).is_none());
+    assert!(
+        kabsch(&line, &moved).is_some(),
+        "the plain fit still returns a rotation"
+    );
+    let mut bent = line.clone();
+    bent[2].y = 0.05;
+    let moved: Vec<Point3<f64>> = bent
+        .iter()
+        .map(|p| Point3::new(p.x, p.y + 1.0, p.z))
+        .collect();
+    let fit = kabsch_with_rank_check(&bent, &moved, 1e-6).expect("non-collinear");
+    assert!((fit * bent[2] - moved[2]).norm() < 1e-12);
 }

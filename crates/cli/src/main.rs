@@ -67,6 +67,17 @@ enum Command {
         #[arg(short, long, default_value = "model.json")]
         output: PathBuf,
     },
+    /// Estimate joint positions of (new) frames from a discovered model: one CSV column per
+    /// joint, revolute angles unwrapped over the frames, empty where unknown.
+    Observe {
+        /// Model JSON written by `discover` or `run`.
+        model: PathBuf,
+        /// Tracks (.npy or .csv) with the model's points.
+        tracks: PathBuf,
+        /// Output CSV.
+        #[arg(short, long, default_value = "config.csv")]
+        output: PathBuf,
+    },
     /// Write a synthetic data set: tracks.npy, tracks.csv and truth.json.
     Simulate {
         /// Output folder.
@@ -178,6 +189,11 @@ fn main() -> Result<()> {
             emitln!("wrote {}", output.display());
             Ok(())
         }
+        Command::Observe {
+            model,
+            tracks,
+            output,
+        } => observe(&model, &tracks, &output),
         Command::Simulate {
             output,
             mechanism,
@@ -226,6 +242,59 @@ fn main() -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn observe(model_path: &Path, tracks_path: &Path, output: &Path) -> Result<()> {
+    use std::io::Write;
+    let model = kinetree_io::read_model(model_path)?;
+    let tracks = kinetree_io::read_tracks(tracks_path)?;
+    if tracks.n_points() != model.n_points {
+        bail!(
+            "{} has {} points but the model {} was discovered on {}",
+            tracks_path.display(),
+            tracks.n_points(),
+            model_path.display(),
+            model.n_points
+        );
+    }
+    let observer = kinetree_structure::Observer::new(&model)?;
+    let mut columns: Vec<Vec<Option<f64>>> =
+        vec![Vec::with_capacity(tracks.n_frames()); observer.n_joints()];
+    for t in 0..tracks.n_frames() {
+        let frame: Vec<_> = (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+        for (c, v) in columns.iter_mut().zip(observer.observe(&frame)?) {
+            c.push(v);
+        }
+    }
+    for (c, j) in columns.iter_mut().zip(&model.joints) {
+        if j.joint_type == "revolute" {
+            kinetree_core::geom::unwrap_angles(c);
+        }
+    }
+    let mut w = std::io::BufWriter::new(
+        std::fs::File::create(output).with_context(|| format!("creating {}", output.display()))?,
+    );
+    let header: Vec<String> = model
+        .joints
+        .iter()
+        .map(|j| format!("{}_{}_{}", j.joint_type, j.parent, j.child))
+        .collect();
+    writeln!(w, "frame,{}", header.join(","))?;
+    for t in 0..tracks.n_frames() {
+        let row: Vec<String> = columns
+            .iter()
+            .map(|c| c[t].map(|v| format!("{v:?}")).unwrap_or_default())
+            .collect();
+        writeln!(w, "{t},{}", row.join(","))?;
+    }
+    w.flush()?;
+    emitln!(
+        "wrote {} frames x {} joints to {}",
+        tracks.n_frames(),
+        observer.n_joints(),
+        output.display()
+    );
+    Ok(())
 }
 
 fn toml_pipeline(text: &str) -> Result<PipelineConfig> {

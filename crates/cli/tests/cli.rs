@@ -123,3 +123,45 @@ fn discover_reports_bad_files_without_panicking() {
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
+
+#[test]
+fn observe_writes_one_column_per_joint() {
+    let dir = tmp("observe");
+    let out = kinetree()
+        .args(["simulate", "--seed", "2", "-o"])
+        .arg(&dir)
+        .output()
+        .expect("simulate");
+    assert!(out.status.success());
+    let model = dir.join("model.json");
+    let out = kinetree()
+        .arg("discover")
+        .arg(dir.join("tracks.npy"))
+        .args(["--noise-sigma", "0.001", "-o"])
+        .arg(&model)
+        .output()
+        .expect("discover");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = dir.join("config.csv");
+    let out = kinetree()
+        .arg("observe")
+        .arg(&model)
+        .arg(dir.join("tracks.csv"))
+        .arg("-o")
+        .arg(&csv)
+        .output()
+        .expect("observe");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&csv).expect("csv");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("frame,revolute_0_1,revolute_1_2"));
+    assert_eq!(lines.count(), 100);
+}

@@ -1,7 +1,7 @@
 //! Small rigid-motion helpers shared by the stages: the log map, relative motions, angles.
 
 use crate::BodyPoses;
-use nalgebra::{Isometry3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// Axis-angle vector `theta * axis` of a rotation, robust at `pi` and near the identity.
 ///
@@ -73,4 +73,56 @@ pub fn relative_poses(
 pub fn canonical_sign(v: Vector3<f64>) -> Vector3<f64> {
     let i = v.iamax();
     if v[i] < 0.0 { -v } else { v }
+}
+
+/// Centroid of a non-empty point set.
+pub fn centroid(p: &[Point3<f64>]) -> Point3<f64> {
+    let s: Vector3<f64> = p.iter().map(|q| q.coords).sum();
+    Point3::from(s / p.len() as f64)
+}
+
+/// The rigid transform `T` minimising `sum |T src_i - dst_i|^2` (rotation with det +1).
+///
+/// Returns `None` with fewer than three pairs or when the SVD fails. Degenerate (collinear)
+/// sets give an arbitrary rotation about their line; check with [`spread`] first.
+///
+/// Reference: Kabsch (1976), Umeyama (1991), without scale.
+pub fn kabsch(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Isometry3<f64>> {
+    kabsch_with_rank_check(src, dst, 0.0)
+}
+
+/// [`kabsch`], returning `None` also when the cross-covariance `H` is nearly rank one (its
+/// second singular value below `min_ratio` times the first): collinear points, whose rotation
+/// about their line is undetermined. The check reuses the fit's own SVD.
+pub fn kabsch_with_rank_check(
+    src: &[Point3<f64>],
+    dst: &[Point3<f64>],
+    min_ratio: f64,
+) -> Option<Isometry3<f64>> {
+    if src.len() != dst.len() || src.len() < 3 {
+        return None;
+    }
+    let cs = centroid(src);
+    let cd = centroid(dst);
+    let mut h = Matrix3::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        h += (s - cs) * (d - cd).transpose();
+    }
+    let svd = h.svd(true, true);
+    let mut sv = svd.singular_values;
+    sv.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if min_ratio > 0.0 && (sv[1].is_nan() || sv[1] <= min_ratio * sv[0]) {
+        return None;
+    }
+    let u = svd.u?;
+    let v_t = svd.v_t?;
+    let v = v_t.transpose();
+    let d = (v * u.transpose()).determinant().signum();
+    let r = v * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
+    if !r.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let t = cd.coords - rot * cs.coords;
+    Some(Isometry3::from_parts(Translation3::from(t), rot))
 }

@@ -60,6 +60,20 @@ pub struct Body {
     /// points, metres; about `1.2-1.6 sigma` for a rigid body, far more when the body mixes
     /// points of bodies that move apart.
     pub median_residual_m: Option<f64>,
+    /// Reference shape: each point's position in the body frame, metres, in the order of
+    /// `points` (null for a point that could not be placed). The body frame has its origin at
+    /// the shape's centroid. Used by the observer.
+    #[serde(default)]
+    pub shape: Vec<Option<[f64; 3]>>,
+}
+
+/// A rigid transform as a unit quaternion `[x, y, z, w]` and a translation in metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RigidTransform {
+    /// Rotation as a unit quaternion, `[x, y, z, w]`.
+    pub rotation_xyzw: [f64; 4],
+    /// Translation, metres.
+    pub translation: [f64; 3],
 }
 
 /// Joint ranks, as decided by the DoF tester.
@@ -95,6 +109,10 @@ pub struct Joint {
     pub point_in_parent: Option<[f64; 3]>,
     /// Frame at which the joint position is zero.
     pub reference_frame: usize,
+    /// The child's body frame in the parent's body frame at `reference_frame`; joint positions
+    /// are measured from it (used by the observer).
+    #[serde(default)]
+    pub reference_pose: Option<RigidTransform>,
     /// Joint position at every frame: radians (revolute, unwrapped) or metres (prismatic);
     /// null where either body has no pose.
     pub positions: Vec<Option<f64>>,

@@ -33,6 +33,9 @@ pub struct BodyTrack {
     /// Reference shape in the body frame, one entry per point of `points`. The body frame has
     /// its origin at the shape's centroid and the camera's orientation at `reference_frame`.
     pub shape: Vec<Point3<f64>>,
+    /// Whether each point of `points` could be placed in the shape (a point never seen with
+    /// three placed points of its body is not; its `shape` entry is then meaningless).
+    pub placed: Vec<bool>,
     /// Frame at which the body frame is aligned with the camera axes (frame 0 where the body
     /// can be registered there, else the first frame where it can).
     pub reference_frame: usize,

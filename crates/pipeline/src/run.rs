@@ -3,7 +3,7 @@
 use crate::config::PipelineConfig;
 use kinetree_core::geom::cam_from;
 use kinetree_core::model::{
-    Body, Joint, NoiseInfo, NoiseSource, Ranks, SCHEMA_VERSION, StageNames,
+    Body, Joint, NoiseInfo, NoiseSource, Ranks, RigidTransform, SCHEMA_VERSION, StageNames,
 };
 use kinetree_core::{
     BodyPoses, BodyTrack, Clustering, ClusteringInput, Dissimilarity, DissimilarityInput,
@@ -497,6 +497,14 @@ impl Pipeline {
             let (positions, first) = kinetree_structure::joint_positions(poses, &pair);
             let reference_frame = first.unwrap_or(pair.reference_frame);
             let cam_parent = cam_from(poses, Some(parent), reference_frame);
+            let reference_pose = kinetree_core::geom::relative_poses(poses, Some(parent), child)
+                .get(reference_frame)
+                .copied()
+                .flatten()
+                .map(|x| RigidTransform {
+                    rotation_xyzw: [x.rotation.i, x.rotation.j, x.rotation.k, x.rotation.w],
+                    translation: [x.translation.x, x.translation.y, x.translation.z],
+                });
             let (axis_p, point_p) = match &pair.joint {
                 JointKind::Revolute { axis, pivot } => (Some(*axis), Some(*pivot)),
                 JointKind::Prismatic { axis } => (Some(*axis), None),
@@ -535,6 +543,7 @@ impl Pipeline {
                 axis_in_parent: axis_p.map(arr),
                 point_in_parent: point_p.map(|p| arr(p.coords)),
                 reference_frame,
+                reference_pose,
                 positions,
                 range,
                 dof: pair.dof,
@@ -565,6 +574,12 @@ impl Pipeline {
                 parent: tree.parent[b].map(|p| new_id[p]),
                 frames_registered: poses.bodies[b].n_registered(),
                 median_residual_m: poses.bodies[b].median_residual_m(),
+                shape: poses.bodies[b]
+                    .shape
+                    .iter()
+                    .zip(&poses.bodies[b].placed)
+                    .map(|(p, &ok)| ok.then_some([p.x, p.y, p.z]))
+                    .collect(),
             })
             .collect();
         let point_body = seg

@@ -1,44 +1,8 @@
-//! The Kabsch-Umeyama least-squares rigid registration.
+//! The Kabsch-Umeyama least-squares rigid registration (the fit itself lives in
+//! `kinetree_core::geom`, so the observer can use it) and the fit's precision.
 
-use kinetree_core::nalgebra::{
-    Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
-};
-
-/// Centroid of a non-empty point set.
-pub fn centroid(p: &[Point3<f64>]) -> Point3<f64> {
-    let s: Vector3<f64> = p.iter().map(|q| q.coords).sum();
-    Point3::from(s / p.len() as f64)
-}
-
-/// The rigid transform `T` minimising `sum |T src_i - dst_i|^2` (rotation with det +1).
-///
-/// Returns `None` with fewer than three pairs or when the SVD fails. Degenerate (collinear)
-/// sets give an arbitrary rotation about their line; check with [`spread`] first.
-///
-/// Reference: Kabsch (1976), Umeyama (1991), without scale.
-pub fn kabsch(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Isometry3<f64>> {
-    if src.len() != dst.len() || src.len() < 3 {
-        return None;
-    }
-    let cs = centroid(src);
-    let cd = centroid(dst);
-    let mut h = Matrix3::zeros();
-    for (s, d) in src.iter().zip(dst) {
-        h += (s - cs) * (d - cd).transpose();
-    }
-    let svd = h.svd(true, true);
-    let u = svd.u?;
-    let v_t = svd.v_t?;
-    let v = v_t.transpose();
-    let d = (v * u.transpose()).determinant().signum();
-    let r = v * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
-    if !r.iter().all(|x| x.is_finite()) {
-        return None;
-    }
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    let t = cd.coords - rot * cs.coords;
-    Some(Isometry3::from_parts(Translation3::from(t), rot))
-}
+pub use kinetree_core::geom::{centroid, kabsch};
+use kinetree_core::nalgebra::{Matrix3, Point3};
 
 /// Spread of a point set: square roots of the eigenvalues of its scatter matrix divided by
 /// the number of points (RMS extent along each principal axis), descending.

@@ -192,6 +192,7 @@ impl KabschPoses {
         BodyTrack {
             points: points.to_vec(),
             shape: body_shape,
+            placed: shape.iter().map(Option::is_some).collect(),
             reference_frame,
             cam_from_body: poses,
             quality,

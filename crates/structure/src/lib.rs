@@ -1,6 +1,10 @@
 //! Kinematic structure: the DoF graph over bodies and the camera, the paper's chain
 //! extraction, a spanning tree rooted at the static body, joints and their positions.
 
+mod observer;
+
+pub use observer::Observer;
+
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::{BodyPoses, JointKind, PairDof};
 use petgraph::graph::{NodeIndex, UnGraph};

@@ -1,0 +1,127 @@
+//! The observer: joint positions of new frames from a discovered model.
+
+use kinetree_core::Error;
+use kinetree_core::geom::unwrap_angles;
+use kinetree_eval::aligned_rms;
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_structure::Observer;
+use kinetree_synth::{paper_arm, simulate};
+
+fn config() -> PipelineConfig {
+    PipelineConfig {
+        noise_sigma_m: Some(0.001),
+        ..PipelineConfig::default()
+    }
+}
+
+fn observe_all(
+    observer: &Observer,
+    tracks: &kinetree_core::Tracks,
+    revolute: &[bool],
+) -> Vec<Vec<Option<f64>>> {
+    let mut cols = vec![Vec::new(); observer.n_joints()];
+    for t in 0..tracks.n_frames() {
+        let frame: Vec<_> = (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+        for (c, v) in cols
+            .iter_mut()
+            .zip(observer.observe(&frame).expect("observe"))
+        {
+            c.push(v);
+        }
+    }
+    for (c, &r) in cols.iter_mut().zip(revolute) {
+        if r {
+            unwrap_angles(c);
+        }
+    }
+    cols
+}
+
+#[test]
+fn observing_the_training_frames_reproduces_the_batch_positions() {
+    let data = simulate(&paper_arm(3)).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    // Through JSON, as a user would load it.
+    let path = std::env::temp_dir().join(format!("kinetree-observer-{}.json", std::process::id()));
+    kinetree_io::write_json(&path, &model).expect("write");
+    let model = kinetree_io::read_model(&path).expect("read");
+    let observer = Observer::new(&model).expect("observer");
+    let revolute: Vec<bool> = model
+        .joints
+        .iter()
+        .map(|j| j.joint_type == "revolute")
+        .collect();
+    let cols = observe_all(&observer, &data.tracks, &revolute);
+    for (j, c) in model.joints.iter().zip(&cols) {
+        for (a, b) in j.positions.iter().zip(c) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!((a - b).abs() < 1e-9, "{a} vs {b}"),
+                (None, None) => {}
+                _ => panic!("known in one and not the other: {a:?} vs {b:?}"),
+            }
+        }
+    }
+}
+
+#[test]
+fn held_back_frames_follow_the_truth() {
+    let data = simulate(&paper_arm(4)).expect("simulate");
+    let first: Vec<usize> = (0..70).collect();
+    let training = data.tracks.select_frames(&first).expect("first 70 frames");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&training)
+        .expect("run")
+        .model;
+    assert_eq!(model.joints.len(), 2);
+    let observer = Observer::new(&model).expect("observer");
+    let cols = observe_all(&observer, &data.tracks, &[true, true]);
+    // Match the discovered joints to the true ones by their child's points.
+    for (k, col) in cols.iter().enumerate() {
+        let child_points = &model.bodies[model.joints[k].child].points;
+        let truth_joint = data.truth.point_body[child_points[0]] - 1;
+        let truth = &data.truth.joint_positions[truth_joint];
+        let held_back: Vec<Option<f64>> = col
+            .iter()
+            .enumerate()
+            .map(|(t, v)| if t >= 70 { *v } else { None })
+            .collect();
+        assert!(
+            held_back.iter().flatten().count() >= 25,
+            "most held-back frames observed"
+        );
+        let rms = aligned_rms(col, truth).expect("rms");
+        assert!(rms < 0.05, "joint {k}: RMS {rms} rad over all 100 frames");
+    }
+}
+
+#[test]
+fn bad_observer_input_gets_typed_errors() {
+    let data = simulate(&paper_arm(5)).expect("simulate");
+    let mut model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    let observer = Observer::new(&model).expect("observer");
+    assert!(matches!(
+        observer.observe(&[None; 5]),
+        Err(Error::Shape { .. })
+    ));
+    // A frame with nothing visible: no positions, no panic.
+    let empty = vec![None; model.n_points];
+    assert!(
+        observer
+            .observe(&empty)
+            .expect("observe")
+            .iter()
+            .all(Option::is_none)
+    );
+    // A model without reference shapes (an older file).
+    model.bodies[0].shape.clear();
+    assert!(matches!(Observer::new(&model), Err(Error::Config(_))));
+}
