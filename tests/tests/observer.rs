@@ -125,3 +125,27 @@ fn bad_observer_input_gets_typed_errors() {
     model.bodies[0].shape.clear();
     assert!(matches!(Observer::new(&model), Err(Error::Config(_))));
 }
+
+#[test]
+fn keypoints_are_re_predicted_from_the_joints() {
+    let data = simulate(&paper_arm(6)).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    let r = model.reprediction_rms_in_sigma.expect("reprediction");
+    // Fitted poses alone give about 1.45 sigma here; the two joints' axis errors (0.2 and
+    // 0.8 deg) over sweeps of 3-6 rad bring it to about 4.0 (measured, session 1).
+    assert!(r > 1.0 && r < 6.0, "right model: {r} sigma");
+    // Tilt the second joint's axis by about 10 degrees: the re-predicted keypoints drift.
+    let mut wrong = model.clone();
+    let a = wrong.joints[1].axis_in_parent.expect("axis");
+    wrong.joints[1].axis_in_parent = Some([a[0] + 0.18, a[1], a[2]]);
+    let bad = Observer::new(&wrong)
+        .expect("observer")
+        .reprediction_rms_in_sigma(&data.tracks, model.noise.sigma_m)
+        .expect("reprediction")
+        .expect("value");
+    assert!(bad > 3.0 * r, "wrong axis: {bad} sigma against {r}");
+}

@@ -158,6 +158,12 @@ pub struct Model {
     /// Every pair's test (the cells of the paper's Table I): camera against each body, then
     /// each body pair `a < b`; singular values in metres and radians.
     pub pairs: Vec<PairDof>,
+    /// RMS distance between observed keypoints and their positions re-predicted from the
+    /// model (the root's fitted pose carried down the tree by the joint positions), in units
+    /// of `noise.sigma_m`: 1.2-1.6 from fitted poses alone, plus each joint's axis and pivot
+    /// errors times its motion (4.0 on the paper arm, whose joints sweep 3-6 rad).
+    #[serde(default)]
+    pub reprediction_rms_in_sigma: Option<f64>,
     /// Degenerate situations met on the way.
     pub warnings: Vec<Warning>,
 }

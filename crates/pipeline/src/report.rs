@@ -161,6 +161,12 @@ pub fn summary(model: &Model) -> String {
         let chain: Vec<String> = c.iter().map(|b| format!("body {b}")).collect();
         let _ = writeln!(s, "  chain: {}", chain.join(" -> "));
     }
+    if let Some(r) = model.reprediction_rms_in_sigma {
+        let _ = writeln!(
+            s,
+            "  keypoints re-predicted from the joints: RMS {r:.2} sigma"
+        );
+    }
     for w in &model.warnings {
         let _ = writeln!(s, "  warning: {w}");
     }

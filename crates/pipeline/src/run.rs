@@ -441,7 +441,9 @@ impl Pipeline {
             seg = seg.merged(&group);
             round += 1;
         }
-        let model = self.assemble(tracks, &seg, &poses, pairs, sigma, source, warnings)?;
+        let mut model = self.assemble(tracks, &seg, &poses, pairs, sigma, source, warnings)?;
+        model.0.reprediction_rms_in_sigma = kinetree_structure::Observer::new(&model.0)?
+            .reprediction_rms_in_sigma(tracks, sigma)?;
         Ok(Discovery {
             body_order: model.1,
             model: model.0,
@@ -624,6 +626,7 @@ impl Pipeline {
             joints,
             chain,
             pairs: model_pairs,
+            reprediction_rms_in_sigma: None,
             warnings,
         };
         Ok((model, order))
