@@ -152,9 +152,12 @@ impl Observer {
                 found: format!("{} points", frame.len()),
             });
         }
-        let poses = self.body_poses(frame);
-        Ok(self
-            .joints
+        Ok(self.positions(&self.body_poses(frame)))
+    }
+
+    /// Joint positions from body poses (see [`Observer::observe`]).
+    fn positions(&self, poses: &[Option<Isometry3<f64>>]) -> Vec<Option<f64>> {
+        self.joints
             .iter()
             .map(|j| {
                 let x = poses[j.parent]?.inverse() * poses[j.child]?;
@@ -169,7 +172,7 @@ impl Observer {
                     Measure::None => None,
                 }
             })
-            .collect())
+            .collect()
     }
 
     /// `parent_from_child` at joint position `q` (None for a joint with no single DoF).
@@ -215,7 +218,7 @@ impl Observer {
             let frame: Vec<Option<Point3<f64>>> =
                 (0..self.n_points).map(|i| tracks.get(t, i)).collect();
             let fitted = self.body_poses(&frame);
-            let q = self.observe(&frame)?;
+            let q = self.positions(&fitted);
             // Joints are listed with parents before children (tree order).
             let mut predicted = fitted.clone();
             for (j, qj) in self.joints.iter().zip(&q) {
