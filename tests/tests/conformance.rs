@@ -69,6 +69,10 @@ fn clusterers_conform() {
         let v = check_clustering(&stage, &q_matrix);
         assert!(v.is_empty(), "{linkage:?}: {v:?}");
     }
+    let dbscan = kinetree_clustering::Dbscan::new(kinetree_clustering::DbscanParams::default())
+        .expect("params");
+    let v = check_clustering(&dbscan, &q_matrix);
+    assert!(v.is_empty(), "dbscan: {v:?}");
 }
 
 #[test]

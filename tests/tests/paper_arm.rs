@@ -131,3 +131,15 @@ fn model_json_round_trips() {
     // Tests with no data (empty centre tests) survive the trip too.
     assert!(back.pairs.iter().any(|p| p.centre.n_columns == 0));
 }
+
+#[test]
+fn paper_arm_with_dbscan() {
+    use kinetree_pipeline::config::ClusteringConfig;
+    let mut cfg =
+        ExperimentConfig::from_toml(PAPER_EXPERIMENT_TOML).expect("embedded config parses");
+    cfg.pipeline.clustering =
+        ClusteringConfig::Dbscan(kinetree_clustering::DbscanParams::default());
+    let out = run_experiment(&cfg, Path::new(".")).expect("runs");
+    assert_eq!(out.discovery.model.stages.clustering, "dbscan");
+    check_paper_structure(&out.discovery.model, out.truth.as_ref().expect("synthetic"));
+}

@@ -1,9 +1,11 @@
 //! Clustering of points into rigid bodies, each method a [`kinetree_core::Clustering`].
 
+mod dbscan;
 mod hierarchical;
 mod reassign;
 mod unknown;
 
+pub use dbscan::{Dbscan, DbscanParams};
 pub use hierarchical::{Hierarchical, HierarchicalParams, Linkage};
 pub use reassign::reassign_points;
 pub use unknown::fill_unknown;

@@ -1,6 +1,6 @@
 //! Configuration: one serde enum per stage slot, every variant wrapping a params struct.
 
-use kinetree_clustering::{Hierarchical, HierarchicalParams};
+use kinetree_clustering::{Dbscan, DbscanParams, Hierarchical, HierarchicalParams};
 use kinetree_core::{Clustering, Dissimilarity, DofTester, Error, PoseEstimator, Result};
 use kinetree_dissimilarity::{
     DistanceStd, DistanceVariance, FTest, FTestParams, LogPValue, LogPValueParams, SpreadParams,
@@ -56,6 +56,8 @@ impl DissimilarityConfig {
 pub enum ClusteringConfig {
     /// Agglomerative clustering (kodama).
     Hierarchical(HierarchicalParams),
+    /// DBSCAN on the matrix.
+    Dbscan(DbscanParams),
 }
 
 impl Default for ClusteringConfig {
@@ -72,6 +74,7 @@ impl ClusteringConfig {
     pub fn build(&self) -> Result<Box<dyn Clustering>> {
         Ok(match self {
             Self::Hierarchical(p) => Box::new(Hierarchical::new(*p)?),
+            Self::Dbscan(p) => Box::new(Dbscan::new(*p)?),
         })
     }
 }
