@@ -143,3 +143,24 @@ fn paper_arm_with_dbscan() {
     assert_eq!(out.discovery.model.stages.clustering, "dbscan");
     check_paper_structure(&out.discovery.model, out.truth.as_ref().expect("synthetic"));
 }
+
+#[test]
+fn segmentation_diagnostics_on_the_paper_arm() {
+    let out = paper_outcome(2, false);
+    let m = &out.discovery.model;
+    assert_eq!(m.point_confidence.len(), m.n_points);
+    for (i, c) in m.point_confidence.iter().enumerate() {
+        let c = c.expect("every point assigned");
+        // Under the F-test a point's own body averages about 0.5 and other bodies near 1.
+        assert!(c > 0.2, "point {i}: confidence {c}");
+    }
+    for b in &m.bodies {
+        let [median, p90] = b.internal_dissimilarity.expect("spread");
+        assert!(
+            (0.3..0.7).contains(&median),
+            "body {}: median q {median}",
+            b.id
+        );
+        assert!(p90 >= median && p90 <= 1.0);
+    }
+}

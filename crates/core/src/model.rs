@@ -65,6 +65,10 @@ pub struct Body {
     /// the shape's centroid. Used by the observer.
     #[serde(default)]
     pub shape: Vec<Option<[f64; 3]>>,
+    /// Median and 90th percentile of the dissimilarity between this body's points (observed
+    /// pairs), on the measure's scale: under the F-test a rigid body has a median near 0.5.
+    #[serde(default)]
+    pub internal_dissimilarity: Option<[f64; 2]>,
 }
 
 /// A rigid transform as a unit quaternion `[x, y, z, w]` and a translation in metres.
@@ -145,6 +149,11 @@ pub struct Model {
     pub stages: StageNames,
     /// Body of every point, -1 for discarded points.
     pub point_body: Vec<i64>,
+    /// How clearly each point belongs to its body: the mean dissimilarity to the nearest other
+    /// body minus that to its own (observed pairs, the measure's scale); null for discarded
+    /// points. Near zero or negative: the point could belong elsewhere.
+    #[serde(default)]
+    pub point_confidence: Vec<Option<f64>>,
     /// The static body, when one is.
     pub static_body: Option<usize>,
     /// Root of the kinematic tree (body 0).

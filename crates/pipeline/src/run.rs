@@ -442,6 +442,11 @@ impl Pipeline {
             round += 1;
         }
         let mut model = self.assemble(tracks, &seg, &poses, pairs, sigma, source, warnings)?;
+        let diag = kinetree_clustering::diagnostics(&dmat, &seg);
+        model.0.point_confidence = diag.point_margin;
+        for body in &mut model.0.bodies {
+            body.internal_dissimilarity = diag.body_spread[model.1[body.id]];
+        }
         model.0.reprediction_rms_in_sigma = kinetree_structure::Observer::new(&model.0)?
             .reprediction_rms_in_sigma(tracks, sigma)?;
         Ok(Discovery {
@@ -582,6 +587,7 @@ impl Pipeline {
                     .zip(&poses.bodies[b].placed)
                     .map(|(p, &ok)| ok.then_some([p.x, p.y, p.z]))
                     .collect(),
+                internal_dissimilarity: None,
             })
             .collect();
         let point_body = seg
@@ -620,6 +626,7 @@ impl Pipeline {
                 dof: self.dof.name().into(),
             },
             point_body,
+            point_confidence: Vec::new(),
             static_body: statics.first().map(|&s| new_id[s]),
             root_body: new_id[tree.root],
             bodies,
