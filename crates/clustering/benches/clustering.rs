@@ -1,0 +1,63 @@
+//! Clustering time at N points: 30 bodies, q-like dissimilarities (about 0.5 inside a body,
+//! about 0.99 between bodies), from a fixed seed; `unknown` is the fraction of pairs never
+//! seen together (NaN). Run with `cargo bench -p kinetree-clustering`.
+
+use kinetree_clustering::{Dbscan, DbscanParams, Hierarchical, HierarchicalParams};
+use kinetree_core::{Clustering, ClusteringInput, DissimilarityMatrix};
+
+fn main() {
+    divan::main();
+}
+
+fn matrix(n: usize, unknown: f64) -> DissimilarityMatrix {
+    let mut state: u64 = 0x2545_F491_4F6C_DD1D ^ n as u64;
+    let mut next = move || {
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut values = Vec::with_capacity(n * (n - 1) / 2);
+    for i in 0..n {
+        for j in i + 1..n {
+            let v = if next() < unknown {
+                f64::NAN
+            } else if i % 30 == j % 30 {
+                next()
+            } else {
+                0.98 + 0.02 * next()
+            };
+            values.push(v);
+        }
+    }
+    DissimilarityMatrix {
+        n_points: n,
+        values,
+        suggested_cut: 0.8,
+        measure: "f_test".into(),
+    }
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn hierarchical_average(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
+    let m = matrix(n, unknown);
+    let stage = Hierarchical::new(HierarchicalParams::default()).expect("params");
+    bencher.bench(|| {
+        stage.cluster(&ClusteringInput {
+            dissimilarity: &m,
+            seed: 0,
+        })
+    });
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn dbscan(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
+    let m = matrix(n, unknown);
+    let stage = Dbscan::new(DbscanParams::default()).expect("params");
+    bencher.bench(|| {
+        stage.cluster(&ClusteringInput {
+            dissimilarity: &m,
+            seed: 0,
+        })
+    });
+}
