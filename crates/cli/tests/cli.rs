@@ -6,6 +6,21 @@ fn kinetree() -> Command {
     Command::new(env!("CARGO_BIN_EXE_kinetree"))
 }
 
+/// Runs the command and returns its stdout, failing the test with its stderr if it fails.
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn read_json(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).expect("read")).expect("json")
+}
+
 fn tmp(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("kinetree-cli-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&d).expect("dir");
@@ -53,24 +68,19 @@ fn run_without_argument_prints_the_paper_structure_and_table() {
 #[test]
 fn simulate_then_discover_npy_and_csv() {
     let dir = tmp("sim");
-    let out = kinetree()
-        .args([
-            "simulate",
-            "--mechanism",
-            "random",
-            "--joints",
-            "3",
-            "--seed",
-            "4",
-            "-o",
-        ])
-        .arg(&dir)
-        .output()
-        .expect("simulate");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        kinetree()
+            .args([
+                "simulate",
+                "--mechanism",
+                "random",
+                "--joints",
+                "3",
+                "--seed",
+                "4",
+                "-o",
+            ])
+            .arg(&dir),
     );
     let truth: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).expect("truth"))
@@ -81,21 +91,14 @@ fn simulate_then_discover_npy_and_csv() {
         .expect("bodies");
     for file in ["tracks.npy", "tracks.csv"] {
         let model_path = dir.join(format!("{file}.model.json"));
-        let out = kinetree()
-            .arg("discover")
-            .arg(dir.join(file))
-            .arg("-o")
-            .arg(&model_path)
-            .output()
-            .expect("discover");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
+        run_ok(
+            kinetree()
+                .arg("discover")
+                .arg(dir.join(file))
+                .arg("-o")
+                .arg(&model_path),
         );
-        let model: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&model_path).expect("model"))
-                .expect("json");
+        let model: serde_json::Value = read_json(&model_path);
         assert_eq!(
             model["bodies"].as_array().map(Vec::len),
             Some(n_bodies),
@@ -134,31 +137,21 @@ fn observe_writes_one_column_per_joint() {
         .expect("simulate");
     assert!(out.status.success());
     let model = dir.join("model.json");
-    let out = kinetree()
-        .arg("discover")
-        .arg(dir.join("tracks.npy"))
-        .args(["--noise-sigma", "0.001", "-o"])
-        .arg(&model)
-        .output()
-        .expect("discover");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(dir.join("tracks.npy"))
+            .args(["--noise-sigma", "0.001", "-o"])
+            .arg(&model),
     );
     let csv = dir.join("config.csv");
-    let out = kinetree()
-        .arg("observe")
-        .arg(&model)
-        .arg(dir.join("tracks.csv"))
-        .arg("-o")
-        .arg(&csv)
-        .output()
-        .expect("observe");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        kinetree()
+            .arg("observe")
+            .arg(&model)
+            .arg(dir.join("tracks.csv"))
+            .arg("-o")
+            .arg(&csv),
     );
     let text = std::fs::read_to_string(&csv).expect("csv");
     let mut lines = text.lines();

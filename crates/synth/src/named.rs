@@ -56,13 +56,7 @@ pub fn paper_arm(seed: u64) -> Scenario {
         ],
         n_frames: 100,
         frame_rate_hz: 30.0,
-        camera: Camera {
-            eye: [1.8, -1.6, 0.7],
-            target: [0.1, 0.0, 0.15],
-            up: [0.0, 0.0, 1.0],
-            fov_h_deg: 70.0,
-            fov_v_deg: 55.0,
-        },
+        camera: Camera::looking_at([1.8, -1.6, 0.7], [0.1, 0.0, 0.15], 70.0, 55.0),
         noise_sigma_m: 0.001,
         dropout: 0.0,
         seed,
@@ -188,17 +182,16 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
         trajectories,
         n_frames: p.n_frames,
         frame_rate_hz: 30.0,
-        camera: Camera {
-            eye: [
+        camera: Camera::looking_at(
+            [
                 dist * el.cos() * az.cos(),
                 dist * el.cos() * az.sin(),
                 0.3 + dist * el.sin(),
             ],
-            target: [0.0, 0.0, 0.3],
-            up: [0.0, 0.0, 1.0],
-            fov_h_deg: 90.0,
-            fov_v_deg: 80.0,
-        },
+            [0.0, 0.0, 0.3],
+            90.0,
+            80.0,
+        ),
         noise_sigma_m: p.noise_sigma_m,
         dropout: p.dropout,
         seed: p.seed,

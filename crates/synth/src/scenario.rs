@@ -62,6 +62,18 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// A camera at `eye` looking at `target` with the world's z axis up and the given full
+    /// fields of view in degrees.
+    pub fn looking_at(eye: [f64; 3], target: [f64; 3], fov_h_deg: f64, fov_v_deg: f64) -> Self {
+        Self {
+            eye,
+            target,
+            up: [0.0, 0.0, 1.0],
+            fov_h_deg,
+            fov_v_deg,
+        }
+    }
+
     /// `camera_from_world`: x right, y down, z forward (the usual computer-vision axes).
     pub fn cam_from_world(&self) -> Isometry3<f64> {
         let eye = Point3::from(self.eye);
