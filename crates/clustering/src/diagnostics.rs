@@ -19,23 +19,12 @@ pub struct SegmentationDiagnostics {
 ///
 /// Complexity: O(N^2).
 pub fn diagnostics(m: &DissimilarityMatrix, seg: &Segmentation) -> SegmentationDiagnostics {
-    let n = m.n_points;
     let nb = seg.n_bodies();
-    let mut point_margin = vec![None; n];
+    let mut point_margin = vec![None; m.n_points];
     for (i, margin) in point_margin.iter_mut().enumerate() {
         let Some(own) = seg.body_of(i) else { continue };
-        let mut sum = vec![0.0; nb];
-        let mut cnt = vec![0usize; nb];
-        for j in 0..n {
-            if j == i {
-                continue;
-            }
-            if let (Some(b), Some(d)) = (seg.body_of(j), m.get(i, j)) {
-                sum[b] += d;
-                cnt[b] += 1;
-            }
-        }
-        let mean = |b: usize| (cnt[b] > 0).then(|| sum[b] / cnt[b] as f64);
+        let means = crate::reassign::body_means(m, seg.labels(), nb, i);
+        let mean = |b: usize| (means[b].1 > 0).then_some(means[b].0);
         let other = (0..nb)
             .filter(|&b| b != own)
             .filter_map(mean)

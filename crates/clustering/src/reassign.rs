@@ -2,6 +2,32 @@
 
 use kinetree_core::{DissimilarityMatrix, MIN_BODY_POINTS, Segmentation};
 
+/// Mean dissimilarity from `point` to each body's other points over the *observed* pairs,
+/// with the number of pairs behind it (`(NaN, 0)` for a body with none).
+pub(crate) fn body_means(
+    m: &DissimilarityMatrix,
+    labels: &[Option<usize>],
+    n_bodies: usize,
+    point: usize,
+) -> Vec<(f64, usize)> {
+    let mut sum = vec![0.0; n_bodies];
+    let mut cnt = vec![0usize; n_bodies];
+    for (j, l) in labels.iter().enumerate() {
+        let Some(b) = *l else { continue };
+        if j == point {
+            continue;
+        }
+        if let Some(d) = m.get(point, j) {
+            sum[b] += d;
+            cnt[b] += 1;
+        }
+    }
+    sum.iter()
+        .zip(&cnt)
+        .map(|(s, &c)| (if c > 0 { s / c as f64 } else { f64::NAN }, c))
+        .collect()
+}
+
 /// Moves every point to the body it fits best, judged on its *observed* pairs only.
 ///
 /// A clusterer works on a matrix whose unknown pairs were inferred; a point seen rarely can
@@ -24,21 +50,12 @@ pub fn reassign_points(
     for _ in 0..2 {
         let mut next = labels.clone();
         for (i, slot) in next.iter_mut().enumerate() {
-            let mut sum = vec![0.0; nb];
-            let mut cnt = vec![0usize; nb];
-            for (j, l) in labels.iter().enumerate() {
-                let Some(b) = *l else { continue };
-                if j == i {
-                    continue;
-                }
-                if let Some(d) = m.get(i, j) {
-                    sum[b] += d;
-                    cnt[b] += 1;
-                }
-            }
-            let best = (0..nb)
-                .filter(|&b| cnt[b] >= min_pairs)
-                .map(|b| (sum[b] / cnt[b] as f64, b))
+            let means = body_means(m, &labels, nb, i);
+            let best = means
+                .iter()
+                .enumerate()
+                .filter(|(_, (_, c))| *c >= min_pairs)
+                .map(|(b, (mean, _))| (*mean, b))
                 .min_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             *slot = match best {
                 Some((score, b)) if score <= cut => Some(b),

@@ -45,16 +45,6 @@ pub struct Evaluation {
     pub joints: Vec<JointEval>,
 }
 
-impl Evaluation {
-    /// Largest axis error over joints, degrees (0 when none).
-    pub fn max_axis_error_deg(&self) -> f64 {
-        self.joints
-            .iter()
-            .filter_map(|j| j.axis_error_deg)
-            .fold(0.0, f64::max)
-    }
-}
-
 /// The true body holding most of each model body's points.
 fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
     model
