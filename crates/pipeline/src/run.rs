@@ -285,8 +285,9 @@ impl Pipeline {
     pub fn run(&self, tracks: &Tracks) -> Result<Discovery> {
         let mut warnings = Vec::new();
         let n = tracks.n_points();
-        for i in 0..n {
-            if tracks.visible_count(i) == 0 {
+        let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
+        for (i, &v) in visible.iter().enumerate() {
+            if v == 0 {
                 warnings.push(Warning::PointNeverVisible { point: i });
             }
         }
@@ -301,7 +302,7 @@ impl Pipeline {
             }
         }
         for (i, &p) in paired.iter().enumerate() {
-            if !p && tracks.visible_count(i) > 0 {
+            if !p && visible[i] > 0 {
                 warnings.push(Warning::PointUnpaired { point: i });
             }
         }
