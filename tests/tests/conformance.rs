@@ -73,6 +73,11 @@ fn clusterers_conform() {
         .expect("params");
     let v = check_clustering(&dbscan, &q_matrix);
     assert!(v.is_empty(), "dbscan: {v:?}");
+    let spectral =
+        kinetree_clustering::Spectral::new(kinetree_clustering::SpectralParams::default())
+            .expect("params");
+    let v = check_clustering(&spectral, &q_matrix);
+    assert!(v.is_empty(), "spectral: {v:?}");
 }
 
 #[test]

@@ -2,7 +2,9 @@
 //! about 0.99 between bodies), from a fixed seed; `unknown` is the fraction of pairs never
 //! seen together (NaN). Run with `cargo bench -p kinetree-clustering`.
 
-use kinetree_clustering::{Dbscan, DbscanParams, Hierarchical, HierarchicalParams};
+use kinetree_clustering::{
+    Dbscan, DbscanParams, Hierarchical, HierarchicalParams, Spectral, SpectralParams,
+};
 use kinetree_core::{Clustering, ClusteringInput, DissimilarityMatrix};
 
 fn main() {
@@ -43,10 +45,12 @@ fn hierarchical_average(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
     let m = matrix(n, unknown);
     let stage = Hierarchical::new(HierarchicalParams::default()).expect("params");
     bencher.bench(|| {
-        stage.cluster(&ClusteringInput {
-            dissimilarity: &m,
-            seed: 0,
-        })
+        stage
+            .cluster(&ClusteringInput {
+                dissimilarity: &m,
+                seed: 0,
+            })
+            .expect("clusters")
     });
 }
 
@@ -55,9 +59,25 @@ fn dbscan(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
     let m = matrix(n, unknown);
     let stage = Dbscan::new(DbscanParams::default()).expect("params");
     bencher.bench(|| {
-        stage.cluster(&ClusteringInput {
-            dissimilarity: &m,
-            seed: 0,
-        })
+        stage
+            .cluster(&ClusteringInput {
+                dissimilarity: &m,
+                seed: 0,
+            })
+            .expect("clusters")
+    });
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn spectral(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
+    let m = matrix(n, unknown);
+    let stage = Spectral::new(SpectralParams::default()).expect("params");
+    bencher.bench(|| {
+        stage
+            .cluster(&ClusteringInput {
+                dissimilarity: &m,
+                seed: 0,
+            })
+            .expect("clusters")
     });
 }

@@ -3,7 +3,7 @@
 pub mod conformance;
 mod truth;
 
-pub use truth::{Evaluation, JointEval, evaluate};
+pub use truth::{Evaluation, JointEval, ambiguous_points, evaluate, identifiable_ari};
 
 use nalgebra::{Point3, Vector3};
 

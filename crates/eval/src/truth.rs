@@ -1,7 +1,7 @@
 //! Comparing a discovered model with the simulator's truth.
 
 use crate::{adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance};
-use kinetree_core::Model;
+use kinetree_core::{Model, Tracks};
 use kinetree_synth::{GroundTruth, JointType};
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -125,4 +125,58 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
         structure_exact: all_ok && (ari - 1.0).abs() < 1e-12,
         joints,
     }
+}
+
+/// Points that no method can place: their noisy track fits another body's *true* motion as
+/// well as noise allows (`chi^2 / k` under the Wilson-Hilferty bound at 4 standard deviations,
+/// `k = 3 (frames - 1)`, per-coordinate noise `sigma_m`). Typically a point within a few noise
+/// std-devs of a joint axis, or a body that barely moved while the point was visible. Points
+/// seen in fewer than two frames are counted here too.
+pub fn ambiguous_points(tracks: &Tracks, truth: &GroundTruth, sigma_m: f64) -> Vec<bool> {
+    let sigma2 = sigma_m.max(1e-9).powi(2);
+    let nb = truth.n_bodies();
+    let cam_from_body: Vec<Vec<nalgebra::Isometry3<f64>>> = (0..tracks.n_frames())
+        .map(|t| {
+            let q: Vec<f64> = truth.joint_positions.iter().map(|p| p[t]).collect();
+            truth
+                .mechanism
+                .forward(&q)
+                .iter()
+                .map(|w| truth.cam_from_world * w)
+                .collect()
+        })
+        .collect();
+    (0..tracks.n_points())
+        .map(|i| {
+            let seen: Vec<(usize, Point3<f64>)> = (0..tracks.n_frames())
+                .filter_map(|t| tracks.get(t, i).map(|p| (t, p)))
+                .collect();
+            if seen.len() < 2 {
+                return true;
+            }
+            let k = 3.0 * (seen.len() - 1) as f64;
+            let c = 2.0 / (9.0 * k);
+            let bound = (1.0 - c + 4.0 * c.sqrt()).powi(3);
+            (0..nb).filter(|&b| b != truth.point_body[i]).any(|b| {
+                let z: Vec<Vector3<f64>> = seen
+                    .iter()
+                    .map(|(t, p)| cam_from_body[*t][b].inverse_transform_point(p).coords)
+                    .collect();
+                let mean = z.iter().sum::<Vector3<f64>>() / z.len() as f64;
+                let chi2 = z.iter().map(|v| (v - mean).norm_squared()).sum::<f64>() / sigma2;
+                chi2 / k <= bound
+            })
+        })
+        .collect()
+}
+
+/// Adjusted Rand index of the model's segmentation over the points that are not
+/// [`ambiguous_points`].
+pub fn identifiable_ari(model: &Model, truth: &GroundTruth, ambiguous: &[bool]) -> f64 {
+    let keep: Vec<usize> = (0..truth.point_body.len())
+        .filter(|&i| !ambiguous.get(i).copied().unwrap_or(true))
+        .collect();
+    let predicted: Vec<i64> = keep.iter().map(|&i| model.point_body[i]).collect();
+    let t: Vec<usize> = keep.iter().map(|&i| truth.point_body[i]).collect();
+    adjusted_rand_index(&predicted, &t)
 }

@@ -1,6 +1,8 @@
 //! Configuration: one serde enum per stage slot, every variant wrapping a params struct.
 
-use kinetree_clustering::{Dbscan, DbscanParams, Hierarchical, HierarchicalParams};
+use kinetree_clustering::{
+    Dbscan, DbscanParams, Hierarchical, HierarchicalParams, Spectral, SpectralParams,
+};
 use kinetree_core::{Clustering, Dissimilarity, DofTester, Error, PoseEstimator, Result};
 use kinetree_dissimilarity::{
     DistanceStd, DistanceVariance, FTest, FTestParams, LogPValue, LogPValueParams, SpreadParams,
@@ -58,6 +60,8 @@ pub enum ClusteringConfig {
     Hierarchical(HierarchicalParams),
     /// DBSCAN on the matrix.
     Dbscan(DbscanParams),
+    /// Spectral clustering (normalised Laplacian, eigengap, k-means).
+    Spectral(SpectralParams),
 }
 
 impl Default for ClusteringConfig {
@@ -75,6 +79,7 @@ impl ClusteringConfig {
         Ok(match self {
             Self::Hierarchical(p) => Box::new(Hierarchical::new(*p)?),
             Self::Dbscan(p) => Box::new(Dbscan::new(*p)?),
+            Self::Spectral(p) => Box::new(Spectral::new(*p)?),
         })
     }
 }
