@@ -31,6 +31,14 @@ fn emit(text: &str) {
     }
 }
 
+/// Formats of `kinetree export`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum ExportFormat {
+    Urdf,
+    Dot,
+    Json,
+}
+
 #[derive(Debug, Parser)]
 #[command(
     name = "kinetree",
@@ -77,6 +85,23 @@ enum Command {
         /// Output CSV.
         #[arg(short, long, default_value = "config.csv")]
         output: PathBuf,
+    },
+    /// Export a model: URDF (links, joints with origin, axis and observed limits), DOT (the
+    /// kinematic graph) or JSON (the model, re-validated, with its schema version).
+    Export {
+        /// Model JSON written by `discover` or `run`.
+        model: PathBuf,
+        /// `urdf`, `dot` or `json`.
+        #[arg(long, value_enum)]
+        format: ExportFormat,
+        /// Output file.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Print a readable summary of a model: bodies with their keypoints, joints, warnings.
+    Inspect {
+        /// Model JSON written by `discover` or `run`.
+        model: PathBuf,
     },
     /// Write a synthetic data set: tracks.npy, tracks.csv and truth.json.
     Simulate {
@@ -194,6 +219,28 @@ fn main() -> Result<()> {
             tracks,
             output,
         } => observe(&model, &tracks, &output),
+        Command::Export {
+            model,
+            format,
+            output,
+        } => {
+            let m = kinetree_io::read_model(&model)?;
+            let text = match format {
+                ExportFormat::Urdf => kinetree_io::export::to_urdf(&m)
+                    .with_context(|| format!("exporting {}", model.display()))?,
+                ExportFormat::Dot => kinetree_io::export::to_dot(&m),
+                ExportFormat::Json => serde_json::to_string_pretty(&m)?,
+            };
+            std::fs::write(&output, text)
+                .with_context(|| format!("writing {}", output.display()))?;
+            emitln!("wrote {}", output.display());
+            Ok(())
+        }
+        Command::Inspect { model } => {
+            let m = kinetree_io::read_model(&model)?;
+            emit(&kinetree_pipeline::report::inspect(&m));
+            Ok(())
+        }
         Command::Simulate {
             output,
             mechanism,

@@ -158,3 +158,58 @@ fn observe_writes_one_column_per_joint() {
     assert_eq!(lines.next(), Some("frame,revolute_0_1,revolute_1_2"));
     assert_eq!(lines.count(), 100);
 }
+
+#[test]
+fn export_and_inspect_a_discovered_model() {
+    let d = tmp("export");
+    run_ok(kinetree().args(["simulate", "-o"]).arg(&d));
+    let model = d.join("model.json");
+    run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(d.join("tracks.npy"))
+            .arg("-o")
+            .arg(&model),
+    );
+    for (format, file, start) in [
+        ("urdf", "arm.urdf", "<?xml"),
+        ("dot", "arm.dot", "digraph"),
+        ("json", "arm.json", "{"),
+    ] {
+        let out = d.join(file);
+        run_ok(
+            kinetree()
+                .arg("export")
+                .arg(&model)
+                .args(["--format", format, "-o"])
+                .arg(&out),
+        );
+        let text = std::fs::read_to_string(&out).expect("written");
+        assert!(text.starts_with(start), "{format}: {}", &text[..40]);
+    }
+    // The JSON export is the model itself.
+    assert_eq!(read_json(&d.join("arm.json")), read_json(&model));
+    let urdf = std::fs::read_to_string(d.join("arm.urdf")).expect("urdf");
+    assert_eq!(urdf.matches("<joint ").count(), 2, "{urdf}");
+    assert_eq!(urdf.matches("type=\"revolute\"").count(), 2, "{urdf}");
+    let text = run_ok(kinetree().arg("inspect").arg(&model));
+    assert!(text.contains("3 bodies"), "{text}");
+    assert!(text.contains("joint body 0 -> body 1: 1 DoF"), "{text}");
+    // A bad format and a bad model are clean errors.
+    let out = kinetree()
+        .arg("export")
+        .arg(&model)
+        .args(["--format", "sdf", "-o"])
+        .arg(d.join("x"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    std::fs::write(d.join("bad.json"), "{\"schema_version\": 1}").expect("write");
+    let out = kinetree()
+        .arg("inspect")
+        .arg(d.join("bad.json"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("bad.json"));
+}

@@ -2,6 +2,8 @@
 //!
 //! Every error names the file (through [`Error::File`]) and, where it can, the position.
 
+pub mod export;
+
 use kinetree_core::{Error, Model, Result, Tracks};
 use npyz::WriterBuilder;
 use std::fs::File;

@@ -172,3 +172,53 @@ pub fn summary(model: &Model) -> String {
     }
     s
 }
+
+/// A readable account of a model for `kinetree inspect`: the [`summary`], then each body's
+/// keypoints by label, each joint's decision (ranks, fit ratio, frames observed) and the
+/// stages that produced it.
+pub fn inspect(model: &Model) -> String {
+    let mut s = format!(
+        "model schema {} by {}; stages: {} / {} / {} / {}\n",
+        model.schema_version,
+        model.generator,
+        model.stages.dissimilarity,
+        model.stages.clustering,
+        model.stages.pose,
+        model.stages.dof
+    );
+    s.push_str(&summary(model));
+    if let Some(labels) = &model.point_labels {
+        for b in &model.bodies {
+            let names: Vec<&str> = b
+                .points
+                .iter()
+                .filter_map(|&p| labels.get(p).map(String::as_str))
+                .collect();
+            let _ = writeln!(s, "  body {} keypoints: {}", b.id, names.join(", "));
+        }
+        let lost: Vec<&str> = (0..model.point_body.len())
+            .filter(|&p| model.point_body[p] < 0)
+            .filter_map(|p| labels.get(p).map(String::as_str))
+            .collect();
+        if !lost.is_empty() {
+            let _ = writeln!(s, "  discarded keypoints: {}", lost.join(", "));
+        }
+    }
+    for j in &model.joints {
+        let seen = j.positions.iter().filter(|p| p.is_some()).count();
+        let _ = writeln!(
+            s,
+            "  joint body {} -> body {}: {} DoF, ranks t{} r{} c{} s{}, fit ratio {:.2}, observed in {seen}/{} frames",
+            j.parent,
+            j.child,
+            j.dof,
+            j.ranks.translation,
+            j.ranks.rotation,
+            j.ranks.centre,
+            j.ranks.sliding,
+            j.fit_ratio,
+            model.n_frames
+        );
+    }
+    s
+}

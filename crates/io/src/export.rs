@@ -1,0 +1,288 @@
+//! Exports of a discovered model: URDF for robotics tools and DOT for graph viewers.
+
+use kinetree_core::model::{Joint, Model, RigidTransform};
+use kinetree_core::nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
+use kinetree_core::{Error, Result};
+use std::fmt::Write as _;
+
+/// Link name of body `id`.
+pub fn link_name(id: usize) -> String {
+    format!("body{id}")
+}
+
+/// Joint name of the joint from `parent` to `child`.
+pub fn joint_name(parent: usize, child: usize) -> String {
+    format!("body{parent}_to_body{child}")
+}
+
+/// Text safe inside an XML comment (no `--`) and on one line.
+fn comment_text(s: &str) -> String {
+    s.replace("--", "- -").replace(['\n', '\r'], " ")
+}
+
+/// Text safe inside a DOT double-quoted string.
+fn dot_text(s: &str) -> String {
+    s.replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', " ")
+}
+
+fn rotation(t: &RigidTransform) -> Result<Rotation3<f64>> {
+    let [x, y, z, w] = t.rotation_xyzw;
+    let q = Quaternion::new(w, x, y, z);
+    if !(q.norm().is_finite() && q.norm() > 1e-9) {
+        return Err(Error::InvalidParameter {
+            name: "reference_pose".into(),
+            message: format!("rotation {:?} is not a quaternion", t.rotation_xyzw),
+        });
+    }
+    Ok(UnitQuaternion::from_quaternion(q).to_rotation_matrix())
+}
+
+fn v3(v: &Vector3<f64>) -> String {
+    format!("{} {} {}", v.x, v.y, v.z)
+}
+
+/// Where a joint's frame sits: its origin in the parent *body* frame, and the child link's
+/// offset (a child body point `x` is at `x + offset` in the child link frame).
+struct JointFrame {
+    origin: Vector3<f64>,
+    rotation: Rotation3<f64>,
+    offset: Vector3<f64>,
+}
+
+fn joint_frame(j: &Joint) -> Result<JointFrame> {
+    let reference = j.reference_pose.ok_or_else(|| Error::InvalidParameter {
+        name: format!("joints[{} -> {}].reference_pose", j.parent, j.child),
+        message: "missing; URDF needs the child's pose in its parent (schema v1 models written \
+                  before it was added cannot be exported)"
+            .into(),
+    })?;
+    let r = rotation(&reference)?;
+    let t = Vector3::from(reference.translation);
+    // Revolute: the joint frame sits on the axis, so the rotation is about its origin.
+    let origin = match (j.joint_type.as_str(), j.point_in_parent) {
+        ("revolute", Some(p)) => Vector3::from(p),
+        _ => t,
+    };
+    Ok(JointFrame {
+        origin,
+        rotation: r,
+        offset: r.inverse() * (t - origin),
+    })
+}
+
+/// Each joint's frame and each link's offset: a point `x` of body `b`'s frame is at
+/// `x + offsets[b]` in the URDF link frame of `b` ([`to_urdf`]). The root's offset is zero.
+///
+/// # Errors
+/// As [`to_urdf`].
+pub fn link_offsets(model: &Model) -> Result<Vec<[f64; 3]>> {
+    Ok(frames_and_offsets(model)?
+        .1
+        .iter()
+        .map(|v| [v.x, v.y, v.z])
+        .collect())
+}
+
+fn frames_and_offsets(model: &Model) -> Result<(Vec<JointFrame>, Vec<Vector3<f64>>)> {
+    let nb = model.bodies.len();
+    let mut offset = vec![Vector3::zeros(); nb];
+    let mut frames = Vec::with_capacity(model.joints.len());
+    let mut done = vec![false; nb];
+    if model.root_body < nb {
+        done[model.root_body] = true;
+    }
+    for j in &model.joints {
+        if j.parent >= nb || j.child >= nb {
+            return Err(Error::InvalidParameter {
+                name: "joints".into(),
+                message: format!("joint {} -> {} names a missing body", j.parent, j.child),
+            });
+        }
+        frames.push(joint_frame(j)?);
+    }
+    // Link offsets are resolved from the root down, whatever the order of `joints`.
+    let mut progress = true;
+    while progress {
+        progress = false;
+        for (j, f) in model.joints.iter().zip(&frames) {
+            if done[j.parent] && !done[j.child] {
+                offset[j.child] = f.offset;
+                done[j.child] = true;
+                progress = true;
+            }
+        }
+    }
+    Ok((frames, offset))
+}
+
+/// URDF of the model: a link per body (named [`link_name`]) and a joint per tree edge (named
+/// [`joint_name`]).
+///
+/// Frames: the root link is the root body's frame (origin at its keypoints' centroid). Each
+/// joint frame is placed so that joint position 0 is the configuration at the joint's
+/// `reference_frame`, the zero of the model's `positions`, and the positions keep their sign:
+/// a revolute joint frame sits on the pivot line with the axis in it; a prismatic or
+/// multi-DoF joint frame sits at the child's body origin. A child link frame is its joint
+/// frame, so it is the child's body frame shifted by a fixed offset (written in a comment).
+///
+/// Types: `revolute` with `lower`/`upper` from the observed range, `continuous` when the
+/// range exceeds one turn, `prismatic` with the range in metres, and `floating` for a
+/// multi-DoF joint (the ranks are in the model JSON). Effort and velocity limits are not
+/// observable from keypoints and are written as 0. Keypoint labels go into comments.
+///
+/// # Errors
+/// [`Error::InvalidParameter`] when a joint has no reference pose or a non-finite one, or a
+/// joint's parent is not a body of the model.
+pub fn to_urdf(model: &Model) -> Result<String> {
+    let nb = model.bodies.len();
+    let (frames, offset) = frames_and_offsets(model)?;
+    let mut s = String::new();
+    let _ = writeln!(s, r#"<?xml version="1.0"?>"#);
+    let _ = writeln!(
+        s,
+        "<!-- Written by {} from a model of schema {}: {} bodies, {} frames. -->",
+        comment_text(&model.generator),
+        model.schema_version,
+        nb,
+        model.n_frames
+    );
+    let _ = writeln!(s, r#"<robot name="kinetree_model">"#);
+    for b in &model.bodies {
+        let labels: Vec<String> = b
+            .points
+            .iter()
+            .map(|&p| {
+                model
+                    .point_labels
+                    .as_ref()
+                    .and_then(|l| l.get(p).cloned())
+                    .unwrap_or_else(|| format!("point {p}"))
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "  <!-- body {}{}: {}; link frame = body frame + [{}] m -->",
+            b.id,
+            if b.is_static { " (static)" } else { "" },
+            comment_text(&labels.join(", ")),
+            v3(&offset[b.id])
+        );
+        let _ = writeln!(s, r#"  <link name="{}"/>"#, link_name(b.id));
+    }
+    for (j, f) in model.joints.iter().zip(&frames) {
+        let xyz = f.origin + offset[j.parent];
+        let (roll, pitch, yaw) = f.rotation.euler_angles();
+        let axis_parent = j.axis_in_parent.map(Vector3::from);
+        let axis = axis_parent.map(|a| f.rotation.inverse() * a.normalize());
+        let span = j.range.map(|r| r[1] - r[0]);
+        let kind = match j.joint_type.as_str() {
+            "revolute" if span.is_some_and(|d| d > std::f64::consts::TAU) => "continuous",
+            "revolute" => "revolute",
+            "prismatic" => "prismatic",
+            _ => "floating",
+        };
+        let _ = writeln!(
+            s,
+            r#"  <joint name="{}" type="{kind}">"#,
+            joint_name(j.parent, j.child)
+        );
+        let _ = writeln!(
+            s,
+            r#"    <origin xyz="{}" rpy="{roll} {pitch} {yaw}"/>"#,
+            v3(&xyz)
+        );
+        let _ = writeln!(s, r#"    <parent link="{}"/>"#, link_name(j.parent));
+        let _ = writeln!(s, r#"    <child link="{}"/>"#, link_name(j.child));
+        if kind != "floating"
+            && let Some(a) = axis
+        {
+            let _ = writeln!(s, r#"    <axis xyz="{}"/>"#, v3(&a));
+        }
+        if matches!(kind, "revolute" | "prismatic") {
+            let [lo, hi] = j.range.unwrap_or([0.0, 0.0]);
+            let _ = writeln!(
+                s,
+                r#"    <limit lower="{lo}" upper="{hi}" effort="0" velocity="0"/>"#
+            );
+        }
+        if kind == "floating" {
+            let _ = writeln!(
+                s,
+                "    <!-- {} DoF (ranks: translation {}, rotation {}) -->",
+                j.dof, j.ranks.translation, j.ranks.rotation
+            );
+        }
+        let _ = writeln!(s, "  </joint>");
+    }
+    let _ = writeln!(s, "</robot>");
+    Ok(s)
+}
+
+/// DOT (Graphviz) of the kinematic tree: the camera, a node per body (static ones marked), an
+/// edge per joint labelled with its type, axis in the parent frame and observed range.
+pub fn to_dot(model: &Model) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "digraph kinematic_tree {{");
+    let _ = writeln!(s, "  rankdir=TB;");
+    let _ = writeln!(s, "  node [shape=box, fontname=\"Helvetica\"];");
+    let _ = writeln!(s, "  camera [shape=ellipse, label=\"camera\"];");
+    for b in &model.bodies {
+        let names: Vec<String> = b
+            .points
+            .iter()
+            .filter_map(|&p| model.point_labels.as_ref()?.get(p).cloned())
+            .collect();
+        let detail = if names.is_empty() {
+            format!("{} points", b.points.len())
+        } else {
+            dot_text(&names.join(", "))
+        };
+        let _ = writeln!(
+            s,
+            "  {} [label=\"body {}{}\\n{}\"];",
+            link_name(b.id),
+            b.id,
+            if b.is_static { " (static)" } else { "" },
+            detail
+        );
+    }
+    if let Some(root) = model.bodies.get(model.root_body) {
+        let style = if root.is_static {
+            "static"
+        } else {
+            "moves (no static body)"
+        };
+        let _ = writeln!(
+            s,
+            "  camera -> {} [style=dashed, label=\"{style}\"];",
+            link_name(root.id)
+        );
+    }
+    for j in &model.joints {
+        let mut label = dot_text(&j.joint_type);
+        if let Some(a) = j.axis_in_parent {
+            let _ = write!(label, "\\naxis [{:.3}, {:.3}, {:.3}]", a[0], a[1], a[2]);
+        }
+        if let Some([lo, hi]) = j.range {
+            let unit = if j.joint_type == "prismatic" {
+                "m"
+            } else {
+                "rad"
+            };
+            let _ = write!(label, "\\nrange [{lo:.3}, {hi:.3}] {unit}");
+        }
+        if j.joint_type == "multi_dof" {
+            let _ = write!(label, "\\n{} DoF", j.dof);
+        }
+        let _ = writeln!(
+            s,
+            "  {} -> {} [label=\"{label}\"];",
+            link_name(j.parent),
+            link_name(j.child)
+        );
+    }
+    let _ = writeln!(s, "}}");
+    s
+}
