@@ -60,10 +60,10 @@ enum Command {
         #[arg(long, default_value = "results")]
         results: PathBuf,
     },
-    /// Discover the structure in a tracks file (.npy or .csv) and write the model JSON.
+    /// Discover the structure in a tracks file (.npy, .csv or .c3d) and write the model JSON.
     Discover {
-        /// Tracks file: float64 (T, N, 3) .npy with NaN for occluded points, or
-        /// frame,point,x,y,z .csv.
+        /// Tracks file: float64 (T, N, 3) .npy with NaN for occluded points,
+        /// frame,point,x,y,z .csv, or a C3D motion-capture file (marker labels are kept).
         tracks: PathBuf,
         /// Per-coordinate noise std-dev in metres; estimated from the data when absent.
         #[arg(long)]

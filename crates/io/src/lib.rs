@@ -2,7 +2,10 @@
 //!
 //! Every error names the file (through [`Error::File`]) and, where it can, the position.
 
+mod c3d;
 pub mod export;
+
+pub use c3d::tracks as c3d_tracks;
 
 use kinetree_core::{Error, Model, Result, Tracks};
 use npyz::WriterBuilder;
@@ -13,7 +16,7 @@ use std::path::Path;
 /// Largest frame or point index accepted in a CSV file (guards against absurd allocations).
 pub const MAX_CSV_INDEX: u64 = 10_000_000;
 
-/// Reads tracks from a `.npy` or `.csv` file, chosen by extension.
+/// Reads tracks from a `.npy`, `.csv` or `.c3d` file, chosen by extension.
 ///
 /// # Errors
 /// [`Error::File`] wrapping the cause: I/O, an unknown extension, or the format's own errors.
@@ -25,12 +28,30 @@ pub fn read_tracks(path: &Path) -> Result<Tracks> {
     match ext.as_deref() {
         Some("npy") => read_npy(path),
         Some("csv") => read_csv(path),
+        Some("c3d") => read_c3d(path),
         _ => Err(Error::Malformed {
             position: "file name".into(),
-            message: "unknown extension; expected .npy or .csv".into(),
+            message: "unknown extension; expected .npy, .csv or .c3d".into(),
         }
         .in_file(path)),
     }
+}
+
+/// Reads the marker trajectories of a C3D motion-capture file: one point per marker in the
+/// file's order, labelled with its `POINT:LABELS` name (`point <i>` when unnamed), converted
+/// to metres from `POINT:UNITS` (`mm`, `cm` or `m`; another unit is an error). Intel, DEC and
+/// MIPS files, integer or float data.
+///
+/// A sample is *not visible* when its residual word is negative (the C3D convention for an
+/// invalid point), when it is exactly `(0, 0, 0)` (how several writers store a missing
+/// marker), or when a coordinate is not finite.
+///
+/// # Errors
+/// [`Error::Malformed`] for a truncated or corrupt file or an unknown unit, and the
+/// validation errors of [`Tracks::new`], all inside [`Error::File`].
+pub fn read_c3d(path: &Path) -> Result<Tracks> {
+    let bytes = std::fs::read(path).map_err(|e| Error::from(e).in_file(path))?;
+    c3d::tracks(&bytes).map_err(|e| e.in_file(path))
 }
 
 /// Reads a float64 `(T, N, 3)` `.npy` array, NaN for occluded points (C or Fortran order).
