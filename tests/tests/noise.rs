@@ -68,3 +68,22 @@ fn noise_free_data_keeps_its_bodies() {
     assert_eq!(e.n_bodies_found, 3, "{e:?}");
     assert!(e.joints_exact, "{e:?}");
 }
+
+/// The estimator for markers on skin reads low on rigid synthetic bodies (the second smallest
+/// of about ten sample std-devs), by a bounded amount.
+#[test]
+fn nearest_rigid_estimate_on_rigid_bodies_is_within_a_quarter() {
+    for seed in 1..4 {
+        let p = RandomParams {
+            n_joints: 4,
+            noise_sigma_m: 0.002,
+            seed,
+            ..RandomParams::default()
+        };
+        let data = simulate(&random_scenario(&p)).expect("simulate");
+        let stats = kinetree_dissimilarity::pair_stats(&data.tracks);
+        let s =
+            kinetree_dissimilarity::estimate_noise_sigma_nearest_rigid(&stats).expect("estimate");
+        assert!((0.75..1.05).contains(&(s / 0.002)), "seed {seed}: {s}");
+    }
+}

@@ -11,5 +11,5 @@ pub use measures::{
     DistanceStd, DistanceVariance, FTest, FTestParams, LogPValue, LogPValueParams, MAX_LOG_P,
     SpreadParams, f_test_log_p, f_test_q,
 };
-pub use noise::{estimate_noise_sigma, refine_noise_sigma};
+pub use noise::{estimate_noise_sigma, estimate_noise_sigma_nearest_rigid, refine_noise_sigma};
 pub use stats::{PairStatsAccumulator, pair_stats, pair_stats_reference};

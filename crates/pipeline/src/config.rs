@@ -145,12 +145,28 @@ impl DofConfig {
     }
 }
 
+/// How the noise level is estimated from the data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum NoiseEstimator {
+    /// The mode of the pairs' distance variances, refined inside the bodies found
+    /// ([`kinetree_dissimilarity::estimate_noise_sigma`]): within a few % on rigid bodies.
+    #[default]
+    Mode,
+    /// Each point's second most rigid pair
+    /// ([`kinetree_dissimilarity::estimate_noise_sigma_nearest_rigid`]): for markers on skin,
+    /// rigid to 1-5 mm; not refined.
+    NearestRigid,
+}
+
 /// The whole pipeline's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct PipelineConfig {
     /// Per-coordinate noise std-dev in metres; estimated from the data when absent.
     pub noise_sigma_m: Option<f64>,
+    /// How the noise level is estimated when `noise_sigma_m` is absent.
+    pub noise_estimator: NoiseEstimator,
     /// Seed for any random choice of any stage.
     pub seed: u64,
     /// Dissimilarity measure.

@@ -1,6 +1,6 @@
 //! Running the pipeline on tracks: segmentation, poses, DoF tests, structure, model.
 
-use crate::config::PipelineConfig;
+use crate::config::{NoiseEstimator, PipelineConfig};
 use kinetree_core::geom::cam_from;
 use kinetree_core::model::{
     Body, Joint, NoiseInfo, NoiseSource, Ranks, RigidTransform, SCHEMA_VERSION, StageNames,
@@ -10,7 +10,9 @@ use kinetree_core::{
     DissimilarityMatrix, DofInput, DofTester, Error, JointKind, Model, PairDof, PairStats,
     PoseEstimator, PoseInput, Result, Segmentation, Tracks, Warning,
 };
-use kinetree_dissimilarity::{estimate_noise_sigma, pair_stats, refine_noise_sigma};
+use kinetree_dissimilarity::{
+    estimate_noise_sigma, estimate_noise_sigma_nearest_rigid, pair_stats, refine_noise_sigma,
+};
 
 /// The stages, built from a [`PipelineConfig`] or supplied by the caller.
 #[derive(Debug)]
@@ -25,6 +27,8 @@ pub struct Pipeline {
     pub dof: Box<dyn DofTester>,
     /// Per-coordinate noise, metres; estimated when `None`.
     pub noise_sigma_m: Option<f64>,
+    /// How the noise is estimated when `noise_sigma_m` is `None`.
+    pub noise_estimator: NoiseEstimator,
     /// Seed for the stages.
     pub seed: u64,
 }
@@ -237,6 +241,7 @@ impl Pipeline {
             pose: c.pose.build()?,
             dof: c.dof.build()?,
             noise_sigma_m: c.noise_sigma_m,
+            noise_estimator: c.noise_estimator,
             seed: c.seed,
         })
     }
@@ -346,12 +351,16 @@ impl Pipeline {
                 count: unknown_among_paired,
             });
         }
-        let (mut sigma, source) = match self.noise_sigma_m {
-            Some(s) => (s, NoiseSource::Given),
-            None => (estimate_noise_sigma(&stats)?, NoiseSource::Estimated),
+        let (mut sigma, source) = match (self.noise_sigma_m, self.noise_estimator) {
+            (Some(s), _) => (s, NoiseSource::Given),
+            (None, NoiseEstimator::Mode) => (estimate_noise_sigma(&stats)?, NoiseSource::Estimated),
+            (None, NoiseEstimator::NearestRigid) => (
+                estimate_noise_sigma_nearest_rigid(&stats)?,
+                NoiseSource::Estimated,
+            ),
         };
         let (mut dmat, mut seg) = self.segment(tracks, &stats, sigma)?;
-        if source == NoiseSource::Estimated {
+        if source == NoiseSource::Estimated && self.noise_estimator == NoiseEstimator::Mode {
             let first_guess = sigma;
             for _ in 0..NOISE_ROUNDS {
                 let Some(s) = refine_noise_sigma(&stats, &seg) else {
@@ -372,6 +381,8 @@ impl Pipeline {
                 }
                 (dmat, seg) = self.segment(tracks, &stats, sigma)?;
             }
+        }
+        if source == NoiseSource::Estimated {
             warnings.push(Warning::NoiseEstimated { sigma_m: sigma });
         }
         for g in &seg.discarded_groups {

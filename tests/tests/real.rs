@@ -1,0 +1,146 @@
+//! Discovery on the real motion-capture recordings in experiments/real/data, with the
+//! pipeline in experiments/real/pipeline.toml. The segments named in each folder's
+//! segments.json (from the marker labels) are the reference for the bodies.
+//!
+//! `KINETREE_WRITE_TABLE=1 cargo test --release -p kinetree-tests --test real` rewrites
+//! experiments/real/results.md from these runs.
+
+use kinetree_core::Model;
+use kinetree_pipeline::Pipeline;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../experiments/real")
+}
+
+struct Outcome {
+    folder: &'static str,
+    frames: usize,
+    markers: usize,
+    segments: usize,
+    segments_3: usize,
+    model: Model,
+    ari: f64,
+}
+
+fn run(folder: &'static str) -> Outcome {
+    let dir = root().join("data").join(folder);
+    let file = std::fs::read_dir(&dir)
+        .expect("folder")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| p.extension().is_some_and(|e| e == "c3d"))
+        .expect("c3d");
+    let tracks = kinetree_io::read_c3d(&file).expect("read");
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(
+        &std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml"),
+    )
+    .expect("config");
+    let model = Pipeline::from_config(&cfg)
+        .expect("pipeline")
+        .run(&tracks)
+        .expect("discover")
+        .model;
+    let seg: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
+    )
+    .expect("json");
+    let mut segment_of: BTreeMap<String, usize> = BTreeMap::new();
+    let segments = seg["segments"].as_object().expect("segments");
+    let mut segments_3 = 0;
+    for (k, (_, markers)) in segments.iter().enumerate() {
+        let m = markers.as_array().expect("markers");
+        if m.len() >= 3 {
+            segments_3 += 1;
+            for name in m {
+                segment_of.insert(name.as_str().expect("name").to_string(), k);
+            }
+        }
+    }
+    // ARI over the markers of segments with 3+ markers that are visible in 2+ frames.
+    let labels = model.point_labels.clone().expect("labels");
+    let scored: Vec<usize> = (0..labels.len())
+        .filter(|&i| segment_of.contains_key(&labels[i]) && tracks.visible_count(i) >= 2)
+        .collect();
+    let truth: Vec<usize> = scored.iter().map(|&i| segment_of[&labels[i]]).collect();
+    let predicted: Vec<i64> = scored.iter().map(|&i| model.point_body[i]).collect();
+    Outcome {
+        folder,
+        frames: tracks.n_frames(),
+        markers: tracks.n_points(),
+        segments: segments.len(),
+        segments_3,
+        ari: kinetree_eval::adjusted_rand_index(&predicted, &truth),
+        model,
+    }
+}
+
+const FOLDERS: [&str; 5] = [
+    "c3dorg-fullbody-triads",
+    "c3dorg-qualisys-walk",
+    "ktk-wheelchair-racing",
+    "ktk-wheelchair-sprint",
+    "ktk-tennis-serve",
+];
+
+#[test]
+fn real_recordings_segment_into_their_labelled_segments() {
+    let outcomes: Vec<Outcome> = FOLDERS.iter().map(|f| run(f)).collect();
+    let mut table = String::from(
+        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / multi-DoF) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for o in &outcomes {
+        let count = |t: &str| o.model.joints.iter().filter(|j| j.joint_type == t).count();
+        let _ = writeln!(
+            table,
+            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} | {} |",
+            o.folder,
+            o.frames,
+            o.markers,
+            o.model.noise.sigma_m * 1e3,
+            o.segments,
+            o.segments_3,
+            o.model.bodies.len(),
+            o.ari,
+            count("revolute"),
+            count("prismatic"),
+            count("multi_dof"),
+            o.model
+                .reprediction_rms_in_sigma
+                .map_or("-".into(), |r| format!("{r:.1}"))
+        );
+    }
+    if std::env::var_os("KINETREE_WRITE_TABLE").is_some() {
+        let path = root().join("results.md");
+        let text = format!(
+            "# Results on the real recordings\n\nWritten by `KINETREE_WRITE_TABLE=1 cargo test --release -p kinetree-tests --test real` with `experiments/real/pipeline.toml`. ARI: the bodies against the segments of 3+ markers named in each `segments.json`, over their markers visible in 2+ frames.\n\n{table}"
+        );
+        std::fs::write(&path, text).expect("write table");
+    }
+    println!("{table}");
+    for o in &outcomes {
+        // Skin markers: rigid to 0.1-5 mm (the default estimator said 5-20 mm).
+        let sigma = o.model.noise.sigma_m;
+        assert!((1e-4..5e-3).contains(&sigma), "{}: sigma {sigma}", o.folder);
+        let found = o.model.bodies.len();
+        // Soft tissue and markers near joints make the counts approximate for people; the
+        // triads, the gait clusters and the wheelchair are rigid enough to get them exactly.
+        let exact = matches!(
+            o.folder,
+            "c3dorg-fullbody-triads" | "c3dorg-qualisys-walk" | "ktk-wheelchair-sprint"
+        );
+        if exact {
+            assert_eq!(found, o.segments_3, "{}: {found} bodies", o.folder);
+            assert!(o.ari > 0.95, "{}: ARI {}", o.folder, o.ari);
+        } else {
+            assert!(
+                found + 2 >= o.segments_3 && found <= o.segments_3 + 4,
+                "{}: {found} bodies for {} segments",
+                o.folder,
+                o.segments_3
+            );
+            assert!(o.ari > 0.6, "{}: ARI {}", o.folder, o.ari);
+        }
+    }
+}
