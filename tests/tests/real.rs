@@ -144,3 +144,35 @@ fn real_recordings_segment_into_their_labelled_segments() {
         }
     }
 }
+
+/// One tracked handle each: the door's must be a revolute joint about a vertical hinge with
+/// the radius and arc its collectors measured (0.381 m, 86 deg; SOURCE.md), the drawer's a
+/// prismatic joint along x over 0.46 m.
+#[test]
+fn door_and_drawer_tracks_give_their_joints() {
+    use kinetree_dof::{TrackJoint, fit_point_track};
+    let data = root().join("data/sturm-door-drawer");
+    let door = kinetree_io::read_point_track(&data.join("right_door_001/001.log")).expect("door");
+    let fit = fit_point_track(&door).expect("fit");
+    let TrackJoint::Revolute {
+        axis,
+        radius_m,
+        arc_rad,
+        ..
+    } = fit.joint
+    else {
+        panic!("door: {:?}", fit.joint);
+    };
+    assert!(axis[2].abs() > 0.99, "hinge not vertical: {axis:?}");
+    assert!((radius_m - 0.381).abs() < 0.005, "radius {radius_m}");
+    assert!((arc_rad.to_degrees() - 86.0).abs() < 2.0, "arc {arc_rad}");
+    assert!(fit.line_rms_m > 10.0 * fit.circle_rms_m);
+    let drawer = kinetree_io::read_point_track(&data.join("drawer_001/001.log")).expect("drawer");
+    let fit = fit_point_track(&drawer).expect("fit");
+    let TrackJoint::Prismatic { axis, travel_m } = fit.joint else {
+        panic!("drawer: {:?}", fit.joint);
+    };
+    assert!(axis[0].abs() > 0.99, "axis {axis:?}");
+    assert!((travel_m - 0.46).abs() < 0.01, "travel {travel_m}");
+    assert!(fit.line_rms_m < 0.003, "line RMS {}", fit.line_rms_m);
+}

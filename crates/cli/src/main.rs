@@ -103,6 +103,18 @@ enum Command {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
     },
+    /// Fit a joint to one point's track (a door or drawer handle): revolute (axis, centre,
+    /// radius) or prismatic (axis), printed and written as JSON.
+    FitTrack {
+        /// Text file of `x y z` lines, or a tracks file (.npy, .csv, .c3d) with `--point`.
+        track: PathBuf,
+        /// Point index in a tracks file.
+        #[arg(long)]
+        point: Option<usize>,
+        /// Output JSON.
+        #[arg(short, long, default_value = "track-joint.json")]
+        output: PathBuf,
+    },
     /// Write a synthetic data set: tracks.npy, tracks.csv and truth.json.
     Simulate {
         /// Output folder.
@@ -239,6 +251,34 @@ fn main() -> Result<()> {
         Command::Inspect { model } => {
             let m = kinetree_io::read_model(&model)?;
             emit(&kinetree_pipeline::report::inspect(&m));
+            Ok(())
+        }
+        Command::FitTrack {
+            track,
+            point,
+            output,
+        } => {
+            let samples = match point {
+                Some(i) => {
+                    let t = kinetree_io::read_tracks(&track)?;
+                    if i >= t.n_points() {
+                        bail!("--point {i}: the file has {} points", t.n_points());
+                    }
+                    (0..t.n_frames()).filter_map(|f| t.get(f, i)).collect()
+                }
+                None => kinetree_io::read_point_track(&track)?,
+            };
+            let fit = kinetree_dof::fit_point_track(&samples)
+                .with_context(|| format!("fitting {}", track.display()))?;
+            emitln!(
+                "{} samples; line RMS {:.2} mm, circle RMS {:.2} mm",
+                samples.len(),
+                fit.line_rms_m * 1e3,
+                fit.circle_rms_m * 1e3
+            );
+            emitln!("{}", serde_json::to_string(&fit.joint)?);
+            kinetree_io::write_json(&output, &fit)?;
+            emitln!("wrote {}", output.display());
             Ok(())
         }
         Command::Simulate {

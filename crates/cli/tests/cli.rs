@@ -213,3 +213,32 @@ fn export_and_inspect_a_discovered_model() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("bad.json"));
 }
+
+#[test]
+fn discover_reads_c3d_and_fit_track_reads_a_handle() {
+    let d = tmp("c3d");
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments/real/data");
+    let model = d.join("triads.json");
+    let out = run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(data.join("c3dorg-fullbody-triads/pc_real.c3d"))
+            .args(["--pipeline"])
+            .arg(data.join("../pipeline.toml"))
+            .arg("-o")
+            .arg(&model),
+    );
+    assert!(out.contains("12 bodies"), "{out}");
+    let labels = read_json(&model)["point_labels"].clone();
+    assert_eq!(labels.as_array().map(Vec::len), Some(36), "{labels}");
+    let joint = d.join("door.json");
+    let out = run_ok(
+        kinetree()
+            .arg("fit-track")
+            .arg(data.join("sturm-door-drawer/right_door_001/001.log"))
+            .arg("-o")
+            .arg(&joint),
+    );
+    assert!(out.contains("\"type\":\"revolute\""), "{out}");
+    assert_eq!(read_json(&joint)["joint"]["type"], "revolute");
+}

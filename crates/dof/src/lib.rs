@@ -2,6 +2,8 @@
 
 mod rank;
 mod tester;
+mod track;
 
 pub use rank::{RankRule, chi2_per_dof_quantile, mahalanobis_line, rank_test, weighted_direction};
 pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
+pub use track::{CIRCLE_GAIN, TrackFit, TrackJoint, fit_point_track};

@@ -119,7 +119,11 @@ fn parameters(bytes: &[u8], start: usize, proc: Processor) -> Result<BTreeMap<St
                 .iter()
                 .map(|&d| usize::from(d))
                 .collect();
-            let count: usize = dims.iter().product::<usize>() * size;
+            // Up to 255 dimensions of up to 255 each: checked, a corrupt file can overflow.
+            let count = dims
+                .iter()
+                .try_fold(size, |acc: usize, &d| acc.checked_mul(d))
+                .ok_or_else(|| malformed(&format!("parameter {name}"), "dimensions overflow"))?;
             let data = slice(bytes, p + 4 + n_dims, count, &format!("parameter {name}"))?.to_vec();
             raw.push((id, name, Parameter { kind, dims, data }));
         }

@@ -54,6 +54,39 @@ pub fn read_c3d(path: &Path) -> Result<Tracks> {
     c3d::tracks(&bytes).map_err(|e| e.in_file(path))
 }
 
+/// Reads one point's track from plain text, one sample `x y z` (metres) per line separated by
+/// spaces, tabs or commas; blank lines are skipped. The format of the door and drawer tracks
+/// in experiments/real/data/sturm-door-drawer.
+///
+/// # Errors
+/// [`Error::Malformed`] naming the line for a line without three finite numbers, inside
+/// [`Error::File`].
+pub fn read_point_track(path: &Path) -> Result<Vec<kinetree_core::nalgebra::Point3<f64>>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::from(e).in_file(path))?;
+    let mut out = Vec::new();
+    for (k, line) in text.lines().enumerate() {
+        let fields: Vec<&str> = line
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|f| !f.is_empty())
+            .collect();
+        if fields.is_empty() {
+            continue;
+        }
+        let values: Vec<f64> = fields.iter().filter_map(|f| f.parse().ok()).collect();
+        if fields.len() != 3 || values.len() != 3 || !values.iter().all(|v| v.is_finite()) {
+            return Err(Error::Malformed {
+                position: format!("line {}", k + 1),
+                message: format!("expected three finite numbers `x y z`, got {line:?}"),
+            }
+            .in_file(path));
+        }
+        out.push(kinetree_core::nalgebra::Point3::new(
+            values[0], values[1], values[2],
+        ));
+    }
+    Ok(out)
+}
+
 /// Reads a float64 `(T, N, 3)` `.npy` array, NaN for occluded points (C or Fortran order).
 ///
 /// # Errors
