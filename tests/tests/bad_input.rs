@@ -209,6 +209,12 @@ fn bad_pipeline_parameters_are_typed_errors() {
         Pipeline::from_config(&cfg),
         Err(Error::InvalidParameter { .. })
     ));
+    let negative_error = "[dof]\nkind = \"chi2_rank\"\nmodel_error_m = -0.001\n";
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(negative_error).expect("parses");
+    assert!(matches!(
+        Pipeline::from_config(&cfg),
+        Err(Error::InvalidParameter { ref name, .. }) if name == "model_error_m"
+    ));
     let text = "[experiment]\nname = \"x\"\n[data]\nkind = \"paper_arm\"\nsede = 3\n";
     let e = ExperimentConfig::from_toml(text).expect_err("typo in a key");
     assert!(

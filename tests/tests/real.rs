@@ -88,13 +88,13 @@ const FOLDERS: [&str; 5] = [
 fn real_recordings_segment_into_their_labelled_segments() {
     let outcomes: Vec<Outcome> = FOLDERS.iter().map(|f| run(f)).collect();
     let mut table = String::from(
-        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / multi-DoF) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
+        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
     );
     for o in &outcomes {
         let count = |t: &str| o.model.joints.iter().filter(|j| j.joint_type == t).count();
         let _ = writeln!(
             table,
-            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} | {} |",
+            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} | {} |",
             o.folder,
             o.frames,
             o.markers,
@@ -106,6 +106,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
             count("revolute"),
             count("prismatic"),
             count("multi_dof"),
+            count("rigid"),
             o.model
                 .reprediction_rms_in_sigma
                 .map_or("-".into(), |r| format!("{r:.1}"))
@@ -119,6 +120,30 @@ fn real_recordings_segment_into_their_labelled_segments() {
         std::fs::write(&path, text).expect("write table");
     }
     println!("{table}");
+    // The wheelchair sprint's wheel turns on the chair: a revolute joint over many turns.
+    let sprint = outcomes
+        .iter()
+        .find(|o| o.folder == "ktk-wheelchair-sprint")
+        .expect("sprint");
+    let labels = sprint.model.point_labels.as_ref().expect("labels");
+    let body_with = |prefix: &str| {
+        sprint
+            .model
+            .bodies
+            .iter()
+            .find(|b| b.points.iter().all(|&p| labels[p].starts_with(prefix)))
+            .map(|b| b.id)
+    };
+    let (wheel, chair) = (body_with("SWL:"), body_with("WheelchairL:"));
+    let joint = sprint.model.joints.iter().find(|j| {
+        (Some(j.parent), Some(j.child)) == (chair, wheel)
+            || (Some(j.parent), Some(j.child)) == (wheel, chair)
+    });
+    let joint =
+        joint.unwrap_or_else(|| panic!("no joint between wheel {wheel:?} and chair {chair:?}"));
+    assert_eq!(joint.joint_type, "revolute");
+    let [lo, hi] = joint.range.expect("range");
+    assert!(hi - lo > 30.0, "the wheel turned {} rad", hi - lo);
     for o in &outcomes {
         // Skin markers: rigid to 0.1-5 mm (the default estimator said 5-20 mm).
         let sigma = o.model.noise.sigma_m;

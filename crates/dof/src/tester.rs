@@ -33,7 +33,16 @@ fn quality(poses: &BodyPoses, a: Option<usize>, t: usize) -> Option<PoseQuality>
     a.and_then(|b| poses.bodies[b].quality[t])
 }
 
-fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Result<PairColumns> {
+/// Per-body model error added to every pose's covariance: `(metres, radians)` std-devs.
+type ModelError = (f64, f64);
+
+fn pair_columns(
+    poses: &BodyPoses,
+    a: Option<usize>,
+    b: usize,
+    sigma: f64,
+    model_error: ModelError,
+) -> Result<PairColumns> {
     let n_bodies = poses.bodies.len();
     if b >= n_bodies || a.is_some_and(|a| a >= n_bodies || a == b) {
         return Err(Error::InvalidParameter {
@@ -67,21 +76,33 @@ fn pair_columns(poses: &BodyPoses, a: Option<usize>, b: usize, sigma: f64) -> Re
         let r_x = xk.rotation.to_rotation_matrix().into_inner();
         let qa = quality(poses, a, t);
         let qb = quality(poses, Some(b), t);
+        // Covariances in m^2 and rad^2: the noise propagated through the fit, plus the model
+        // error of a body (none for the camera frame).
+        let (er, em) = (
+            Matrix3::identity() * model_error.1.powi(2),
+            Matrix3::identity() * model_error.0.powi(2),
+        );
         let (ja, oa) = qa.map_or((zero, zero), |q| {
-            (q.rot_cov_per_sigma2, q.origin_cov_per_sigma2)
+            (
+                q.rot_cov_per_sigma2 * s2 + er,
+                q.origin_cov_per_sigma2 * s2 + em,
+            )
         });
         let (jb, ob) = qb.map_or((zero, zero), |q| {
-            (q.rot_cov_per_sigma2, q.origin_cov_per_sigma2)
+            (
+                q.rot_cov_per_sigma2 * s2 + er,
+                q.origin_cov_per_sigma2 * s2 + em,
+            )
         });
         x_abs.push((r_x, xk.translation.vector));
-        a_cov.push((ja * s2, oa * s2));
-        b_cov.push((jb * s2, ob * s2));
+        a_cov.push((ja, oa));
+        b_cov.push((jb, ob));
         // Relative rotation error in a's frame: -alpha + R_x beta.
-        rot_cov.push((ja + r_x * jb * r_x.transpose()) * s2);
+        rot_cov.push(ja + r_x * jb * r_x.transpose());
         // b's origin in a's frame: a's origin error, b's origin error, and a's rotation error
         // at the lever arm y.
         let y = xk.translation.vector.cross_matrix();
-        u_cov.push((oa + r_x * ob * r_x.transpose() + y * ja * y.transpose()) * s2);
+        u_cov.push(oa + r_x * ob * r_x.transpose() + y * ja * y.transpose());
     }
     // Reference: the earliest common frame with the most precise relative rotation. The
     // precision depends only on which points are visible, so many frames tie exactly up to
@@ -456,7 +477,7 @@ impl DofTester for SvdRank {
     }
 
     fn test_pair(&self, input: &DofInput<'_>, a: Option<usize>, b: usize) -> Result<PairDof> {
-        let c = pair_columns(input.poses, a, b, input.noise_sigma_m)?;
+        let c = pair_columns(input.poses, a, b, input.noise_sigma_m, (0.0, 0.0))?;
         classify(
             &c,
             a,
@@ -487,6 +508,12 @@ pub struct Chi2RankParams {
     pub min_centre_angle_rad: f64,
     /// As [`SvdRankParams::min_centre_angle_in_std`].
     pub min_centre_angle_in_std: f64,
+    /// Model error of every body's position, metres (std-dev per axis), added to the noise
+    /// propagated through each pose fit: what a real joint adds to the ideal one (hub play,
+    /// wobble, markers on skin). 0 for simulated mechanisms.
+    pub model_error_m: f64,
+    /// Model error of every body's orientation, radians (std-dev per axis).
+    pub model_error_rad: f64,
 }
 
 impl Default for Chi2RankParams {
@@ -496,6 +523,8 @@ impl Default for Chi2RankParams {
             slack: 2.5,
             min_centre_angle_rad: 0.05,
             min_centre_angle_in_std: 5.0,
+            model_error_m: 0.0,
+            model_error_rad: 0.0,
         }
     }
 }
@@ -504,12 +533,25 @@ impl Chi2RankParams {
     /// Checks the ranges.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for a non-positive or non-finite value.
+    /// [`Error::InvalidParameter`] for a non-positive or non-finite value (a negative or
+    /// non-finite model error).
     pub fn validate(&self) -> Result<()> {
         check_positive("z", self.z)?;
         check_positive("slack", self.slack)?;
         check_positive("min_centre_angle_rad", self.min_centre_angle_rad)?;
-        check_positive("min_centre_angle_in_std", self.min_centre_angle_in_std)
+        check_positive("min_centre_angle_in_std", self.min_centre_angle_in_std)?;
+        for (name, v) in [
+            ("model_error_m", self.model_error_m),
+            ("model_error_rad", self.model_error_rad),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::InvalidParameter {
+                    name: name.into(),
+                    message: format!("must be finite and at least 0, got {v}"),
+                });
+            }
+        }
+        Ok(())
     }
 }
 
@@ -539,7 +581,13 @@ impl DofTester for Chi2Rank {
     }
 
     fn test_pair(&self, input: &DofInput<'_>, a: Option<usize>, b: usize) -> Result<PairDof> {
-        let c = pair_columns(input.poses, a, b, input.noise_sigma_m)?;
+        let c = pair_columns(
+            input.poses,
+            a,
+            b,
+            input.noise_sigma_m,
+            (self.params.model_error_m, self.params.model_error_rad),
+        )?;
         classify(
             &c,
             a,
