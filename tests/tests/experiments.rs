@@ -2,6 +2,7 @@
 //! cannot rot: experiment configs (with an `[experiment]` table) end to end, pipeline configs
 //! (such as experiments/real/pipeline.toml) by building their pipeline.
 
+use kinetree_pipeline::sweep::{Sweep, run_sweep, runs_csv};
 use kinetree_pipeline::{ExperimentConfig, Pipeline, run_experiment};
 use std::path::{Path, PathBuf};
 
@@ -31,7 +32,17 @@ fn every_config_under_experiments_parses_and_runs() {
         let text = std::fs::read_to_string(f).expect("read");
         let value: toml::Table =
             toml::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-        if value.contains_key("experiment") {
+        if value.contains_key("sweep") {
+            // Quick profile: every grid point once, with the first seed.
+            let sweep = Sweep::from_toml(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+            let seed = sweep.seeds().first().copied().unwrap_or(0);
+            for p in 0..sweep.points.len() {
+                let cfg = sweep.config(p, seed).expect("valid point");
+                run_experiment(&cfg, f.parent().expect("dir"))
+                    .unwrap_or_else(|e| panic!("{} point {p}: {e}", f.display()));
+            }
+            experiments += 1;
+        } else if value.contains_key("experiment") {
             let cfg = ExperimentConfig::from_toml(&text)
                 .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
             let out = run_experiment(&cfg, f.parent().expect("dir"))
@@ -49,4 +60,70 @@ fn every_config_under_experiments_parses_and_runs() {
         experiments >= 1 && pipelines >= 1,
         "{experiments} {pipelines}"
     );
+}
+
+const SWEEP: &str = r#"
+[experiment]
+name = "tiny-sweep"
+
+[sweep]
+seeds = [4, 9]
+
+[sweep.grid]
+"data.noise_sigma_m" = [0.0005, 0.002]
+"pipeline.dof" = [{ kind = "chi2_rank" }, { kind = "svd_rank" }]
+
+[data]
+kind = "random"
+n_joints = 2
+n_frames = 120
+"#;
+
+#[test]
+fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
+    let sweep = Sweep::from_toml(SWEEP).expect("parses");
+    assert_eq!(sweep.points.len(), 4);
+    assert_eq!(sweep.seeds(), vec![4, 9]);
+    // The seed and the grid values land in the run's config.
+    let cfg = sweep.config(3, 9).expect("config");
+    let data = toml::to_string(&cfg.data).expect("toml");
+    assert!(
+        data.contains("seed = 9") && data.contains("noise_sigma_m = 0.002"),
+        "{data}"
+    );
+    let dir = std::env::temp_dir().join(format!("kinetree-sweep-{}", std::process::id()));
+    let (sweep, runs) = run_sweep(SWEEP, Path::new("."), &dir, &|_, _| {}).expect("runs");
+    assert_eq!(runs.len(), 8);
+    assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
+    let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
+    assert_eq!(csv, runs_csv(&sweep, &runs));
+    assert_eq!(csv.lines().count(), 9, "{csv}");
+    let table = std::fs::read_to_string(dir.join("table.md")).expect("table.md");
+    assert_eq!(table.matches("| 2 | 0 |").count(), 4, "{table}");
+    let resolved = std::fs::read_to_string(dir.join("resolved.toml")).expect("resolved");
+    assert!(
+        resolved.contains("[sweep]") && resolved.contains("[pipeline.clustering]"),
+        "{resolved}"
+    );
+    // Same seeds, same runs: the sweep is deterministic whatever the thread order.
+    let (_, again) = run_sweep(SWEEP, Path::new("."), &dir, &|_, _| {}).expect("runs");
+    assert_eq!(runs_csv(&sweep, &again), csv);
+}
+
+#[test]
+fn bad_sweeps_are_config_errors() {
+    for (bad, needle) in [
+        (
+            SWEEP.replace("\"data.noise_sigma_m\"", "\"data.noise_sigmaa\""),
+            "noise_sigmaa",
+        ),
+        (SWEEP.replace("[0.0005, 0.002]", "0.001"), "non-empty list"),
+        (
+            SWEEP.replace("seeds = [4, 9]", "seeds = [4, 9]\nrepeat = 2"),
+            "repeat",
+        ),
+    ] {
+        let e = Sweep::from_toml(&bad).expect_err("bad sweep");
+        assert!(e.to_string().contains(needle), "{e}");
+    }
 }

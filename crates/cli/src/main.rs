@@ -155,6 +155,9 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
         ),
         None => (PAPER_EXPERIMENT_TOML.to_string(), PathBuf::from(".")),
     };
+    if kinetree_pipeline::sweep::is_sweep(&text) {
+        return sweep(&text, config.as_deref(), &base, results);
+    }
     let cfg = ExperimentConfig::from_toml(&text).with_context(|| match &config {
         Some(p) => format!("in {}", p.display()),
         None => "in the embedded paper experiment".into(),
@@ -195,6 +198,38 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
     let dir = results.join(&cfg.experiment.name);
     write_results(&cfg, &outcome, &dir)?;
     emitln!("\nwrote {}", dir.display());
+    Ok(())
+}
+
+/// Runs a sweep config: a progress bar on stderr, then `runs.csv`, `table.md` and
+/// `resolved.toml` under `results/<name>/`.
+fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Result<()> {
+    use std::io::Write;
+    let where_ = || config.map_or("the config".into(), |p| p.display().to_string());
+    let parsed = kinetree_pipeline::sweep::Sweep::from_toml(text)
+        .with_context(|| format!("in {}", where_()))?;
+    let name = parsed.config(0, 0)?.experiment.name;
+    let dir = results.join(&name);
+    let progress = |done: usize, total: usize| {
+        let width = 40;
+        let filled = done * width / total.max(1);
+        let mut err = std::io::stderr().lock();
+        let _ = write!(
+            err,
+            "\r[{}{}] {done}/{total} runs",
+            "#".repeat(filled),
+            " ".repeat(width - filled)
+        );
+        if done == total {
+            let _ = writeln!(err);
+        }
+        let _ = err.flush();
+    };
+    let (sweep, runs) = kinetree_pipeline::sweep::run_sweep(text, base, &dir, &progress)?;
+    emit(&kinetree_pipeline::sweep::table_markdown(
+        &name, &sweep, &runs,
+    ));
+    emitln!("wrote {}", dir.display());
     Ok(())
 }
 

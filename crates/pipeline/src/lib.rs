@@ -8,6 +8,7 @@ pub mod config;
 pub mod experiment;
 pub mod report;
 mod run;
+pub mod sweep;
 
 pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};
 pub use experiment::{ExperimentOutcome, load_data, run_experiment, write_results};

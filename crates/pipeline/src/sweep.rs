@@ -1,0 +1,422 @@
+//! Sweeps: an experiment config with a `[sweep]` table expands into a grid of runs over seeds.
+//!
+//! ```toml
+//! [experiment]
+//! name = "noise-sweep"
+//!
+//! [sweep]
+//! seeds = 20                      # seeds 0..20 (or a list: [3, 5, 8])
+//! seed_keys = ["data.seed"]       # where the seed goes (the default)
+//!
+//! [sweep.grid]                    # dotted paths into the config, each with a list of values
+//! "data.noise_sigma_m" = [0.0001, 0.001, 0.01]
+//! "pipeline.clustering" = [{ kind = "hierarchical" }, { kind = "spectral" }]
+//!
+//! [data]
+//! kind = "random"
+//! ```
+//!
+//! Every grid point and seed becomes an ordinary experiment config (so unknown keys are
+//! still errors), the runs go in parallel (rayon), and `runs.csv` gets one row per run,
+//! `table.md` one row per grid point: success rates and error statistics.
+
+use crate::config::ExperimentConfig;
+use crate::experiment::run_experiment;
+use kinetree_core::{Error, Result};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// The `[sweep]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SweepSpec {
+    /// A number of seeds (0..n) or a list.
+    #[serde(default = "default_seeds")]
+    pub seeds: Seeds,
+    /// Dotted paths that receive the seed.
+    #[serde(default = "default_seed_keys")]
+    pub seed_keys: Vec<String>,
+    /// Dotted path -> values; the runs are the Cartesian product (keys in sorted order).
+    #[serde(default)]
+    pub grid: toml::Table,
+}
+
+/// Seeds of a sweep.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Seeds {
+    /// `0..n`.
+    Count(u64),
+    /// These seeds.
+    List(Vec<u64>),
+}
+
+fn default_seeds() -> Seeds {
+    Seeds::Count(1)
+}
+
+fn default_seed_keys() -> Vec<String> {
+    vec!["data.seed".into()]
+}
+
+/// One run of a sweep: its grid values, seed, and what was measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SweepRun {
+    /// Index of the grid point.
+    pub point: usize,
+    /// The grid values, as TOML text, in key order.
+    pub values: Vec<String>,
+    /// Seed.
+    pub seed: u64,
+    /// The run's error, if it failed.
+    pub error: Option<String>,
+    /// Adjusted Rand index (synthetic data only).
+    pub ari: Option<f64>,
+    /// Every joint found with its type.
+    pub joints_exact: Option<bool>,
+    /// ... and every point on its body.
+    pub structure_exact: Option<bool>,
+    /// Largest axis error over the joints, degrees.
+    pub max_axis_error_deg: Option<f64>,
+    /// Largest joint-position RMS over revolute joints, radians.
+    pub max_revolute_rms_rad: Option<f64>,
+    /// Largest joint-position RMS over prismatic joints, metres.
+    pub max_prismatic_rms_m: Option<f64>,
+    /// Bodies found.
+    pub bodies: Option<usize>,
+}
+
+/// A parsed sweep: the base config (without `[sweep]`), the spec and the expanded grid.
+#[derive(Debug, Clone)]
+pub struct Sweep {
+    /// The config text's table without `[sweep]`.
+    pub base: toml::Table,
+    /// The `[sweep]` table.
+    pub spec: SweepSpec,
+    /// Grid keys, sorted.
+    pub keys: Vec<String>,
+    /// Grid points: one value per key.
+    pub points: Vec<Vec<toml::Value>>,
+}
+
+/// Whether a config text has a `[sweep]` table.
+pub fn is_sweep(text: &str) -> bool {
+    text.parse::<toml::Table>()
+        .map(|t| t.contains_key("sweep"))
+        .unwrap_or(false)
+}
+
+fn set_path(table: &mut toml::Table, path: &str, value: toml::Value) -> Result<()> {
+    let parts: Vec<&str> = path.split('.').collect();
+    let (last, head) = parts
+        .split_last()
+        .ok_or_else(|| Error::Config(format!("empty sweep key {path:?}")))?;
+    let mut t = table;
+    for p in head {
+        let entry = t
+            .entry((*p).to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        t = entry
+            .as_table_mut()
+            .ok_or_else(|| Error::Config(format!("sweep key {path:?}: {p:?} is not a table")))?;
+    }
+    t.insert((*last).to_string(), value);
+    Ok(())
+}
+
+impl Sweep {
+    /// Parses a config with a `[sweep]` table.
+    ///
+    /// # Errors
+    /// [`Error::Config`] for bad TOML, a bad `[sweep]` table, a grid value that is not a
+    /// non-empty list, or a grid point that is not a valid experiment config (unknown keys
+    /// included).
+    pub fn from_toml(text: &str) -> Result<Self> {
+        let mut base: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
+        let spec_value = base
+            .remove("sweep")
+            .ok_or_else(|| Error::Config("no [sweep] table".into()))?;
+        let spec: SweepSpec = spec_value
+            .try_into()
+            .map_err(|e: toml::de::Error| Error::Config(format!("[sweep]: {e}")))?;
+        let keys: Vec<String> = spec.grid.keys().cloned().collect();
+        let mut points: Vec<Vec<toml::Value>> = vec![Vec::new()];
+        for k in &keys {
+            let values = spec.grid[k]
+                .as_array()
+                .filter(|a| !a.is_empty())
+                .ok_or_else(|| {
+                    Error::Config(format!("[sweep.grid] {k:?} must be a non-empty list"))
+                })?;
+            points = points
+                .iter()
+                .flat_map(|p| {
+                    values.iter().map(move |v| {
+                        let mut q = p.clone();
+                        q.push(v.clone());
+                        q
+                    })
+                })
+                .collect();
+        }
+        let sweep = Self {
+            base,
+            spec,
+            keys,
+            points,
+        };
+        // Every grid point must be a valid config: fail before running anything.
+        for p in 0..sweep.points.len() {
+            sweep.config(p, 0)?;
+        }
+        Ok(sweep)
+    }
+
+    /// The seeds.
+    pub fn seeds(&self) -> Vec<u64> {
+        match &self.spec.seeds {
+            Seeds::Count(n) => (0..*n).collect(),
+            Seeds::List(v) => v.clone(),
+        }
+    }
+
+    /// The experiment config of grid point `p` with `seed`.
+    ///
+    /// # Errors
+    /// [`Error::Config`] when it is not a valid experiment config.
+    pub fn config(&self, p: usize, seed: u64) -> Result<ExperimentConfig> {
+        let mut t = self.base.clone();
+        for (k, v) in self.keys.iter().zip(&self.points[p]) {
+            set_path(&mut t, k, v.clone())?;
+        }
+        for k in &self.spec.seed_keys {
+            set_path(
+                &mut t,
+                k,
+                toml::Value::Integer(i64::try_from(seed).unwrap_or(i64::MAX)),
+            )?;
+        }
+        toml::Value::Table(t)
+            .try_into()
+            .map_err(|e: toml::de::Error| Error::Config(format!("sweep point {p}: {e}")))
+    }
+
+    /// Runs every grid point with every seed in parallel; `progress` is called after each
+    /// run with (done, total).
+    pub fn run(&self, base_dir: &Path, progress: &(dyn Fn(usize, usize) + Sync)) -> Vec<SweepRun> {
+        let seeds = self.seeds();
+        let jobs: Vec<(usize, u64)> = (0..self.points.len())
+            .flat_map(|p| seeds.iter().map(move |&s| (p, s)))
+            .collect();
+        let total = jobs.len();
+        let done = std::sync::atomic::AtomicUsize::new(0);
+        jobs.par_iter()
+            .map(|&(p, seed)| {
+                let run = self.run_one(p, seed, base_dir);
+                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress(n, total);
+                run
+            })
+            .collect()
+    }
+
+    fn run_one(&self, p: usize, seed: u64, base_dir: &Path) -> SweepRun {
+        let mut run = SweepRun {
+            point: p,
+            values: self.points[p].iter().map(|v| v.to_string()).collect(),
+            seed,
+            error: None,
+            ari: None,
+            joints_exact: None,
+            structure_exact: None,
+            max_axis_error_deg: None,
+            max_revolute_rms_rad: None,
+            max_prismatic_rms_m: None,
+            bodies: None,
+        };
+        let outcome = self
+            .config(p, seed)
+            .and_then(|c| run_experiment(&c, base_dir));
+        match outcome {
+            Err(e) => run.error = Some(e.to_string()),
+            Ok(o) => {
+                run.bodies = Some(o.discovery.model.bodies.len());
+                if let (Some(e), Some(truth)) = (&o.evaluation, &o.truth) {
+                    run.ari = Some(e.ari);
+                    run.joints_exact = Some(e.joints_exact);
+                    run.structure_exact = Some(e.structure_exact);
+                    let max = |v: Vec<f64>| v.into_iter().reduce(f64::max);
+                    run.max_axis_error_deg =
+                        max(e.joints.iter().filter_map(|j| j.axis_error_deg).collect());
+                    let revolute = |k: usize| {
+                        truth.mechanism.joints[k].joint_type == kinetree_synth::JointType::Revolute
+                    };
+                    run.max_revolute_rms_rad = max(e
+                        .joints
+                        .iter()
+                        .filter(|j| revolute(j.joint))
+                        .filter_map(|j| j.position_rms)
+                        .collect());
+                    run.max_prismatic_rms_m = max(e
+                        .joints
+                        .iter()
+                        .filter(|j| !revolute(j.joint))
+                        .filter_map(|j| j.position_rms)
+                        .collect());
+                }
+            }
+        }
+        run
+    }
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map_or(String::new(), |x| format!("{x}"))
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// `runs.csv`: one row per run, sorted by grid point and seed.
+pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
+    let mut runs: Vec<&SweepRun> = runs.iter().collect();
+    runs.sort_by_key(|r| (r.point, r.seed));
+    let mut s = String::new();
+    for k in &sweep.keys {
+        s.push_str(&csv_field(k));
+        s.push(',');
+    }
+    s.push_str("seed,error,bodies,ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m\n");
+    for r in runs {
+        for v in &r.values {
+            s.push_str(&csv_field(v));
+            s.push(',');
+        }
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{},{}",
+            r.seed,
+            csv_field(r.error.as_deref().unwrap_or("")),
+            r.bodies.map_or(String::new(), |b| b.to_string()),
+            opt(r.ari),
+            r.joints_exact.map_or(String::new(), |b| b.to_string()),
+            r.structure_exact.map_or(String::new(), |b| b.to_string()),
+            opt(r.max_axis_error_deg),
+            opt(r.max_revolute_rms_rad),
+            opt(r.max_prismatic_rms_m),
+        );
+    }
+    s
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+/// `table.md`: one row per grid point.
+pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
+    let mut s = format!(
+        "# {name}: sweep\n\n{} grid point(s) x {} seed(s). Rates over the runs of each point; medians over its runs that produced the value; errors count failed runs.\n\n",
+        sweep.points.len(),
+        sweep.seeds().len()
+    );
+    let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
+    let _ = writeln!(
+        s,
+        "| {}{}runs | errors | joints exact | structure exact | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) |",
+        head.join(" | "),
+        if head.is_empty() { "" } else { " | " }
+    );
+    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 8));
+    for p in 0..sweep.points.len() {
+        let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
+        let n = rs.len();
+        let rate = |f: &dyn Fn(&SweepRun) -> Option<bool>| {
+            let v: Vec<bool> = rs.iter().filter_map(|r| f(r)).collect();
+            if v.is_empty() {
+                "-".to_string()
+            } else {
+                format!("{}/{}", v.iter().filter(|&&b| b).count(), n)
+            }
+        };
+        let fmt =
+            |v: Option<f64>, scale: f64| v.map_or("-".into(), |x| format!("{:.3}", x * scale));
+        let aris: Vec<f64> = rs.iter().filter_map(|r| r.ari).collect();
+        let mean_ari = (!aris.is_empty()).then(|| aris.iter().sum::<f64>() / aris.len() as f64);
+        let values: Vec<String> = sweep.points[p].iter().map(|v| format!("`{v}`")).collect();
+        let _ = writeln!(
+            s,
+            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} |",
+            values.join(" | "),
+            if values.is_empty() { "" } else { " | " },
+            rs.iter().filter(|r| r.error.is_some()).count(),
+            rate(&|r| r.joints_exact),
+            rate(&|r| r.structure_exact),
+            fmt(mean_ari, 1.0),
+            fmt(
+                median(rs.iter().filter_map(|r| r.max_axis_error_deg).collect()),
+                1.0
+            ),
+            fmt(
+                median(rs.iter().filter_map(|r| r.max_revolute_rms_rad).collect()),
+                1.0
+            ),
+            fmt(
+                median(rs.iter().filter_map(|r| r.max_prismatic_rms_m).collect()),
+                1e3
+            ),
+        );
+    }
+    s
+}
+
+/// Runs a sweep and writes `resolved.toml` (the first run's config with every default filled
+/// in, and the `[sweep]` table),
+/// `runs.csv` and `table.md` under `dir`. Returns the runs.
+///
+/// # Errors
+/// [`Error::Config`] for a bad sweep, I/O errors naming the file.
+pub fn run_sweep(
+    text: &str,
+    base_dir: &Path,
+    dir: &Path,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(Sweep, Vec<SweepRun>)> {
+    let sweep = Sweep::from_toml(text)?;
+    let name = sweep.config(0, 0)?.experiment.name;
+    let runs = sweep.run(base_dir, progress);
+    std::fs::create_dir_all(dir).map_err(|e| Error::Io(e).in_file(dir))?;
+    let write = |file: &str, body: &str| -> Result<()> {
+        let p = dir.join(file);
+        std::fs::write(&p, body).map_err(|e| Error::Io(e).in_file(&p))
+    };
+    let first = sweep.config(0, sweep.seeds().first().copied().unwrap_or(0))?;
+    let mut resolved: toml::Table = first
+        .resolved_toml()?
+        .parse()
+        .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
+    resolved.insert(
+        "sweep".into(),
+        toml::Value::try_from(&sweep.spec).map_err(|e| Error::Config(e.to_string()))?,
+    );
+    write(
+        "resolved.toml",
+        &toml::to_string(&resolved).map_err(|e| Error::Config(e.to_string()))?,
+    )?;
+    write("runs.csv", &runs_csv(&sweep, &runs))?;
+    write("table.md", &table_markdown(&name, &sweep, &runs))?;
+    Ok((sweep, runs))
+}
