@@ -63,6 +63,28 @@ fn run_without_argument_prints_the_paper_structure_and_table() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("model.json")).expect("read"))
             .expect("json");
     assert_eq!(model["bodies"].as_array().map(Vec::len), Some(3));
+    // Figures: PNG and SVG of each, rendered without system fonts.
+    for name in [
+        "visibility",
+        "distance_std",
+        "dissimilarity",
+        "kinematic_graph",
+        "joint_trajectories",
+    ] {
+        let png = std::fs::read(dir.join("figures").join(format!("{name}.png"))).expect("png");
+        assert!(
+            png.starts_with(b"\x89PNG") && png.len() > 5000,
+            "{name}.png"
+        );
+        let svg =
+            std::fs::read_to_string(dir.join("figures").join(format!("{name}.svg"))).expect("svg");
+        assert!(svg.contains("<svg") && svg.contains("<text"), "{name}.svg");
+    }
+    let traj = std::fs::read_to_string(dir.join("figures/joint_trajectories.svg")).expect("svg");
+    assert!(
+        traj.contains("estimated") && traj.contains("true"),
+        "legend"
+    );
 }
 
 #[test]

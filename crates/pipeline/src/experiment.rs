@@ -11,6 +11,8 @@ use std::path::{Path, PathBuf};
 /// What an experiment produced.
 #[derive(Debug, Clone)]
 pub struct ExperimentOutcome {
+    /// The input tracks.
+    pub tracks: Tracks,
     /// The pipeline's output.
     pub discovery: Discovery,
     /// The truth, for synthetic data.
@@ -62,6 +64,7 @@ pub fn run_experiment(cfg: &ExperimentConfig, base_dir: &Path) -> Result<Experim
     let discovery = pipeline.run(&tracks)?;
     let evaluation = truth.as_ref().map(|t| evaluate(&discovery.model, t));
     Ok(ExperimentOutcome {
+        tracks,
         discovery,
         truth,
         evaluation,
@@ -98,5 +101,77 @@ pub fn write_results(
     if let Some(e) = &outcome.evaluation {
         kinetree_io::write_json(&dir.join("evaluation.json"), e)?;
     }
+    let std_m: Vec<f64> = outcome
+        .discovery
+        .stats
+        .var_m2
+        .iter()
+        .zip(&outcome.discovery.stats.count)
+        .map(|(v, &c)| if c >= 2 { v.max(0.0).sqrt() } else { f64::NAN })
+        .collect();
+    let truth_positions: Vec<Option<Vec<f64>>> = model
+        .joints
+        .iter()
+        .map(|j| {
+            outcome
+                .truth
+                .as_ref()
+                .and_then(|t| true_joint_positions(model, t, j))
+        })
+        .collect();
+    kinetree_figures::write_figures(
+        &dir.join("figures"),
+        &kinetree_figures::FigureInput {
+            tracks: &outcome.tracks,
+            model,
+            distance_std_m: &std_m,
+            dissimilarity: &outcome.discovery.dissimilarity.values,
+            measure: &outcome.discovery.dissimilarity.measure,
+            true_positions: &truth_positions,
+        },
+    )?;
     Ok(())
+}
+
+/// The true positions of the joint that carries the true body holding most of `j.child`'s
+/// points, with the sign and offset that best match `j.positions`.
+fn true_joint_positions(
+    model: &kinetree_core::Model,
+    truth: &GroundTruth,
+    j: &kinetree_core::model::Joint,
+) -> Option<Vec<f64>> {
+    let mut votes = vec![0usize; truth.n_bodies()];
+    for &p in &model.bodies.get(j.child)?.points {
+        votes[*truth.point_body.get(p)?] += 1;
+    }
+    let body = (0..votes.len()).max_by_key(|&b| (votes[b], std::cmp::Reverse(b)))?;
+    let k = truth
+        .mechanism
+        .joints
+        .iter()
+        .position(|tj| tj.child == body)?;
+    let q = truth.joint_positions.get(k)?;
+    let pairs: Vec<(f64, f64)> = j
+        .positions
+        .iter()
+        .zip(q)
+        .filter_map(|(e, &t)| e.map(|e| (e, t)))
+        .collect();
+    if pairs.is_empty() {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let fit = |s: f64| {
+        let offset = pairs.iter().map(|(e, t)| e - s * t).sum::<f64>() / n;
+        let err = pairs
+            .iter()
+            .map(|(e, t)| (e - s * t - offset).powi(2))
+            .sum::<f64>();
+        (err, offset)
+    };
+    let (s, (_, offset)) = [1.0, -1.0]
+        .into_iter()
+        .map(|s| (s, fit(s)))
+        .min_by(|a, b| a.1.0.total_cmp(&b.1.0))?;
+    Some(q.iter().map(|t| s * t + offset).collect())
 }
