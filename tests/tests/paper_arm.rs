@@ -164,3 +164,19 @@ fn segmentation_diagnostics_on_the_paper_arm() {
         assert!(p90 >= median && p90 <= 1.0);
     }
 }
+
+/// The committed expected output is what the embedded experiment writes, byte for byte.
+#[test]
+fn table_md_matches_the_committed_expected_output() {
+    let cfg = ExperimentConfig::from_toml(PAPER_EXPERIMENT_TOML).expect("parses");
+    let out = run_experiment(&cfg, Path::new(".")).expect("runs");
+    let dir = std::env::temp_dir().join(format!("kinetree-expected-{}", std::process::id()));
+    kinetree_pipeline::write_results(&cfg, &out, &dir).expect("writes");
+    let ours = std::fs::read_to_string(dir.join("table.md")).expect("table.md");
+    let expected = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../experiments/paper-table1/expected-table.md"),
+    )
+    .expect("expected-table.md");
+    assert_eq!(ours, expected);
+    assert!(ours.contains("The paper's Table I, as printed"));
+}
