@@ -14,6 +14,10 @@ fn tomls(dir: &Path, out: &mut Vec<PathBuf>) {
     entries.sort();
     for p in entries {
         if p.is_dir() {
+            // `results/` holds outputs (a sweep's resolved.toml), not configs.
+            if p.file_name().is_some_and(|n| n == "results") {
+                continue;
+            }
             tomls(&p, out);
         } else if p.extension().is_some_and(|e| e == "toml") {
             out.push(p);
