@@ -19,6 +19,11 @@ fn tracks() -> Tracks {
 }
 
 fn valid_bytes(ext: &str) -> Vec<u8> {
+    if ext == "c3d" {
+        let real = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../experiments/real/data/c3dorg-fullbody-triads/pc_real.c3d");
+        return std::fs::read(real).expect("read");
+    }
     let p = tmp(&format!("valid.{ext}"));
     match ext {
         "npy" => kinetree_io::write_npy(&p, &tracks()).expect("write"),
@@ -76,7 +81,7 @@ proptest! {
 
     #[test]
     fn damaged_valid_files_never_panic(
-        ext in prop::sample::select(vec!["npy", "csv", "json"]),
+        ext in prop::sample::select(vec!["npy", "csv", "json", "c3d"]),
         cut in 0usize..200_000,
         flips in proptest::collection::vec((0usize..200_000, any::<u8>()), 0..6),
     ) {

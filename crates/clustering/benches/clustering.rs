@@ -40,44 +40,33 @@ fn matrix(n: usize, unknown: f64) -> DissimilarityMatrix {
     }
 }
 
-#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
-fn hierarchical_average(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
+/// Times `stage` on the matrix for `(n, unknown)`; the clustering must succeed.
+fn time_stage(bencher: divan::Bencher, stage: &dyn Clustering, (n, unknown): (usize, f64)) {
     let m = matrix(n, unknown);
+    bencher.bench(|| {
+        stage
+            .cluster(&ClusteringInput {
+                dissimilarity: &m,
+                seed: 0,
+            })
+            .expect("clusters")
+    });
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn hierarchical_average(bencher: divan::Bencher, &args: &(usize, f64)) {
     let stage = Hierarchical::new(HierarchicalParams::default()).expect("params");
-    bencher.bench(|| {
-        stage
-            .cluster(&ClusteringInput {
-                dissimilarity: &m,
-                seed: 0,
-            })
-            .expect("clusters")
-    });
+    time_stage(bencher, &stage, args);
 }
 
 #[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
-fn dbscan(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
-    let m = matrix(n, unknown);
+fn dbscan(bencher: divan::Bencher, &args: &(usize, f64)) {
     let stage = Dbscan::new(DbscanParams::default()).expect("params");
-    bencher.bench(|| {
-        stage
-            .cluster(&ClusteringInput {
-                dissimilarity: &m,
-                seed: 0,
-            })
-            .expect("clusters")
-    });
+    time_stage(bencher, &stage, args);
 }
 
 #[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
-fn spectral(bencher: divan::Bencher, &(n, unknown): &(usize, f64)) {
-    let m = matrix(n, unknown);
+fn spectral(bencher: divan::Bencher, &args: &(usize, f64)) {
     let stage = Spectral::new(SpectralParams::default()).expect("params");
-    bencher.bench(|| {
-        stage
-            .cluster(&ClusteringInput {
-                dissimilarity: &m,
-                seed: 0,
-            })
-            .expect("clusters")
-    });
+    time_stage(bencher, &stage, args);
 }

@@ -134,12 +134,7 @@ impl Clustering for Dbscan {
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
         let m = input.dissimilarity;
         let n = m.n_points;
-        if m.values.len() != kinetree_core::n_pairs(n) {
-            return Err(Error::Shape {
-                expected: format!("{} condensed values", kinetree_core::n_pairs(n)),
-                found: format!("{}", m.values.len()),
-            });
-        }
+        crate::check_matrix(m)?;
         let eps = self.params.eps.unwrap_or(m.suggested_cut);
         let (filled, has_known) = crate::fill_unknown(m);
         let neighbours: Vec<Vec<usize>> = (0..n)

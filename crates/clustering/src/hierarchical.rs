@@ -131,18 +131,7 @@ impl Clustering for Hierarchical {
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
         let m = input.dissimilarity;
-        if m.values.len() != kinetree_core::n_pairs(m.n_points) {
-            return Err(Error::Shape {
-                expected: format!("{} condensed values", kinetree_core::n_pairs(m.n_points)),
-                found: format!("{}", m.values.len()),
-            });
-        }
-        if m.values.iter().any(|v| v.is_infinite()) {
-            return Err(Error::InvalidParameter {
-                name: "dissimilarity".into(),
-                message: "contains infinite values".into(),
-            });
-        }
+        crate::check_matrix(m)?;
         let (filled, has_known) = fill_unknown(m);
         // Cluster only points with at least one known pair.
         let keep: Vec<usize> = (0..m.n_points).filter(|&i| has_known[i]).collect();

@@ -141,18 +141,7 @@ impl Clustering for Spectral {
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
         let m = input.dissimilarity;
         let n = m.n_points;
-        if m.values.len() != kinetree_core::n_pairs(n) {
-            return Err(Error::Shape {
-                expected: format!("{} condensed values", kinetree_core::n_pairs(n)),
-                found: format!("{}", m.values.len()),
-            });
-        }
-        if m.values.iter().any(|v| v.is_infinite()) {
-            return Err(Error::InvalidParameter {
-                name: "dissimilarity".into(),
-                message: "contains infinite values".into(),
-            });
-        }
+        crate::check_matrix(m)?;
         let cut = self.params.cut.unwrap_or(m.suggested_cut);
         if !(cut.is_finite() && cut > 0.0) {
             return Err(Error::InvalidParameter {
