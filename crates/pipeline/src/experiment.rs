@@ -88,7 +88,8 @@ in size; the rotation values (one per moving pair) are of the same order: 18.9, 
 in the paper. See experiments/paper-table1/README.md.
 ";
 
-/// Writes `resolved.toml`, `model.json`, `table.md` and, for synthetic data,
+/// Writes `resolved.toml`, `model.json`, `table.md` (with the paper's printed Table I for the
+/// paper arm), `figures/` ([`kinetree_figures::write_figures`]) and, for synthetic data,
 /// `evaluation.json` under `dir`.
 ///
 /// # Errors
