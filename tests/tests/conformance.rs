@@ -84,6 +84,13 @@ fn clusterers_conform() {
 fn pose_estimators_conform() {
     let v = check_pose(&KabschPoses::new(KabschParams::default()).expect("params"));
     assert!(v.is_empty(), "{v:?}");
+    let robust = KabschPoses::new(KabschParams {
+        outlier_in_sigma: Some(5.0),
+        ..KabschParams::default()
+    })
+    .expect("params");
+    let v = check_pose(&robust);
+    assert!(v.is_empty(), "{v:?}");
 }
 
 #[test]

@@ -17,13 +17,23 @@ pub struct KabschParams {
     /// A frame's visible points must spread at least this many noise std-devs along their
     /// second principal axis, else they count as collinear and the frame gets no pose.
     pub min_spread_in_sigma: f64,
+    /// Robust fitting: the point with the largest residual, if above this many noise
+    /// std-devs (per coordinate, so `sqrt 3` of them is typical), is left out of its frame's
+    /// fit and of the shape, and the frame is refitted, up to [`ROBUST_ROUNDS`] points per
+    /// frame. `None` (the default) fits every visible point. Survives mistracked keypoints as
+    /// long as three good, non-collinear points remain in the frame.
+    pub outlier_in_sigma: Option<f64>,
 }
+
+/// Most points left out per frame in the robust mode.
+pub const ROBUST_ROUNDS: usize = 4;
 
 impl Default for KabschParams {
     fn default() -> Self {
         Self {
             shape_passes: 4,
             min_spread_in_sigma: 1.0,
+            outlier_in_sigma: None,
         }
     }
 }
@@ -38,6 +48,14 @@ impl KabschParams {
             return Err(Error::InvalidParameter {
                 name: "shape_passes".into(),
                 message: "must be at least 1".into(),
+            });
+        }
+        if let Some(k) = self.outlier_in_sigma
+            && !(k.is_finite() && k > 0.0)
+        {
+            return Err(Error::InvalidParameter {
+                name: "outlier_in_sigma".into(),
+                message: format!("must be finite and positive, got {k}"),
             });
         }
         if !(self.min_spread_in_sigma.is_finite() && self.min_spread_in_sigma >= 0.0) {
@@ -102,25 +120,55 @@ impl KabschPoses {
                 shape[k] = Some(q);
             }
         }
-        let fit = |shape: &[Option<Point3<f64>>], t: usize| -> Option<Isometry3<f64>> {
-            let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = obs[t]
-                .iter()
-                .filter_map(|&(k, q)| shape[k].map(|s| (s, q)))
-                .unzip();
-            if !usable(&src) {
-                return None;
+        // The pose of frame `t` against `shape`, and which of `obs[t]` it used (all placed
+        // points, or in the robust mode those within the outlier bound of the final fit).
+        let outlier = self.params.outlier_in_sigma.map(|k| k * sigma.max(1e-12));
+        let fit_with = |shape: &[Option<Point3<f64>>], t: usize| {
+            let mut used: Vec<bool> = obs[t].iter().map(|&(k, _)| shape[k].is_some()).collect();
+            let mut pose = None;
+            for _ in 0..=outlier.map_or(0, |_| ROBUST_ROUNDS) {
+                let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = obs[t]
+                    .iter()
+                    .zip(&used)
+                    .filter(|(_, u)| **u)
+                    .filter_map(|(&(k, q), _)| shape[k].map(|s| (s, q)))
+                    .unzip();
+                if !usable(&src) {
+                    break;
+                }
+                pose = kabsch(&src, &dst);
+                let (Some(p), Some(bound)) = (pose, outlier) else {
+                    break;
+                };
+                // Leave out the worst point if it is beyond the bound, then refit: one at a
+                // time, because a gross outlier drags the first fit and pushes good points'
+                // residuals over the bound too.
+                let worst = obs[t]
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| used[*i])
+                    .filter_map(|(i, &(k, q))| shape[k].map(|s| (i, (p * s - q).norm())))
+                    .max_by(|a, b| a.1.total_cmp(&b.1));
+                match worst {
+                    Some((i, r)) if r > bound => used[i] = false,
+                    _ => break,
+                }
             }
-            kabsch(&src, &dst)
+            pose.map(|p| (p, used))
         };
+        let fit = |shape: &[Option<Point3<f64>>], t: usize| fit_with(shape, t).map(|f| f.0);
         for _ in 0..self.params.shape_passes {
             let mut sums = vec![kinetree_core::nalgebra::Vector3::zeros(); nb];
             let mut counts = vec![0usize; nb];
             for &t in &order {
-                if let Some(pose) = fit(&shape, t) {
+                if let Some((pose, used)) = fit_with(&shape, t) {
                     let inv = pose.inverse();
-                    for &(k, q) in &obs[t] {
-                        sums[k] += (inv * q).coords;
-                        counts[k] += 1;
+                    // Unplaced points join the shape here; robustly rejected ones do not.
+                    for (&(k, q), u) in obs[t].iter().zip(&used) {
+                        if *u || shape[k].is_none() {
+                            sums[k] += (inv * q).coords;
+                            counts[k] += 1;
+                        }
                     }
                 }
             }
@@ -164,6 +212,14 @@ impl KabschPoses {
                     degenerate += 1;
                 }
                 continue;
+            };
+            // In the robust mode the quality describes the points the fit kept.
+            let vis: Vec<(Point3<f64>, Point3<f64>)> = match outlier {
+                Some(bound) => vis
+                    .into_iter()
+                    .filter(|(s, q)| (pose * s - q).norm() <= bound)
+                    .collect(),
+                None => vis,
             };
             let src: Vec<Point3<f64>> = vis.iter().map(|v| v.0).collect();
             let n = src.len() as f64;
