@@ -163,39 +163,9 @@ fn hard_cases_with_every_clusterer() {
     }
 }
 
-/// Eight points of one rigid body tumbling through 2 rad, with 1 mm noise from a fixed seed.
+/// The shared tumbling body with 1 mm noise and a clean track.
 fn one_tumbling_body(frames: usize) -> Vec<f64> {
-    use kinetree_core::nalgebra::{Point3, UnitQuaternion, Vector3};
-    let body = [
-        [0.0, 0.0, 0.0],
-        [0.2, 0.0, 0.0],
-        [0.0, 0.15, 0.0],
-        [0.0, 0.0, 0.1],
-        [0.2, 0.15, 0.0],
-        [0.2, 0.0, 0.1],
-        [0.0, 0.15, 0.1],
-        [0.1, 0.07, 0.05],
-    ];
-    // Gaussian noise, std 1 mm: xorshift64* and Box-Muller from a fixed state.
-    let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
-    let mut uniform = move || {
-        state ^= state >> 12;
-        state ^= state << 25;
-        state ^= state >> 27;
-        ((state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
-    let mut gauss =
-        move || (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos();
-    let mut xyz = Vec::new();
-    for t in 0..frames {
-        let s = t as f64 / frames as f64;
-        let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.3, 1.0, 0.2).normalize() * 2.0 * s);
-        for p in &body {
-            let q = r * Point3::from(*p) + Vector3::new(0.1 * s, 0.0, 1.5);
-            xyz.extend(q.iter().map(|v| v + 0.001 * gauss()));
-        }
-    }
-    xyz
+    kinetree_tests::tumbling_body(frames, 0.001, 7, |_, _| Default::default()).0
 }
 
 #[test]

@@ -290,44 +290,15 @@ fn the_rank_checked_kabsch_rejects_collinear_points() {
 fn robust_poses_survive_a_mistracked_keypoint() {
     use kinetree_core::{PoseEstimator, PoseInput, Segmentation};
     use kinetree_pose::{KabschParams, KabschPoses};
-    let body = [
-        [0.0, 0.0, 0.0],
-        [0.2, 0.0, 0.0],
-        [0.0, 0.15, 0.0],
-        [0.0, 0.0, 0.1],
-        [0.2, 0.15, 0.0],
-        [0.2, 0.0, 0.1],
-        [0.0, 0.15, 0.1],
-        [0.1, 0.07, 0.05],
-    ];
-    let mut state: u64 = 0x2545_F491_4F6C_DD1D;
-    let mut gauss = move || {
-        let mut u = || {
-            state ^= state >> 12;
-            state ^= state << 25;
-            state ^= state >> 27;
-            ((state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos()
-    };
     let frames = 80;
-    let truth: Vec<UnitQuaternion<f64>> = (0..frames)
-        .map(|t| {
-            UnitQuaternion::from_scaled_axis(
-                Vector3::new(0.3, 1.0, 0.2).normalize() * 2.0 * t as f64 / frames as f64,
-            )
-        })
-        .collect();
-    let mut xyz = Vec::new();
-    for (t, r) in truth.iter().enumerate() {
-        for (k, p) in body.iter().enumerate() {
-            let mut q = r * Point3::from(*p) + Vector3::new(0.0, 0.0, 1.5);
-            if k == 3 && t % 4 == 1 {
-                q.x += 0.04;
-            }
-            xyz.extend(q.iter().map(|v| v + 0.001 * gauss()));
+    // Keypoint 3 jumps 4 cm along x in frames 1, 5, 9, ...
+    let (xyz, truth) = kinetree_tests::tumbling_body(frames, 0.001, 3, |t, k| {
+        if k == 3 && t % 4 == 1 {
+            Vector3::new(0.04, 0.0, 0.0)
+        } else {
+            Vector3::zeros()
         }
-    }
+    });
     let tracks = Tracks::new(frames, 8, xyz).expect("valid");
     let seg = Segmentation::from_raw(&[Some(0); 8], 3);
     // Rotation error (deg) relative to frame 0 at every frame.
