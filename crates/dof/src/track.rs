@@ -135,21 +135,13 @@ pub fn fit_point_track(samples: &[Point3<f64>]) -> Result<TrackFit> {
     };
     if circle_rms * CIRCLE_GAIN <= line_rms {
         let centre = mean + u * centre2.x + v * centre2.y;
-        let mut angles: Vec<f64> = plane
+        let mut angles: Vec<Option<f64>> = plane
             .iter()
-            .map(|q| (q.y - centre2.y).atan2(q.x - centre2.x))
+            .map(|q| Some((q.y - centre2.y).atan2(q.x - centre2.x)))
             .collect();
-        // Unwrap, then measure from the first sample.
-        for k in 1..angles.len() {
-            let mut d = angles[k] - angles[k - 1];
-            while d > std::f64::consts::PI {
-                d -= std::f64::consts::TAU;
-            }
-            while d < -std::f64::consts::PI {
-                d += std::f64::consts::TAU;
-            }
-            angles[k] = angles[k - 1] + d;
-        }
+        kinetree_core::geom::unwrap_angles(&mut angles);
+        let angles: Vec<f64> = angles.into_iter().flatten().collect();
+        // Measured from the first sample.
         let a0 = angles[0];
         let positions: Vec<f64> = angles.iter().map(|a| a - a0).collect();
         let (lo, hi) = positions
