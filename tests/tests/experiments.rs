@@ -96,7 +96,7 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
         "{data}"
     );
     let dir = std::env::temp_dir().join(format!("kinetree-sweep-{}", std::process::id()));
-    let (sweep, runs) = run_sweep(SWEEP, Path::new("."), &dir, &|_, _| {}).expect("runs");
+    let runs = run_sweep(&sweep, Path::new("."), &dir, &|_, _| {}).expect("runs");
     assert_eq!(runs.len(), 8);
     assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
     let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
@@ -110,7 +110,7 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
         "{resolved}"
     );
     // Same seeds, same runs: the sweep is deterministic whatever the thread order.
-    let (_, again) = run_sweep(SWEEP, Path::new("."), &dir, &|_, _| {}).expect("runs");
+    let again = run_sweep(&sweep, Path::new("."), &dir, &|_, _| {}).expect("runs");
     assert_eq!(runs_csv(&sweep, &again), csv);
 }
 

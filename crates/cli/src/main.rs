@@ -208,7 +208,7 @@ fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Resu
     let where_ = || config.map_or("the config".into(), |p| p.display().to_string());
     let parsed = kinetree_pipeline::sweep::Sweep::from_toml(text)
         .with_context(|| format!("in {}", where_()))?;
-    let name = parsed.config(0, 0)?.experiment.name;
+    let name = parsed.name()?;
     let dir = results.join(&name);
     let progress = |done: usize, total: usize| {
         let width = 40;
@@ -225,9 +225,9 @@ fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Resu
         }
         let _ = err.flush();
     };
-    let (sweep, runs) = kinetree_pipeline::sweep::run_sweep(text, base, &dir, &progress)?;
+    let runs = kinetree_pipeline::sweep::run_sweep(&parsed, base, &dir, &progress)?;
     emit(&kinetree_pipeline::sweep::table_markdown(
-        &name, &sweep, &runs,
+        &name, &parsed, &runs,
     ));
     emitln!("wrote {}", dir.display());
     Ok(())

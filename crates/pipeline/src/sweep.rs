@@ -176,6 +176,14 @@ impl Sweep {
         Ok(sweep)
     }
 
+    /// The experiment's name (`[experiment] name`), where its results go.
+    ///
+    /// # Errors
+    /// As [`Sweep::config`] (never after [`Sweep::from_toml`] succeeded).
+    pub fn name(&self) -> Result<String> {
+        Ok(self.config(0, 0)?.experiment.name)
+    }
+
     /// The seeds.
     pub fn seeds(&self) -> Vec<u64> {
         match &self.spec.seeds {
@@ -383,20 +391,19 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     s
 }
 
-/// Runs a sweep and writes `resolved.toml` (the first run's config with every default filled
-/// in, and the `[sweep]` table),
-/// `runs.csv` and `table.md` under `dir`. Returns the runs.
+/// Runs a parsed sweep and writes `resolved.toml` (the first run's config with every default
+/// filled in, and the `[sweep]` table), `runs.csv` and `table.md` under `dir`. Returns the
+/// runs.
 ///
 /// # Errors
-/// [`Error::Config`] for a bad sweep, I/O errors naming the file.
+/// [`Error::Config`] when the resolved config cannot be written, I/O errors naming the file.
 pub fn run_sweep(
-    text: &str,
+    sweep: &Sweep,
     base_dir: &Path,
     dir: &Path,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<(Sweep, Vec<SweepRun>)> {
-    let sweep = Sweep::from_toml(text)?;
-    let name = sweep.config(0, 0)?.experiment.name;
+) -> Result<Vec<SweepRun>> {
+    let name = sweep.name()?;
     let runs = sweep.run(base_dir, progress);
     std::fs::create_dir_all(dir).map_err(|e| Error::Io(e).in_file(dir))?;
     let write = |file: &str, body: &str| -> Result<()> {
@@ -416,7 +423,7 @@ pub fn run_sweep(
         "resolved.toml",
         &toml::to_string(&resolved).map_err(|e| Error::Config(e.to_string()))?,
     )?;
-    write("runs.csv", &runs_csv(&sweep, &runs))?;
-    write("table.md", &table_markdown(&name, &sweep, &runs))?;
-    Ok((sweep, runs))
+    write("runs.csv", &runs_csv(sweep, &runs))?;
+    write("table.md", &table_markdown(&name, sweep, &runs))?;
+    Ok(runs)
 }
