@@ -3,7 +3,7 @@
 pub mod conformance;
 mod truth;
 
-pub use truth::{Evaluation, JointEval, ambiguous_points, evaluate, identifiable_ari};
+pub use truth::{Evaluation, JointEval, ambiguous_points, body_map, evaluate, identifiable_ari};
 
 use nalgebra::{Point3, Vector3};
 
@@ -74,10 +74,21 @@ pub fn point_line_distance(
     (v - d * v.dot(&d)).norm()
 }
 
-/// RMS difference between an estimated joint trajectory and the truth after the best sign
-/// (+1 or -1) and constant offset, over frames where the estimate is known. `None` when no
-/// frame is known.
-pub fn aligned_rms(estimate: &[Option<f64>], truth: &[f64]) -> Option<f64> {
+/// How an estimated joint trajectory lines up with the truth: `truth ~ sign * estimate +
+/// offset`, with the sign (+1 or -1) and offset that minimise the RMS difference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Alignment {
+    /// +1 or -1.
+    pub sign: f64,
+    /// Constant offset, in the truth's units.
+    pub offset: f64,
+    /// RMS difference after the alignment.
+    pub rms: f64,
+}
+
+/// The best [`Alignment`] over the frames where the estimate is known (+1 wins a tie). `None`
+/// when no frame is known.
+pub fn alignment(estimate: &[Option<f64>], truth: &[f64]) -> Option<Alignment> {
     let pairs: Vec<(f64, f64)> = estimate
         .iter()
         .zip(truth)
@@ -89,16 +100,24 @@ pub fn aligned_rms(estimate: &[Option<f64>], truth: &[f64]) -> Option<f64> {
     let n = pairs.len() as f64;
     [1.0, -1.0]
         .iter()
-        .map(|s| {
-            let offset = pairs.iter().map(|(e, t)| t - s * e).sum::<f64>() / n;
-            (pairs
+        .map(|&sign| {
+            let offset = pairs.iter().map(|(e, t)| t - sign * e).sum::<f64>() / n;
+            let rms = (pairs
                 .iter()
-                .map(|(e, t)| (t - s * e - offset).powi(2))
+                .map(|(e, t)| (t - sign * e - offset).powi(2))
                 .sum::<f64>()
                 / n)
-                .sqrt()
+                .sqrt();
+            Alignment { sign, offset, rms }
         })
-        .min_by(f64::total_cmp)
+        .min_by(|a, b| a.rms.total_cmp(&b.rms))
+}
+
+/// RMS difference between an estimated joint trajectory and the truth after the best sign
+/// (+1 or -1) and constant offset, over frames where the estimate is known. `None` when no
+/// frame is known.
+pub fn aligned_rms(estimate: &[Option<f64>], truth: &[f64]) -> Option<f64> {
+    alignment(estimate, truth).map(|a| a.rms)
 }
 
 #[cfg(test)]

@@ -45,8 +45,8 @@ pub struct Evaluation {
     pub joints: Vec<JointEval>,
 }
 
-/// The true body holding most of each model body's points.
-fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
+/// The true body holding most of each model body's points (the lower id on a tie).
+pub fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
     model
         .bodies
         .iter()

@@ -130,16 +130,17 @@ pub fn write_results(
         .zip(&outcome.discovery.stats.count)
         .map(|(v, &c)| if c >= 2 { v.max(0.0).sqrt() } else { f64::NAN })
         .collect();
-    let truth_positions: Vec<Option<Vec<f64>>> = model
-        .joints
-        .iter()
-        .map(|j| {
-            outcome
-                .truth
-                .as_ref()
-                .and_then(|t| true_joint_positions(model, t, j))
-        })
-        .collect();
+    let truth_positions: Vec<Option<Vec<f64>>> = match &outcome.truth {
+        Some(t) => {
+            let map = kinetree_eval::body_map(model, t);
+            model
+                .joints
+                .iter()
+                .map(|j| true_joint_positions(t, &map, j))
+                .collect()
+        }
+        None => vec![None; model.joints.len()],
+    };
     kinetree_figures::write_figures(
         &dir.join("figures"),
         &kinetree_figures::FigureInput {
@@ -155,44 +156,20 @@ pub fn write_results(
 }
 
 /// The true positions of the joint that carries the true body holding most of `j.child`'s
-/// points, with the sign and offset that best match `j.positions`.
+/// points (`map`, from [`kinetree_eval::body_map`]), put on the estimate's sign and offset.
 fn true_joint_positions(
-    model: &kinetree_core::Model,
     truth: &GroundTruth,
+    map: &[usize],
     j: &kinetree_core::model::Joint,
 ) -> Option<Vec<f64>> {
-    let mut votes = vec![0usize; truth.n_bodies()];
-    for &p in &model.bodies.get(j.child)?.points {
-        votes[*truth.point_body.get(p)?] += 1;
-    }
-    let body = (0..votes.len()).max_by_key(|&b| (votes[b], std::cmp::Reverse(b)))?;
+    let body = *map.get(j.child)?;
     let k = truth
         .mechanism
         .joints
         .iter()
         .position(|tj| tj.child == body)?;
     let q = truth.joint_positions.get(k)?;
-    let pairs: Vec<(f64, f64)> = j
-        .positions
-        .iter()
-        .zip(q)
-        .filter_map(|(e, &t)| e.map(|e| (e, t)))
-        .collect();
-    if pairs.is_empty() {
-        return None;
-    }
-    let n = pairs.len() as f64;
-    let fit = |s: f64| {
-        let offset = pairs.iter().map(|(e, t)| e - s * t).sum::<f64>() / n;
-        let err = pairs
-            .iter()
-            .map(|(e, t)| (e - s * t - offset).powi(2))
-            .sum::<f64>();
-        (err, offset)
-    };
-    let (s, (_, offset)) = [1.0, -1.0]
-        .into_iter()
-        .map(|s| (s, fit(s)))
-        .min_by(|a, b| a.1.0.total_cmp(&b.1.0))?;
-    Some(q.iter().map(|t| s * t + offset).collect())
+    // truth ~ sign * estimate + offset, so estimate ~ sign * (truth - offset).
+    let a = kinetree_eval::alignment(&j.positions, q)?;
+    Some(q.iter().map(|t| a.sign * (t - a.offset)).collect())
 }
