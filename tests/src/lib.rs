@@ -42,3 +42,31 @@ pub fn tumbling_body(
     }
     (xyz, rotations)
 }
+
+/// The folders of the five real C3D recordings under `experiments/real/data`.
+pub const RECORDINGS: [&str; 5] = [
+    "c3dorg-fullbody-triads",
+    "c3dorg-qualisys-walk",
+    "ktk-wheelchair-racing",
+    "ktk-wheelchair-sprint",
+    "ktk-tennis-serve",
+];
+
+/// `experiments/real/data/<folder>` in the repository.
+pub fn real_data(folder: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../experiments/real/data")
+        .join(folder)
+}
+
+/// The `.c3d` file in [`real_data`]`(folder)`.
+///
+/// # Panics
+/// When the folder cannot be read or holds no `.c3d` file (a broken checkout).
+pub fn real_c3d(folder: &str) -> std::path::PathBuf {
+    std::fs::read_dir(real_data(folder))
+        .expect("a data folder of experiments/real")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| p.extension().is_some_and(|e| e == "c3d"))
+        .expect("a .c3d file")
+}

@@ -2,30 +2,7 @@
 //! every processor and data format, and damaged files (random damage is in fuzz.rs).
 
 use kinetree_io::{c3d_tracks, read_c3d, read_npy};
-use std::path::{Path, PathBuf};
-
-fn data(dir: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../experiments/real/data")
-        .join(dir)
-}
-
-fn c3d_in(dir: &str) -> PathBuf {
-    let d = data(dir);
-    std::fs::read_dir(&d)
-        .expect("data folder")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .find(|p| p.extension().is_some_and(|e| e == "c3d"))
-        .expect("a .c3d file")
-}
-
-const RECORDINGS: [&str; 5] = [
-    "c3dorg-fullbody-triads",
-    "c3dorg-qualisys-walk",
-    "ktk-tennis-serve",
-    "ktk-wheelchair-racing",
-    "ktk-wheelchair-sprint",
-];
+use kinetree_tests::{RECORDINGS, real_c3d as c3d_in, real_data as data};
 
 #[test]
 fn every_real_recording_reads_with_its_labels() {

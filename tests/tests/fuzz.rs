@@ -20,9 +20,7 @@ fn tracks() -> Tracks {
 
 fn valid_bytes(ext: &str) -> Vec<u8> {
     if ext == "c3d" {
-        let real = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../experiments/real/data/c3dorg-fullbody-triads/pc_real.c3d");
-        return std::fs::read(real).expect("read");
+        return std::fs::read(kinetree_tests::real_c3d("c3dorg-fullbody-triads")).expect("read");
     }
     let p = tmp(&format!("valid.{ext}"));
     match ext {

@@ -26,13 +26,8 @@ struct Outcome {
 }
 
 fn run(folder: &'static str) -> Outcome {
-    let dir = root().join("data").join(folder);
-    let file = std::fs::read_dir(&dir)
-        .expect("folder")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .find(|p| p.extension().is_some_and(|e| e == "c3d"))
-        .expect("c3d");
-    let tracks = kinetree_io::read_c3d(&file).expect("read");
+    let dir = kinetree_tests::real_data(folder);
+    let tracks = kinetree_io::read_c3d(&kinetree_tests::real_c3d(folder)).expect("read");
     let cfg = kinetree_pipeline::config::pipeline_from_toml(
         &std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml"),
     )
@@ -76,17 +71,9 @@ fn run(folder: &'static str) -> Outcome {
     }
 }
 
-const FOLDERS: [&str; 5] = [
-    "c3dorg-fullbody-triads",
-    "c3dorg-qualisys-walk",
-    "ktk-wheelchair-racing",
-    "ktk-wheelchair-sprint",
-    "ktk-tennis-serve",
-];
-
 #[test]
 fn real_recordings_segment_into_their_labelled_segments() {
-    let outcomes: Vec<Outcome> = FOLDERS.iter().map(|f| run(f)).collect();
+    let outcomes: Vec<Outcome> = kinetree_tests::RECORDINGS.iter().map(|f| run(f)).collect();
     let mut table = String::from(
         "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
     );
