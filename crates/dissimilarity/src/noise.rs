@@ -143,7 +143,7 @@ pub fn estimate_noise_sigma_nearest_rigid(stats: &PairStats) -> Result<f64> {
         .filter_map(|i| {
             let mut s: Vec<f64> = (0..n)
                 .filter(|&j| j != i)
-                .map(|j| condensed_index(n, i.min(j), i.max(j)))
+                .map(|j| condensed_index(n, i, j))
                 .filter(|&k| stats.count[k] >= 3 && stats.var_m2[k].is_finite())
                 .map(|k| stats.var_m2[k].max(0.0).sqrt())
                 .collect();

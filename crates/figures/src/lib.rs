@@ -81,12 +81,12 @@ fn body_order(model: &Model) -> Vec<usize> {
     order
 }
 
+/// Entry `(i, j)` of a condensed matrix over `n` points: 0 on the diagonal, NaN if missing.
 fn condensed(v: &[f64], n: usize, i: usize, j: usize) -> f64 {
     if i == j {
         return 0.0;
     }
-    let (a, b) = (i.min(j), i.max(j));
-    v.get(a * n - a * (a + 1) / 2 + b - a - 1)
+    v.get(kinetree_core::condensed_index(n, i, j))
         .copied()
         .unwrap_or(f64::NAN)
 }
