@@ -1,9 +1,11 @@
 //! Relative degree-of-freedom tests between bodies and the camera frame.
 
+mod axis;
 mod rank;
 mod tester;
 mod track;
 
+pub use axis::fixed_axis;
 pub use rank::{RankRule, chi2_per_dof_quantile, mahalanobis_line, rank_test, weighted_direction};
 pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
 pub use track::{CIRCLE_GAIN, TrackFit, TrackJoint, fit_point_track};

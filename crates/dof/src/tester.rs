@@ -1,5 +1,6 @@
 //! The DoF testers: relative-motion columns with their noise, rank rules, joint typing.
 
+use crate::axis::fixed_axis;
 use crate::rank::{RankRule, rank_test, weighted_direction};
 use kinetree_core::geom::{angle_about, canonical_sign, log_so3, relative_poses};
 use kinetree_core::nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
@@ -21,6 +22,9 @@ struct PairColumns {
     rot: Vec<Vector3<f64>>,
     rot_cov: Vec<Matrix3<f64>>,
     q_rel: Vec<UnitQuaternion<f64>>,
+    /// Covariance of every frame's relative rotation `a_from_b` itself (rad^2, in `a`'s
+    /// frame), before the reference frame enters.
+    rel_rot_cov: Vec<Matrix3<f64>>,
     y_ref: Vector3<f64>,
     /// Per frame: `a_from_b` (rotation, translation) and the body-frame (rotation, origin)
     /// covariances of `a` and `b` (m^2, rad^2), for the reference-free pivot test.
@@ -119,6 +123,7 @@ fn pair_columns(
     let reference_frame = frames[r];
     let x_ref = x[reference_frame].ok_or_else(|| Error::Numerical("lost reference pose".into()))?;
     let y_ref = x_ref.translation.vector;
+    let rel_rot_cov = rot_cov.clone();
     let mut u = Vec::with_capacity(frames.len());
     let mut rot = Vec::with_capacity(frames.len());
     let mut q_rel = Vec::with_capacity(frames.len());
@@ -146,6 +151,7 @@ fn pair_columns(
         rot,
         rot_cov,
         q_rel,
+        rel_rot_cov,
         y_ref,
         x_abs,
         a_cov,
@@ -268,8 +274,11 @@ fn classify(
             }
         }
         1 => {
+            let log_axis = weighted_direction(&c.rot, &c.rot_cov);
+            let rotations: Vec<Matrix3<f64>> = c.x_abs.iter().map(|(r, _)| *r).collect();
             let axis = canonical_sign(
-                weighted_direction(&c.rot, &c.rot_cov)
+                fixed_axis(&rotations, &c.rel_rot_cov, log_axis)
+                    .or(log_axis)
                     .ok_or_else(|| Error::Numerical("rotation axis".into()))?,
             );
             // Basis of the plane perpendicular to the axis, for the centre columns.

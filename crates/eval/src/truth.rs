@@ -3,7 +3,7 @@
 use crate::{adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance};
 use kinetree_core::{Model, Tracks};
 use kinetree_synth::{GroundTruth, JointType};
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// How one true joint was recovered.
@@ -19,6 +19,16 @@ pub struct JointEval {
     pub axis_error_deg: Option<f64>,
     /// Distance from the true anchor to the estimated axis line (revolute), metres.
     pub pivot_error_m: Option<f64>,
+    /// Axis error in the parent's body frame, degrees: the model's `axis_in_parent` after
+    /// aligning the parent's reference shape with its true keypoints (all frames went into
+    /// both), so one frame's pose noise does not enter. `None` when the parent has fewer
+    /// than three non-collinear placed points of its true body.
+    #[serde(default)]
+    pub axis_error_in_parent_deg: Option<f64>,
+    /// Distance from the true anchor to the estimated axis line in the parent's body frame
+    /// (revolute), metres, with the same alignment.
+    #[serde(default)]
+    pub pivot_error_in_parent_m: Option<f64>,
     /// RMS joint-position error after sign and offset alignment (radians or metres).
     pub position_rms: Option<f64>,
 }
@@ -62,6 +72,27 @@ pub fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
         .collect()
 }
 
+/// The rigid transform from model body `body`'s frame to true body `true_body`'s frame, by
+/// Kabsch over the body's placed points that truly belong to `true_body` (reference shape
+/// against the true body-frame keypoints). `None` with fewer than three such points or when
+/// they are nearly collinear.
+fn parent_alignment(
+    model: &Model,
+    truth: &GroundTruth,
+    body: usize,
+    true_body: usize,
+) -> Option<Isometry3<f64>> {
+    let b = model.bodies.get(body)?;
+    let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = b
+        .points
+        .iter()
+        .zip(&b.shape)
+        .filter(|(p, _)| truth.point_body.get(**p) == Some(&true_body))
+        .filter_map(|(p, s)| Some((Point3::from(*s.as_ref()?), truth.body_points[*p])))
+        .unzip();
+    kinetree_core::geom::kabsch_with_rank_check(&src, &dst, 1e-3)
+}
+
 /// Compares `model` with `truth`.
 pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
     let scored: Vec<usize> = (0..truth.point_body.len())
@@ -91,6 +122,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             type_ok: false,
             axis_error_deg: None,
             pivot_error_m: None,
+            axis_error_in_parent_deg: None,
+            pivot_error_in_parent_m: None,
             position_rms: None,
         };
         if let Some(j) = found {
@@ -108,6 +141,21 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                         &anchor,
                         &Point3::from(p),
                         &Vector3::from(a),
+                    ));
+                }
+            }
+            let true_axis = Vector3::from(spec.axis).normalize();
+            if let (Some(a), Some(align)) = (
+                j.axis_in_parent,
+                parent_alignment(model, truth, j.parent, spec.parent),
+            ) {
+                let a = align.rotation * Vector3::from(a);
+                e.axis_error_in_parent_deg = Some(axis_error_deg(&a, &true_axis));
+                if let (Some(p), JointType::Revolute) = (j.point_in_parent, spec.joint_type) {
+                    e.pivot_error_in_parent_m = Some(point_line_distance(
+                        &Point3::from(spec.anchor),
+                        &(align * Point3::from(p)),
+                        &a,
                     ));
                 }
             }

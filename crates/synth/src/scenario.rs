@@ -135,6 +135,9 @@ pub struct GroundTruth {
     pub visible_frames: Vec<usize>,
     /// Frames in which each keypoint, in view, is hidden behind another body.
     pub occluded_by_other_body: Vec<usize>,
+    /// Every keypoint in its body's frame (the world frame at the zero configuration),
+    /// metres.
+    pub body_points: Vec<Point3<f64>>,
 }
 
 impl GroundTruth {
@@ -318,6 +321,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
             occluded_fraction,
             visible_frames,
             occluded_by_other_body,
+            body_points: pts,
         },
     })
 }
