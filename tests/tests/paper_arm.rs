@@ -86,6 +86,23 @@ fn table_one_pattern_matches_the_paper() {
     }
     let p = pair(Some(1), 2);
     assert_eq!((p.rotation.rank, p.centre.rank, p.dof), (1, 0, 1));
+    // The printed C cells (the paper's uncentred centre matrix): empty for the base, one value
+    // for the three revolute pairs, more for link 2 against camera and base.
+    assert_eq!(base.centre_uncentred.rank, 0);
+    for (a, b) in [(None, 1), (Some(0), 1), (Some(1), 2)] {
+        assert_eq!(
+            pair(a, b).centre_uncentred.rank,
+            1,
+            "{a:?}-{b}: fixed centre"
+        );
+    }
+    for a in [None, Some(0)] {
+        assert_eq!(
+            pair(a, 2).centre_uncentred.rank,
+            2,
+            "{a:?}-2: moving centre"
+        );
+    }
     // Rotation singular values of the size of the paper's (18.9, 19.6, 8.9): several radians
     // times sqrt(T).
     for (a, b) in [(None, 1), (None, 2), (Some(1), 2)] {

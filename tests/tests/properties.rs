@@ -159,6 +159,7 @@ proptest! {
                 a, b, reference_frame: 0,
                 translation: RankTest::empty(), rotation: RankTest::empty(),
                 centre: RankTest::empty(), sliding: RankTest::empty(),
+                centre_uncentred: RankTest::empty(),
                 dof: match kind { 0 => 0, 1 | 2 => 1, _ => 3 }, joint, fit_ratio: fit,
             }
         };

@@ -57,10 +57,10 @@ half a degree and joint-angle errors of about 0.003 rad RMS. Our Table I beside 
 {paper}
 
 Deviations (experiments/paper-table1/README.md has the full list): we simulate boxes and cast
-rays instead of rendering in MuJoCo; our singular values come from centred matrices, so their
-sizes differ from the paper's; translations are centroid displacements, which makes the
-centre of rotation of a revolute pair fixed (empty cells where the paper prints 1.1-1.3); and
-our default DoF tester is a chi-square test with each frame's pose covariance rather than a
+rays instead of rendering in MuJoCo; our translation and rotation singular values come from
+centred matrices, so their sizes differ from the paper's; our centre estimates lie in the
+plane perpendicular to the axis, so a C cell has at most two values where the paper prints
+three (its third is at the noise level); and our default DoF tester is a chi-square test with each frame's pose covariance rather than a
 constant threshold (the paper's SVD test is kept as `svd_rank` and used in this experiment).
 
 ## Beyond the paper: sweeps

@@ -190,6 +190,12 @@ pub struct PairDof {
     pub centre: RankTest,
     /// Translation along the rotation axis (a screw or cylindrical motion when rank 1).
     pub sliding: RankTest,
+    /// The centre-of-rotation estimates themselves, not centred: the paper's C matrix. Each
+    /// column is the centre relative to `b`'s origin at the reference frame, so a fixed
+    /// centre gives rank 1 (its distance times the square root of the frames) and a moving
+    /// one rank 2. Table I prints these; `centre` decides.
+    #[serde(default = "RankTest::empty")]
+    pub centre_uncentred: RankTest,
     /// Estimated number of relative degrees of freedom.
     pub dof: usize,
     /// The joint type the ranks support.

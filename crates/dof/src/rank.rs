@@ -172,16 +172,41 @@ pub fn rank_test(
     dim: usize,
     rule: RankRule,
 ) -> RankTest {
+    rank_test_about(cols, covs, dim, rule, true)
+}
+
+/// [`rank_test`] on the columns as they are, without removing their mean: the rank of the
+/// subspace through the origin that holds them (a constant non-zero column gives rank 1).
+pub fn rank_test_uncentred(
+    cols: &[Vector3<f64>],
+    covs: &[Matrix3<f64>],
+    dim: usize,
+    rule: RankRule,
+) -> RankTest {
+    rank_test_about(cols, covs, dim, rule, false)
+}
+
+fn rank_test_about(
+    cols: &[Vector3<f64>],
+    covs: &[Matrix3<f64>],
+    dim: usize,
+    rule: RankRule,
+    centre: bool,
+) -> RankTest {
     let k = cols.len();
     if k < 2 {
         return RankTest::empty();
     }
-    let mean: Vector3<f64> = cols.iter().sum::<Vector3<f64>>() / k as f64;
+    let mean: Vector3<f64> = if centre {
+        cols.iter().sum::<Vector3<f64>>() / k as f64
+    } else {
+        Vector3::zeros()
+    };
     let centred: Vec<Vector3<f64>> = cols.iter().map(|c| c - mean).collect();
     let stds: Vec<f64> = covs.iter().map(|c| worst_std(c, dim)).collect();
     let singular_values = sorted_singular_values(DMatrix::from_fn(dim, k, |r, c| centred[c][r]));
     let whitened = sorted_singular_values(DMatrix::from_fn(dim, k, |r, c| centred[c][r] / stds[c]));
-    let kf = (k - 1) as f64;
+    let kf = if centre { (k - 1) as f64 } else { k as f64 };
     match rule {
         RankRule::Whitened { kappa } => {
             let threshold = kappa * ((k as f64).sqrt() + (dim as f64).sqrt());

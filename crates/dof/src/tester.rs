@@ -1,7 +1,7 @@
 //! The DoF testers: relative-motion columns with their noise, rank rules, joint typing.
 
 use crate::axis::fixed_axis;
-use crate::rank::{RankRule, rank_test, weighted_direction};
+use crate::rank::{RankRule, rank_test, rank_test_uncentred, weighted_direction};
 use kinetree_core::geom::{angle_about, canonical_sign, log_so3, relative_poses};
 use kinetree_core::nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 use kinetree_core::{
@@ -249,6 +249,7 @@ fn classify(
     let translation = rank_test(&c.u, &c.u_cov, 3, rule);
     let rotation = rank_test(&c.rot, &c.rot_cov, 3, rule);
     let mut centre = RankTest::empty();
+    let mut centre_uncentred = RankTest::empty();
     let mut sliding = RankTest::empty();
     let mut joint = JointKind::MultiDof;
     let dof;
@@ -341,6 +342,7 @@ fn classify(
                     w_cov.push(cov);
                 }
             }
+            centre_uncentred = rank_test_uncentred(&w, &w_cov, 2, rule);
             match rule {
                 RankRule::Chi2 { z: zq, slack } => {
                     // One reference-free test covers a moving centre and sliding.
@@ -395,6 +397,7 @@ fn classify(
         rotation,
         centre,
         sliding,
+        centre_uncentred,
         dof,
         joint,
         fit_ratio,

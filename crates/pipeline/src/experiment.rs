@@ -81,10 +81,12 @@ const PAPER_TABLE_I: &str = "
 | F1 |   |   |   | 2.9, 1.5 | 18.9 | 1.3 | 3.2, 2.8 | 19.6 | 10.1, 2.0, 0.4 |
 | F2 |   |   |   |   |   |   | 6.0, 0.4 | 8.9 | 1.1 |
 
-The same cells are empty in both tables except the paper's small centre-of-rotation values
-for revolute pairs (1.2, 1.3, 1.1): we express translations as body-centroid displacements,
-whose centre of rotation is fixed (rank 0). Ours come from centred matrices, so values differ
-in size; the rotation values (one per moving pair) are of the same order: 18.9, 19.6 and 8.9
+The same cells are empty in both tables. Our C cells, like the paper's, are the centre
+estimates themselves (not centred): one value for the revolute pairs (the fixed centre's
+distance from the link's centroid times sqrt(T)), more where the centre moves; ours have at
+most two, since a centre is taken in the plane perpendicular to the axis. Our T and R come from
+centred matrices, so values differ in size; the rotation values (one per moving pair) are of
+the same order: 18.9, 19.6 and 8.9
 in the paper. See experiments/paper-table1/README.md.
 ";
 

@@ -37,7 +37,7 @@ pub fn table_cells(model: &Model) -> Vec<(usize, usize, [String; 3])> {
                 [
                     values(&p.translation),
                     values(&p.rotation),
-                    values(&p.centre),
+                    values(&p.centre_uncentred),
                 ],
             )
         })

@@ -698,6 +698,7 @@ mod tests {
             rotation: RankTest::empty(),
             centre: RankTest::empty(),
             sliding: RankTest::empty(),
+            centre_uncentred: RankTest::empty(),
             dof: usize::from(!matches!(joint, JointKind::Rigid)),
             joint,
             fit_ratio,
