@@ -36,7 +36,8 @@ fn every_config_under_experiments_parses_and_runs() {
         let text = std::fs::read_to_string(f).expect("read");
         let value: toml::Table =
             toml::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-        if value.contains_key("sweep") {
+        // A sweep has a [sweep] table or a list where one value is expected.
+        if kinetree_pipeline::sweep::is_sweep(&text) {
             // Quick profile: every grid point once, with the first seed.
             let sweep = Sweep::from_toml(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
             let seed = sweep.seeds().first().copied().unwrap_or(0);
@@ -129,5 +130,88 @@ fn bad_sweeps_are_config_errors() {
     ] {
         let e = Sweep::from_toml(&bad).expect_err("bad sweep");
         assert!(e.to_string().contains(needle), "{e}");
+    }
+}
+
+/// Lists written in the config fields themselves are grid axes, with no `[sweep]` table.
+const INLINE: &str = r#"
+[experiment]
+name = "inline-sweep"
+
+[data]
+kind = "random"
+n_joints = 2
+n_frames = 120
+seed = 5
+noise_sigma_m = [0.0005, 0.002]
+
+[pipeline]
+dof = [{ kind = "chi2_rank" }, { kind = "svd_rank" }]
+"#;
+
+#[test]
+fn list_valued_fields_expand_to_a_grid() {
+    assert!(kinetree_pipeline::sweep::is_sweep(INLINE));
+    assert!(!kinetree_pipeline::sweep::is_sweep(
+        &INLINE.replace("[0.0005, 0.002]", "0.001").replace(
+            "[{ kind = \"chi2_rank\" }, { kind = \"svd_rank\" }]",
+            "{ kind = \"svd_rank\" }"
+        )
+    ));
+    let sweep = Sweep::from_toml(INLINE).expect("parses");
+    assert_eq!(
+        sweep.keys,
+        vec!["data.noise_sigma_m".to_string(), "pipeline.dof".to_string()]
+    );
+    assert_eq!(sweep.points.len(), 4);
+    // No [sweep] table: every point runs once with the config's own seed.
+    assert_eq!(sweep.seeds(), vec![5]);
+    let cfg = sweep.config(3, 5).expect("config");
+    let text = toml::to_string(&cfg).expect("toml");
+    assert!(
+        text.contains("seed = 5") && text.contains("noise_sigma_m = 0.002"),
+        "{text}"
+    );
+    assert!(text.contains("svd_rank"), "{text}");
+    let runs = sweep.run(Path::new("."), &|_, _| {});
+    assert_eq!(runs.len(), 4);
+    assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
+    // Lists also combine with [sweep.grid] and seeds.
+    let both = INLINE.replace(
+        "[data]",
+        "[sweep]\nseeds = 2\n[sweep.grid]\n\"data.n_joints\" = [1, 2, 3]\n\n[data]",
+    );
+    let sweep = Sweep::from_toml(&both).expect("parses");
+    assert_eq!(sweep.points.len(), 12);
+    assert_eq!(sweep.seeds(), vec![0, 1]);
+}
+
+#[test]
+fn bad_list_valued_fields_are_config_errors() {
+    for (bad, needle) in [
+        // Not a value of the field's type.
+        (
+            INLINE.replace("[0.0005, 0.002]", "[\"small\", \"large\"]"),
+            "data.noise_sigma_m",
+        ),
+        // An empty list is no grid.
+        (
+            INLINE.replace("[0.0005, 0.002]", "[]"),
+            "data.noise_sigma_m",
+        ),
+        // Given twice.
+        (
+            INLINE.replace(
+                "[data]",
+                "[sweep.grid]\n\"data.noise_sigma_m\" = [0.001]\n\n[data]",
+            ),
+            "given once",
+        ),
+        // An unknown key is still an error.
+        (INLINE.replace("seed = 5", "seeds = 5"), "seeds"),
+    ] {
+        assert!(kinetree_pipeline::sweep::is_sweep(&bad), "{bad}");
+        let e = Sweep::from_toml(&bad).expect_err("bad sweep");
+        assert!(e.to_string().contains(needle), "{needle}: {e}");
     }
 }

@@ -16,6 +16,20 @@
 //! kind = "random"
 //! ```
 //!
+//! A list written where the config expects a single value is a grid axis too, with or without
+//! a `[sweep]` table:
+//!
+//! ```toml
+//! [data]
+//! kind = "random"
+//! noise_sigma_m = [0.0001, 0.001, 0.01]   # three grid points
+//! ```
+//!
+//! A field that legitimately takes a list (a mechanism's axis, `[sweep] seeds`) keeps it: a
+//! list becomes an axis only where the config's schema rejects it, found by deserialising with
+//! the path of the first rejected field (`serde_path_to_error`) and repeating until the config
+//! parses.
+//!
 //! Every grid point and seed becomes an ordinary experiment config (so unknown keys are
 //! still errors), the runs go in parallel (rayon), and `runs.csv` gets one row per run,
 //! `table.md` one row per grid point: success rates and error statistics.
@@ -101,11 +115,145 @@ pub struct Sweep {
     pub points: Vec<Vec<toml::Value>>,
 }
 
-/// Whether a config text has a `[sweep]` table.
+/// Whether a config text is a sweep: it has a `[sweep]` table, or it is not a valid
+/// experiment config as written and holds a list (which [`Sweep::from_toml`] then expands, or
+/// names in its error).
 pub fn is_sweep(text: &str) -> bool {
-    text.parse::<toml::Table>()
-        .map(|t| t.contains_key("sweep"))
-        .unwrap_or(false)
+    let Ok(table) = text.parse::<toml::Table>() else {
+        return false;
+    };
+    if table.contains_key("sweep") {
+        return true;
+    }
+    let mut leaves = Vec::new();
+    for (k, v) in &table {
+        array_leaves(k, v, &mut leaves);
+    }
+    !leaves.is_empty() && parse_config(&table).is_err()
+}
+
+fn get_path<'a>(table: &'a toml::Table, path: &str) -> Option<&'a toml::Value> {
+    let mut parts = path.split('.');
+    let mut v = table.get(parts.next()?)?;
+    for p in parts {
+        v = v.as_table()?.get(p)?;
+    }
+    Some(v)
+}
+
+/// A grid axis: a dotted path and its values.
+type Axis = (String, Vec<toml::Value>);
+
+/// Parses `table` as an experiment config, naming the path of the first field it rejects.
+fn parse_config(table: &toml::Table) -> std::result::Result<ExperimentConfig, (String, String)> {
+    serde_path_to_error::deserialize(toml::Value::Table(table.clone())).map_err(
+        |e: serde_path_to_error::Error<toml::de::Error>| {
+            (e.path().to_string(), e.inner().to_string())
+        },
+    )
+}
+
+/// The lists in `table` that stand where the config expects one value: returns the table with
+/// each such list replaced by its first element, and the lists by dotted path. A rejected field
+/// that is not a non-empty list is an error naming the field.
+///
+/// `preset` values (the first value of every `[sweep.grid]` key and the seed) are set while
+/// checking, as a grid point would have them, but are not written into the returned table.
+fn inline_axes(
+    table: &toml::Table,
+    preset: &[(String, toml::Value)],
+) -> Result<(toml::Table, Vec<Axis>)> {
+    let mut out = table.clone();
+    let mut trial = table.clone();
+    for (k, v) in preset {
+        set_path(&mut trial, k, v.clone())?;
+    }
+    let mut axes: Vec<Axis> = Vec::new();
+    loop {
+        let (path, message) = match parse_config(&trial) {
+            Ok(_) => return Ok((out, axes)),
+            Err(e) => e,
+        };
+        let fail = |extra: String| {
+            let at = if path == "." || path.is_empty() {
+                String::new()
+            } else {
+                format!("{path}: ")
+            };
+            // Name a grid value that the error falls under.
+            let value = axes
+                .iter()
+                .find(|(k, _)| is_under(k, &path))
+                .map(|(k, v)| format!(" (grid value {k} = {})", v[0]))
+                .unwrap_or_default();
+            let message = message.trim_end().replace('\n', " ");
+            Error::Config(format!("{at}{message}{value}{extra}"))
+        };
+        // The rejected list: the field itself, or (inside an internally tagged enum, where the
+        // path stops at the enum) the first list under it whose first element clears this
+        // error. Anything else is the config's own error.
+        // An index into a list (`pipeline.dof[0]`) points at the list.
+        let field = path.split('[').next().unwrap_or(&path);
+        let mut leaves = Vec::new();
+        if let Some(v) = get_path(&trial, field) {
+            array_leaves(field, v, &mut leaves);
+        }
+        let fixed = leaves.iter().find_map(|(leaf, values)| {
+            let first = values.first()?;
+            if axes.iter().any(|(k, _)| k == leaf) || preset.iter().any(|(k, _)| k == leaf) {
+                return None;
+            }
+            let mut t = trial.clone();
+            set_path(&mut t, leaf, first.clone()).ok()?;
+            let cleared = match parse_config(&t) {
+                Ok(_) => true,
+                Err((p2, m2)) => p2 != path || m2 != message,
+            };
+            cleared.then(|| (leaf.clone(), values.clone(), t))
+        });
+        match fixed {
+            Some((leaf, values, t)) => {
+                trial = t;
+                set_path(&mut out, &leaf, values[0].clone())?;
+                axes.push((leaf, values));
+            }
+            None => {
+                let empty: Vec<&str> = leaves
+                    .iter()
+                    .filter(|(_, v)| v.is_empty())
+                    .map(|(k, _)| k.as_str())
+                    .collect();
+                let extra = if empty.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (an empty list at {})", empty.join(", "))
+                };
+                return Err(fail(extra));
+            }
+        }
+    }
+}
+
+/// Whether dotted path `path` is `prefix` or lies under it.
+fn is_under(path: &str, prefix: &str) -> bool {
+    path == prefix
+        || prefix == "."
+        || path
+            .strip_prefix(prefix)
+            .is_some_and(|rest| rest.starts_with('.'))
+}
+
+/// Every list at or under `v` (found at dotted `path`), in key order.
+fn array_leaves(path: &str, v: &toml::Value, out: &mut Vec<Axis>) {
+    match v {
+        toml::Value::Array(a) => out.push((path.to_string(), a.clone())),
+        toml::Value::Table(t) => {
+            for (k, v) in t {
+                array_leaves(&format!("{path}.{k}"), v, out);
+            }
+        }
+        _ => {}
+    }
 }
 
 fn set_path(table: &mut toml::Table, path: &str, value: toml::Value) -> Result<()> {
@@ -137,12 +285,54 @@ impl Sweep {
         let mut base: toml::Table = text
             .parse()
             .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
-        let spec_value = base
-            .remove("sweep")
-            .ok_or_else(|| Error::Config("no [sweep] table".into()))?;
-        let spec: SweepSpec = spec_value
-            .try_into()
-            .map_err(|e: toml::de::Error| Error::Config(format!("[sweep]: {e}")))?;
+        let has_sweep_table = base.contains_key("sweep");
+        let spec: SweepSpec = match base.remove("sweep") {
+            Some(v) => v
+                .try_into()
+                .map_err(|e: toml::de::Error| Error::Config(format!("[sweep]: {e}")))?,
+            // Only inline lists: each grid point runs once with the config's own seed.
+            None => SweepSpec {
+                seeds: Seeds::List(vec![
+                    get_path(&base, "data.seed")
+                        .and_then(toml::Value::as_integer)
+                        .and_then(|s| u64::try_from(s).ok())
+                        .unwrap_or(0),
+                ]),
+                seed_keys: Vec::new(),
+                grid: toml::Table::new(),
+            },
+        };
+        let mut spec = spec;
+        let mut preset: Vec<(String, toml::Value)> = spec
+            .grid
+            .iter()
+            .filter_map(|(k, v)| Some((k.clone(), v.as_array()?.first()?.clone())))
+            .collect();
+        for k in &spec.seed_keys {
+            preset.push((k.clone(), toml::Value::Integer(0)));
+        }
+        for (k, first) in &preset {
+            if get_path(&base, k).is_some_and(toml::Value::is_array) && !first.is_array() {
+                return Err(Error::Config(format!(
+                    "{k:?} is a list in the config and a key of [sweep.grid]; it must be given once"
+                )));
+            }
+        }
+        let (stripped, axes) = inline_axes(&base, &preset)?;
+        for (path, values) in axes {
+            if spec.grid.contains_key(&path) {
+                return Err(Error::Config(format!(
+                    "{path:?} is a list in the config and a key of [sweep.grid]; it must be given once"
+                )));
+            }
+            spec.grid.insert(path, toml::Value::Array(values));
+        }
+        base = stripped;
+        if spec.grid.is_empty() && !has_sweep_table {
+            return Err(Error::Config(
+                "no [sweep] table and no list-valued field".into(),
+            ));
+        }
         let keys: Vec<String> = spec.grid.keys().cloned().collect();
         let mut points: Vec<Vec<toml::Value>> = vec![Vec::new()];
         for k in &keys {
