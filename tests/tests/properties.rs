@@ -235,40 +235,128 @@ proptest! {
     }
 }
 
+/// Why a mechanism was not recovered, or `None` when it was. The tolerances follow the noise
+/// and the geometry. `r`, the single-frame rotation noise of the smallest body,
+/// `sigma / (size / 2 * sqrt(points))`, scales them:
+/// - every joint found between the right bodies with its type (`joints_exact`);
+/// - every point on its body, except points whose track fits another body's true motion
+///   within noise (`kinetree_eval::identifiable_ari` = 1);
+/// - each axis in its parent's frame within `1 deg + 3 r` (the model's `axis_in_parent`
+///   against the truth, after aligning the parent's reference shape with its true keypoints);
+/// - joint positions within `0.05 rad + 3 r` RMS (revolute) or `5 mm + 3 sqrt(2) sigma`
+///   (prismatic).
+fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let sigma = spec.effective_noise_sigma_m();
+    let r = spec
+        .joints
+        .iter()
+        .map(|j| {
+            sigma / (0.5 * j.size_m.clamp(0.02, 0.5) * (j.n_points.clamp(4, 12) as f64).sqrt())
+        })
+        .fold(0.0, f64::max);
+    let d = match Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+    {
+        Ok(d) => d,
+        Err(e) => return Some(format!("error: {e}")),
+    };
+    let e = kinetree_eval::evaluate(&d.model, &data.truth);
+    if !e.joints_exact {
+        let wrong: Vec<String> = e
+            .joints
+            .iter()
+            .filter(|j| !(j.found && j.type_ok))
+            .map(|j| format!("{}{}", j.joint, if j.found { " (type)" } else { "" }))
+            .collect();
+        return Some(format!(
+            "joints not exact: {} of {} bodies, wrong joints {}",
+            e.n_bodies_found,
+            e.n_bodies_true,
+            wrong.join(", ")
+        ));
+    }
+    let ambiguous = kinetree_eval::ambiguous_points(&data.tracks, &data.truth, sigma.max(1e-6));
+    let ari = kinetree_eval::identifiable_ari(&d.model, &data.truth, &ambiguous);
+    if ari < 1.0 {
+        return Some(format!("identifiable ARI {ari:.3}"));
+    }
+    for (j, draw) in e.joints.iter().zip(&spec.joints) {
+        let axis = j.axis_error_in_parent_deg.unwrap_or(f64::INFINITY);
+        let tol = 1.0 + 3.0 * r.to_degrees();
+        if axis >= tol {
+            return Some(format!(
+                "joint {}: axis {axis:.2} deg in the parent (tolerance {tol:.2})",
+                j.joint
+            ));
+        }
+        let rms = j.position_rms.unwrap_or(f64::INFINITY);
+        let tol = if draw.revolute {
+            0.05 + 3.0 * r
+        } else {
+            0.005 + 3.0 * 2f64.sqrt() * sigma
+        };
+        if rms >= tol {
+            return Some(format!(
+                "joint {}: position RMS {rms:.4} (tolerance {tol:.4})",
+                j.joint
+            ));
+        }
+    }
+    None
+}
+
+/// End-to-end recovery on `cases()` mechanisms drawn from the strategies by proptest's
+/// deterministic runner (the same draw on every run and machine). Each is judged by
+/// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
+/// per 64 for platform rounding: 54 of the first 64 were recovered when this was written
+/// (167 of 200). Of the 33 failures in 200: 17 joint-position RMS (frames where a small
+/// parent or child has 3-4 visible points), 8 joints not exact, 8 one or two points on the
+/// wrong body. The failures are printed, and `any_mechanism_is_recovered` (ignored) shrinks
+/// one to a minimal mechanism.
+#[test]
+fn most_mechanisms_are_recovered() {
+    use proptest::strategy::ValueTree;
+    let n = cases() as usize;
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let strategy = strategies::any_mechanism();
+    let mut failures = Vec::new();
+    for case in 0..n {
+        let spec = strategy.new_tree(&mut runner).expect("draw").current();
+        if let Some(why) = recovery_failure(&spec) {
+            failures.push(format!(
+                "case {case} ({} joints, tree {}, sigma {:.2} mm, dropout {:.2}): {why}",
+                spec.joints.len(),
+                spec.tree,
+                spec.effective_noise_sigma_m() * 1e3,
+                spec.dropout
+            ));
+        }
+    }
+    for f in &failures {
+        eprintln!("{f}");
+    }
+    let recovered = n - failures.len();
+    let required = n * 52 / 64;
+    assert!(
+        recovered >= required,
+        "{recovered} of {n} recovered, {required} required"
+    );
+}
+
 proptest! {
     #![proptest_config(config())]
 
-    /// The end-to-end property the suite is building towards: every body and joint recovered
-    /// with its type. Tolerances follow the noise and the geometry: the single-frame rotation
-    /// noise of the smallest body, `r = sigma / (size / 2 * sqrt(points))`, bounds how well any
-    /// frame's orientation (and so an axis reported in the camera frame) is known. Axes must be
-    /// within `2 deg + 3 r`; joint positions within `0.05 rad + 3 r` RMS (revolute) or
-    /// `5 mm + 3 sqrt(2) sigma` (prismatic). Ignored in CI because it holds for about 95 % of
-    /// these mechanisms today (190/200 joints exact measured, session 1): run it with
-    /// `cargo test --release -p kinetree-tests --test properties -- --ignored` to get a
-    /// minimal failing mechanism.
+    /// The strict form: *every* mechanism recovered ([`recovery_failure`]). Ignored in CI
+    /// because it holds for about 84 % of these mechanisms (see `most_mechanisms_are_recovered`):
+    /// run it with `cargo test --release -p kinetree-tests --test properties -- --ignored` to
+    /// get a minimal failing mechanism.
     #[test]
-    #[ignore = "holds for about 95 % of mechanisms; see the doc comment"]
+    #[ignore = "holds for about 84 % of mechanisms; see most_mechanisms_are_recovered"]
     fn any_mechanism_is_recovered(spec in strategies::any_mechanism()) {
-        let data = simulate(&spec.scenario()).expect("simulate");
-        let sigma = spec.effective_noise_sigma_m();
-        let r = spec
-            .joints
-            .iter()
-            .map(|j| sigma / (0.5 * j.size_m.clamp(0.02, 0.5) * (j.n_points.clamp(4, 12) as f64).sqrt()))
-            .fold(0.0, f64::max);
-        let d = Pipeline::from_config(&PipelineConfig::default())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover");
-        let e = kinetree_eval::evaluate(&d.model, &data.truth);
-        prop_assert!(e.joints_exact, "{:?}", e);
-        for (j, draw) in e.joints.iter().zip(&spec.joints) {
-            let axis = j.axis_error_deg.unwrap_or(f64::INFINITY);
-            prop_assert!(axis < 2.0 + 3.0 * r.to_degrees(), "joint {} axis {axis} deg (r = {r})", j.joint);
-            let rms = j.position_rms.unwrap_or(f64::INFINITY);
-            let tol = if draw.revolute { 0.05 + 3.0 * r } else { 0.005 + 3.0 * 2f64.sqrt() * sigma };
-            prop_assert!(rms < tol, "joint {} rms {rms} (tolerance {tol})", j.joint);
+        if let Some(why) = recovery_failure(&spec) {
+            prop_assert!(false, "{}", why);
         }
     }
 }
