@@ -211,3 +211,87 @@ fn every_clusterer_on_one_body_and_a_point_seen_once() {
         );
     }
 }
+
+/// Every clusterer takes a number of bodies when told (`n_clusters`), on the dissimilarity
+/// matrix of a simulated 4-body chain: the true count gives the true bodies, one fewer gives
+/// one fewer body; DBSCAN names the counts it can reach when the asked one is impossible.
+#[test]
+fn every_clusterer_cuts_to_a_given_number_of_bodies() {
+    use kinetree_clustering::{
+        Dbscan, DbscanParams, Hierarchical, HierarchicalParams, Spectral, SpectralParams,
+    };
+    use kinetree_core::{Clustering, ClusteringInput};
+    let mut spec = base_spec();
+    spec.joints.truncate(3);
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let d = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    let input = ClusteringInput {
+        dissimilarity: &d.dissimilarity,
+        seed: 1,
+    };
+    let with = |k: usize| -> Vec<(&str, Box<dyn Clustering>)> {
+        vec![
+            (
+                "hierarchical",
+                Box::new(
+                    Hierarchical::new(HierarchicalParams {
+                        n_clusters: Some(k),
+                        ..Default::default()
+                    })
+                    .expect("params"),
+                ),
+            ),
+            (
+                "dbscan",
+                Box::new(
+                    Dbscan::new(DbscanParams {
+                        n_clusters: Some(k),
+                        ..Default::default()
+                    })
+                    .expect("params"),
+                ),
+            ),
+            (
+                "spectral",
+                Box::new(
+                    Spectral::new(SpectralParams {
+                        n_clusters: Some(k),
+                        ..Default::default()
+                    })
+                    .expect("params"),
+                ),
+            ),
+        ]
+    };
+    let truth: Vec<usize> = data.truth.point_body.clone();
+    for (name, c) in with(4) {
+        let seg = c.cluster(&input).expect("cluster");
+        assert_eq!(seg.n_bodies(), 4, "{name}");
+        let ari = kinetree_eval::adjusted_rand_index(&seg.labels_i64(), &truth);
+        assert!(ari > 0.95, "{name}: ARI {ari}");
+    }
+    for (name, c) in with(3) {
+        let seg = c.cluster(&input).expect("cluster");
+        assert_eq!(seg.n_bodies(), 3, "{name}");
+    }
+    let impossible = Dbscan::new(DbscanParams {
+        n_clusters: Some(40),
+        ..Default::default()
+    })
+    .expect("params");
+    let e = impossible
+        .cluster(&input)
+        .expect_err("40 clusters of 3+ points from 4 bodies");
+    assert!(e.to_string().contains("40 clusters"), "{e}");
+    assert!(
+        DbscanParams {
+            n_clusters: Some(0),
+            ..Default::default()
+        }
+        .validate()
+        .is_err()
+    );
+}

@@ -20,6 +20,10 @@ pub struct DbscanParams {
     pub shared_fraction: f64,
     /// Clusters with fewer points are discarded (at least 3, the minimum for a pose).
     pub min_cluster_points: usize,
+    /// Find exactly this many clusters instead: `eps` is chosen from 64 radii spaced
+    /// geometrically over the observed dissimilarities, the one giving this count that lies
+    /// nearest the measure's cut (overrides `eps`).
+    pub n_clusters: Option<usize>,
 }
 
 impl Default for DbscanParams {
@@ -29,6 +33,7 @@ impl Default for DbscanParams {
             min_points: 3,
             shared_fraction: 0.9,
             min_cluster_points: MIN_BODY_POINTS,
+            n_clusters: None,
         }
     }
 }
@@ -52,6 +57,12 @@ impl DbscanParams {
             return Err(Error::InvalidParameter {
                 name: "shared_fraction".into(),
                 message: format!("must be within 0 to 1, got {}", self.shared_fraction),
+            });
+        }
+        if self.n_clusters == Some(0) {
+            return Err(Error::InvalidParameter {
+                name: "n_clusters".into(),
+                message: "must be at least 1".into(),
             });
         }
         if self.min_points < 2 {
@@ -133,10 +144,51 @@ impl Clustering for Dbscan {
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
         let m = input.dissimilarity;
-        let n = m.n_points;
         crate::check_matrix(m)?;
-        let eps = self.params.eps.unwrap_or(m.suggested_cut);
         let (filled, has_known) = crate::fill_unknown(m);
+        let segment = |eps: f64| {
+            Segmentation::from_raw(
+                &self.labels(&filled, &has_known, eps),
+                self.params.min_cluster_points,
+            )
+        };
+        let Some(k) = self.params.n_clusters else {
+            return Ok(segment(self.params.eps.unwrap_or(m.suggested_cut)));
+        };
+        // Radii over the observed range, geometric (dissimilarities span decades).
+        let (lo, hi) = filled
+            .iter()
+            .filter(|v| v.is_finite() && **v > 0.0)
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        let target = m.suggested_cut.max(f64::MIN_POSITIVE);
+        let mut best: Option<(f64, Segmentation)> = None;
+        let mut counts = Vec::new();
+        if lo.is_finite() && hi > 0.0 {
+            for i in 0..64 {
+                let eps = lo * (hi / lo).powf(f64::from(i) / 63.0);
+                let seg = segment(eps);
+                counts.push(seg.n_bodies());
+                let distance = (eps / target).ln().abs();
+                if seg.n_bodies() == k && best.as_ref().is_none_or(|(d, _)| distance < *d) {
+                    best = Some((distance, seg));
+                }
+            }
+        }
+        counts.dedup();
+        best.map(|(_, seg)| seg).ok_or_else(|| {
+            Error::Degenerate(format!(
+                "dbscan: no neighbourhood radius gives {k} clusters; the radii tried give {counts:?}"
+            ))
+        })
+    }
+}
+
+impl Dbscan {
+    /// Raw cluster labels at radius `eps` on the filled matrix.
+    fn labels(&self, filled: &[f64], has_known: &[bool], eps: f64) -> Vec<Option<usize>> {
+        let n = has_known.len();
         let neighbours: Vec<Vec<usize>> = (0..n)
             .map(|i| {
                 if !has_known[i] {
@@ -174,10 +226,7 @@ impl Clustering for Dbscan {
             }
             next += 1;
         }
-        Ok(Segmentation::from_raw(
-            &label,
-            self.params.min_cluster_points,
-        ))
+        label
     }
 }
 
