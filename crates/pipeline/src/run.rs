@@ -545,8 +545,8 @@ impl Pipeline {
                 continue;
             };
             let pair = self.dof.test_pair(&input, Some(parent), child)?;
-            let (positions, first) = kinetree_structure::joint_positions(poses, &pair);
-            let reference_frame = first.unwrap_or(pair.reference_frame);
+            let (positions, reference) = kinetree_structure::joint_positions(poses, &pair);
+            let reference_frame = reference.unwrap_or(pair.reference_frame);
             let cam_parent = cam_from(poses, Some(parent), reference_frame);
             let reference_pose = kinetree_core::geom::relative_poses(poses, Some(parent), child)
                 .get(reference_frame)

@@ -176,10 +176,10 @@ pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
 ///
 /// The reference frame is the common frame where the parent's orientation is most precise
 /// (smallest trace of its rotation covariance; the child's breaks near-ties and decides when
-/// the parent is the camera), the earliest on a tie. The model reports the joint's axis in the camera frame through the parent's pose
-/// at this frame, so a frame where the parent had three visible points would tilt that axis
-/// by the frame's own orientation error (up to 25 deg on random mechanisms at 3 mm noise
-/// when this was the first common frame).
+/// the parent is the camera), the earliest on a tie. The model reports the joint's axis in
+/// the camera frame through the parent's pose at this frame, so a frame where the parent had
+/// three visible points would tilt that axis by the frame's own orientation error (25-38 deg
+/// on random mechanisms at 2-3 mm noise when this was the first common frame).
 pub fn joint_positions(poses: &BodyPoses, pair: &PairDof) -> (Vec<Option<f64>>, Option<usize>) {
     let x = relative_poses(poses, pair.a, pair.b);
     let spread = |body: Option<usize>, t: usize| {
@@ -196,10 +196,10 @@ pub fn joint_positions(poses: &BodyPoses, pair: &PairDof) -> (Vec<Option<f64>>, 
             best = Some((t, v));
         }
     }
-    let Some((first, _)) = best else {
+    let Some((reference, _)) = best else {
         return (vec![None; poses.n_frames], None);
     };
-    let Some(x0) = x[first] else {
+    let Some(x0) = x[reference] else {
         return (vec![None; poses.n_frames], None);
     };
     let mut out: Vec<Option<f64>> = match &pair.joint {
@@ -217,11 +217,11 @@ pub fn joint_positions(poses: &BodyPoses, pair: &PairDof) -> (Vec<Option<f64>>, 
         unwrap_angles(&mut out);
         // Unwrapping starts at the first frame with a value; shift the turns so the
         // reference frame is the zero.
-        if let Some(zero) = out[first] {
+        if let Some(zero) = out[reference] {
             for v in out.iter_mut().flatten() {
                 *v -= zero;
             }
         }
     }
-    (out, Some(first))
+    (out, Some(reference))
 }
