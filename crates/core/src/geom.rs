@@ -68,6 +68,19 @@ pub fn relative_poses(
         .collect()
 }
 
+/// Two unit vectors `(e1, e2)` spanning the plane perpendicular to the unit vector `v`, with
+/// `(e1, e2, v)` right-handed: `e1 = v x x` normalised (`v x y` when `v` is within 26 deg of
+/// x, where that cross product would be short).
+pub fn perpendicular_basis(v: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let helper = if v.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = v.cross(&helper).normalize();
+    (e1, v.cross(&e1))
+}
+
 /// Flips `v` so that its component of largest magnitude is positive (a deterministic sign for
 /// axes, which are only defined up to sign).
 pub fn canonical_sign(v: Vector3<f64>) -> Vector3<f64> {

@@ -14,18 +14,8 @@
 //! that put the axis 10-20 deg off while the joint was otherwise right. This fit has no
 //! reference frame.
 
+use kinetree_core::geom::perpendicular_basis;
 use kinetree_core::nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector3};
-
-/// Two unit vectors spanning the plane perpendicular to the unit vector `v`.
-fn perpendicular_basis(v: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
-    let helper = if v.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let e1 = v.cross(&helper).normalize();
-    (e1, v.cross(&e1))
-}
 
 /// Weight of one frame's residual: the inverse of `[n]x Sigma [n]x^T` on the plane
 /// perpendicular to `n`, zero along `n`.
@@ -46,66 +36,80 @@ fn residual_weight(n: &Vector3<f64>, sigma: &Matrix3<f64>) -> Matrix3<f64> {
     e * inv * e.transpose()
 }
 
-/// Weighted sum of squared residuals of `(n, m)`.
-fn cost(
+/// The Gauss-Newton system at `(n, m)` and the cost there, from one pass over the frames.
+struct Linearised {
+    normal: SMatrix<f64, 4, 4>,
+    rhs: SVector<f64, 4>,
+    cost: f64,
+    /// The bases of the planes perpendicular to `n` and `m` that the step is taken along.
+    n_basis: (Vector3<f64>, Vector3<f64>),
+    m_basis: (Vector3<f64>, Vector3<f64>),
+}
+
+fn linearise(
     rotations: &[Matrix3<f64>],
     covs: &[Matrix3<f64>],
     n: &Vector3<f64>,
     m: &Vector3<f64>,
-) -> f64 {
-    rotations
-        .iter()
-        .zip(covs)
-        .map(|(r, c)| {
-            let res = r * m - n;
-            res.dot(&(residual_weight(n, c) * res))
-        })
-        .sum()
+) -> Linearised {
+    let (n1, n2) = perpendicular_basis(n);
+    let (m1, m2) = perpendicular_basis(m);
+    let mut normal = SMatrix::<f64, 4, 4>::zeros();
+    let mut rhs = SVector::<f64, 4>::zeros();
+    let mut cost = 0.0;
+    for (r, c) in rotations.iter().zip(covs) {
+        let w = residual_weight(n, c);
+        let res = r * m - n;
+        cost += res.dot(&(w * res));
+        // d(R m)/d(m_i) = R m_i and d(-n)/d(n_i) = -n_i for a step along the basis.
+        let jac = SMatrix::<f64, 3, 4>::from_columns(&[-n1, -n2, r * m1, r * m2]);
+        normal += jac.transpose() * w * jac;
+        rhs -= jac.transpose() * w * res;
+    }
+    Linearised {
+        normal,
+        rhs,
+        cost,
+        n_basis: (n1, n2),
+        m_basis: (m1, m2),
+    }
 }
 
-/// Gauss-Newton from `(n, m)`; returns the refined pair and its cost.
+/// Gauss-Newton from `(n, m)`, stopping when a step does not lower the cost; returns the
+/// refined pair and its cost.
 fn refine(
     rotations: &[Matrix3<f64>],
     covs: &[Matrix3<f64>],
     mut n: Vector3<f64>,
     mut m: Vector3<f64>,
 ) -> (Vector3<f64>, Vector3<f64>, f64) {
-    let mut best = cost(rotations, covs, &n, &m);
+    let mut here = linearise(rotations, covs, &n, &m);
     for _ in 0..20 {
-        let (n1, n2) = perpendicular_basis(&n);
-        let (m1, m2) = perpendicular_basis(&m);
-        let mut normal = SMatrix::<f64, 4, 4>::zeros();
-        let mut rhs = SVector::<f64, 4>::zeros();
-        for (r, c) in rotations.iter().zip(covs) {
-            let w = residual_weight(&n, c);
-            let res = r * m - n;
-            // d(R m)/d(m_i) = R m_i and d(-n)/d(n_i) = -n_i for a step along the basis.
-            let jac = SMatrix::<f64, 3, 4>::from_columns(&[-n1, -n2, r * m1, r * m2]);
-            normal += jac.transpose() * w * jac;
-            rhs -= jac.transpose() * w * res;
-        }
-        let ridge = normal.trace().max(1e-300) * 1e-12;
-        let Some(step) = (normal + SMatrix::<f64, 4, 4>::identity() * ridge)
+        let best = here.cost;
+        let ((n1, n2), (m1, m2)) = (here.n_basis, here.m_basis);
+        let ridge = here.normal.trace().max(1e-300) * 1e-12;
+        let Some(step) = (here.normal + SMatrix::<f64, 4, 4>::identity() * ridge)
             .try_inverse()
-            .map(|inv| inv * rhs)
+            .map(|inv| inv * here.rhs)
         else {
             break;
         };
         let n_new = (n + n1 * step[0] + n2 * step[1]).normalize();
         let m_new = (m + m1 * step[2] + m2 * step[3]).normalize();
-        let c = cost(rotations, covs, &n_new, &m_new);
+        let next = linearise(rotations, covs, &n_new, &m_new);
+        let c = next.cost;
         if !(c.is_finite() && c < best) {
             break;
         }
         let converged = best - c <= 1e-12 * best.max(1e-300);
         n = n_new;
         m = m_new;
-        best = c;
+        here = next;
         if converged {
             break;
         }
     }
-    (n, m, best)
+    (n, m, here.cost)
 }
 
 /// The axis of a revolute joint in `a`'s frame from the relative rotations `a_from_b` and

@@ -2,7 +2,9 @@
 
 use crate::axis::fixed_axis;
 use crate::rank::{RankRule, rank_test, rank_test_uncentred, weighted_direction};
-use kinetree_core::geom::{angle_about, canonical_sign, log_so3, relative_poses};
+use kinetree_core::geom::{
+    angle_about, canonical_sign, log_so3, perpendicular_basis, relative_poses,
+};
 use kinetree_core::nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 use kinetree_core::{
     BodyPoses, DofInput, DofTester, Error, JointKind, PairDof, PoseQuality, RankTest, Result,
@@ -283,11 +285,7 @@ fn classify(
                     .ok_or_else(|| Error::Numerical("rotation axis".into()))?,
             );
             // Basis of the plane perpendicular to the axis, for the centre columns.
-            let e1 = axis
-                .cross(&Vector3::x())
-                .try_normalize(1e-6)
-                .unwrap_or_else(|| axis.cross(&Vector3::y()).normalize());
-            let e2 = axis.cross(&e1);
+            let (e1, e2) = perpendicular_basis(&axis);
             let basis = Matrix3::from_rows(&[e1.transpose(), e2.transpose(), axis.transpose()]);
             let mut w = Vec::new();
             let mut w_cov = Vec::new();
