@@ -286,7 +286,7 @@ impl Sweep {
             .parse()
             .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
         let has_sweep_table = base.contains_key("sweep");
-        let spec: SweepSpec = match base.remove("sweep") {
+        let mut spec: SweepSpec = match base.remove("sweep") {
             Some(v) => v
                 .try_into()
                 .map_err(|e: toml::de::Error| Error::Config(format!("[sweep]: {e}")))?,
@@ -302,7 +302,6 @@ impl Sweep {
                 grid: toml::Table::new(),
             },
         };
-        let mut spec = spec;
         let mut preset: Vec<(String, toml::Value)> = spec
             .grid
             .iter()
