@@ -157,6 +157,67 @@ fn a_body_hidden_in_frame_zero_still_gets_its_joint() {
     assert!(e.joints[1].position_rms.is_some_and(|r| r < 0.003), "{e:?}");
 }
 
+/// A joint's reference frame (where its positions are zero and its camera-frame axis is
+/// given) is a frame where the parent's pose is precise, not simply the first frame: here the
+/// parent shows only three of its eight points in frame 0.
+#[test]
+fn the_reference_frame_avoids_a_poorly_seen_parent() {
+    let mechanism = Mechanism {
+        bodies: vec![
+            base(),
+            body([0.15, 0.0, 0.1], [0.15, 0.04, 0.04], 8),
+            body([0.3, 0.15, 0.1], [0.04, 0.15, 0.04], 8),
+        ],
+        joints: vec![
+            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
+            joint(1, 2, true, [0.0, 1.0, 0.2], [0.3, 0.0, 0.1]),
+        ],
+    };
+    let s = scenario(
+        mechanism,
+        vec![sine(0.8, 0.25, 0.3), sine(0.7, 0.45, 1.0)],
+        0.002,
+    );
+    let mut data = simulate(&s).expect("simulate");
+    // Body 1 is points 8-15, body 2 points 16-23: frame 0 keeps three of body 1's points (and
+    // enough of body 2's for a pose).
+    let seen = |range: std::ops::Range<usize>| -> Vec<usize> {
+        range.filter(|&i| data.tracks.is_visible(0, i)).collect()
+    };
+    assert!(seen(16..24).len() >= 3, "body 2 has a pose in frame 0");
+    let keep: Vec<usize> = seen(8..16).into_iter().take(3).collect();
+    assert_eq!(keep.len(), 3);
+    let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
+        (0..data.tracks.n_frames())
+            .map(|t| {
+                (0..data.tracks.n_points())
+                    .map(|i| {
+                        if t == 0 && (8..16).contains(&i) && !keep.contains(&i) {
+                            None
+                        } else {
+                            data.tracks.get(t, i)
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+    data.tracks = kinetree_core::Tracks::from_points(&frames).expect("tracks");
+    let m = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model;
+    let e = evaluate(&m, &data.truth);
+    assert!(e.structure_exact, "{e:?}");
+    let j = m
+        .joints
+        .iter()
+        .find(|j| m.bodies[j.child].points.contains(&16))
+        .expect("joint");
+    assert_ne!(j.reference_frame, 0, "frame 0 has three parent points");
+    assert_eq!(j.positions[j.reference_frame], Some(0.0));
+}
+
 #[test]
 fn a_three_centimetre_finger_slide_is_prismatic() {
     // A gripper: a palm turning on the base and a finger sliding 3 cm (1.5 cm amplitude).
