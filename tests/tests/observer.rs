@@ -148,9 +148,10 @@ fn keypoints_are_re_predicted_from_the_joints() {
         .expect("run")
         .model;
     let r = model.reprediction_rms_in_sigma.expect("reprediction");
-    // Fitted poses alone give about 1.45 sigma here; the two joints' axis errors (0.2 and
-    // 0.8 deg) over sweeps of 3-6 rad bring it to about 4.0 (measured, session 1).
-    assert!(r > 1.0 && r < 6.0, "right model: {r} sigma");
+    // Per-body fitted poses alone give about 1.45 sigma here. The whole-tree fit has fewer
+    // free parameters per frame and carries the axes' errors (0.3 and 0.7 deg): 1.63
+    // measured (session 4; 4.0 when the root pose was carried down by per-body positions).
+    assert!(r > 1.0 && r < 2.5, "right model: {r} sigma");
     // Tilt the second joint's axis by about 10 degrees: the re-predicted keypoints drift.
     let mut wrong = model.clone();
     let a = wrong.joints[1].axis_in_parent.expect("axis");
@@ -160,5 +161,6 @@ fn keypoints_are_re_predicted_from_the_joints() {
         .reprediction_rms_in_sigma(&data.tracks, model.noise.sigma_m)
         .expect("reprediction")
         .expect("value");
-    assert!(bad > 3.0 * r, "wrong axis: {bad} sigma against {r}");
+    // 22 sigma measured.
+    assert!(bad > 5.0 * r, "wrong axis: {bad} sigma against {r}");
 }

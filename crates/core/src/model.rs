@@ -113,12 +113,15 @@ pub struct Joint {
     pub point_in_parent: Option<[f64; 3]>,
     /// Frame at which the joint position is zero.
     pub reference_frame: usize,
-    /// The child's body frame in the parent's body frame at `reference_frame`; joint positions
-    /// are measured from it (used by the observer).
+    /// The child's body frame in the parent's body frame at joint position zero, estimated from
+    /// every frame (each frame's relative pose carried back to zero through its position);
+    /// joint positions are measured from it (used by the observer).
     #[serde(default)]
     pub reference_pose: Option<RigidTransform>,
-    /// Joint position at every frame: radians (revolute, unwrapped) or metres (prismatic);
-    /// null where either body has no pose.
+    /// Joint position at every frame, from a kinematic fit of the whole tree to the frame's
+    /// visible keypoints: radians (revolute, unwrapped) or metres (prismatic), zero at
+    /// `reference_frame`; null where the frame does not determine it (no visible point below
+    /// the joint, or a standard deviation above 0.5 rad or 0.1 m).
     pub positions: Vec<Option<f64>>,
     /// Observed range `[min, max]` of the positions.
     pub range: Option<[f64; 2]>,
@@ -167,10 +170,11 @@ pub struct Model {
     /// Every pair's test (the cells of the paper's Table I): camera against each body, then
     /// each body pair `a < b`; singular values in metres and radians.
     pub pairs: Vec<PairDof>,
-    /// RMS distance between observed keypoints and their positions re-predicted from the
-    /// model (the root's fitted pose carried down the tree by the joint positions), in units
-    /// of `noise.sigma_m`: 1.2-1.6 from fitted poses alone, plus each joint's axis and pivot
-    /// errors times its motion (4.0 on the paper arm, whose joints sweep 3-6 rad).
+    /// RMS distance between observed keypoints and their positions predicted by the model
+    /// fitted to each frame (the root's pose and every joint position; see
+    /// `kinetree_structure::Observer::fit`), in units of `noise.sigma_m`: 1.2-1.6 from
+    /// per-body poses alone, a little more from the model (1.6 on the paper arm, with axis
+    /// errors of 0.3 and 0.7 deg over sweeps of 3-6 rad), far more with a wrong joint.
     #[serde(default)]
     pub reprediction_rms_in_sigma: Option<f64>,
     /// Degenerate situations met on the way.

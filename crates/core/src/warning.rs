@@ -75,6 +75,17 @@ pub enum Warning {
         /// Estimated degrees of freedom of the pair.
         dof: usize,
     },
+    /// The whole-tree fit could not follow a joint: the child's keypoints miss their
+    /// positions predicted through the joint by far more than they miss the child's own pose.
+    /// The joint's positions come from the two bodies' fitted poses instead.
+    JointNotFollowed {
+        /// Parent body (output numbering).
+        parent: usize,
+        /// Child body (output numbering).
+        child: usize,
+        /// The miss beyond the child's own pose, per point, in units of sigma^2.
+        excess_in_sigma2: f64,
+    },
     /// The noise level was estimated from the data.
     NoiseEstimated {
         /// The estimate, per-coordinate std-dev in metres.
@@ -134,6 +145,14 @@ impl std::fmt::Display for Warning {
             Warning::MultiDofJoint { parent, child, dof } => write!(
                 f,
                 "bodies {parent} -> {child} are linked in the tree but their relative motion has {dof} DoF, not one"
+            ),
+            Warning::JointNotFollowed {
+                parent,
+                child,
+                excess_in_sigma2,
+            } => write!(
+                f,
+                "joint {parent} -> {child}: its child misses the whole-tree fit by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose; its positions come from the two bodies' poses"
             ),
             Warning::NoiseEstimated { sigma_m } => write!(
                 f,

@@ -491,8 +491,8 @@ impl Pipeline {
         for body in &mut model.0.bodies {
             body.internal_dissimilarity = diag.body_spread[model.1[body.id]];
         }
-        model.0.reprediction_rms_in_sigma = kinetree_structure::Observer::new(&model.0)?
-            .reprediction_rms_in_sigma(tracks, sigma)?;
+        model.0.reprediction_rms_in_sigma =
+            kinetree_structure::fit_model_positions(&mut model.0, tracks)?;
         Ok(Discovery {
             body_order: model.1,
             model: model.0,
@@ -548,10 +548,8 @@ impl Pipeline {
             let (positions, reference) = kinetree_structure::joint_positions(poses, &pair);
             let reference_frame = reference.unwrap_or(pair.reference_frame);
             let cam_parent = cam_from(poses, Some(parent), reference_frame);
-            let reference_pose = kinetree_core::geom::relative_poses(poses, Some(parent), child)
-                .get(reference_frame)
-                .copied()
-                .flatten()
+            let reference_pose = reference
+                .and_then(|r| kinetree_structure::joint_reference(poses, &pair, &positions, r))
                 .map(|x| RigidTransform {
                     rotation_xyzw: [x.rotation.i, x.rotation.j, x.rotation.k, x.rotation.w],
                     translation: [x.translation.x, x.translation.y, x.translation.z],
