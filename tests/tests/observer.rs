@@ -67,12 +67,15 @@ fn observing_the_training_frames_reproduces_the_batch_positions() {
             .find_map(|(a, b)| Some(a.as_ref()? - b.as_ref()?))
             .expect("a common frame");
         assert!(
-            kinetree_core::geom::wrap_pi(turns).abs() < 1e-9,
+            kinetree_core::geom::wrap_pi(turns).abs() < 1e-6,
             "offset {turns}"
         );
         for (a, b) in j.positions.iter().zip(c) {
             match (a, b) {
-                (Some(a), Some(b)) => assert!((a - b - turns).abs() < 1e-9, "{a} vs {b}"),
+                // The batch fits start from the previous frame, the observer from the
+                // frame's own poses: both stop within the solver's tolerance (a micron or
+                // microradian step), here within 1e-7 rad of each other.
+                (Some(a), Some(b)) => assert!((a - b - turns).abs() < 1e-6, "{a} vs {b}"),
                 (None, None) => {}
                 _ => panic!("known in one and not the other: {a:?} vs {b:?}"),
             }

@@ -53,3 +53,14 @@ fn observe_one_frame_9_joints_80_points(bencher: divan::Bencher) {
         observer.observe(divan::black_box(&frames[t]))
     });
 }
+
+/// The per-body Kabsch-Umeyama poses alone (the fit's starting point), for the ratio.
+#[divan::bench(sample_count = 200)]
+fn body_poses_one_frame_10_bodies_80_points(bencher: divan::Bencher) {
+    let (observer, frames) = arm();
+    let mut t = 0;
+    bencher.bench_local(|| {
+        t = (t + 1) % frames.len();
+        observer.body_poses(divan::black_box(&frames[t]))
+    });
+}

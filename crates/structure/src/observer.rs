@@ -3,8 +3,8 @@
 
 use kinetree_core::geom::{angle_about, kabsch_with_rank_check, wrap_pi};
 use kinetree_core::nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Point3, Quaternion, Translation3, Unit, UnitQuaternion,
-    Vector3, Vector6,
+    DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Quaternion, Translation3, Unit,
+    UnitQuaternion, Vector3, Vector6,
 };
 use kinetree_core::{Error, Model, Result, Tracks, Warning};
 
@@ -418,10 +418,12 @@ impl Observer {
         mut state: State,
         visible: &[Vec<(Point3<f64>, Point3<f64>)>],
     ) -> (State, Option<Linear>, f64) {
-        let mut cost = self.cost(&state, visible);
+        let mut poses = self.forward(&state);
+        let mut cost = Self::cost(&poses, visible);
         let mut lambda = 1e-6;
-        for _ in 0..30 {
-            let Some(lin) = self.linearise(&state, visible) else {
+        let mut last = None;
+        for _ in 0..MAX_ITERATIONS {
+            let Some(lin) = self.linearise(&poses, visible) else {
                 break;
             };
             let mut moved = false;
@@ -431,22 +433,26 @@ impl Observer {
                     continue;
                 };
                 let trial = self.apply(&state, &step, &lin.origin);
-                let c = self.cost(&trial, visible);
+                let trial_poses = self.forward(&trial);
+                let c = Self::cost(&trial_poses, visible);
                 if c <= cost {
-                    moved = step.amax() >= 1e-10;
-                    state = trial;
-                    cost = c;
+                    // Converged once a step moves nothing by more than a micron or a
+                    // microradian (far below any noise) or lowers the cost by under a
+                    // millionth.
+                    moved = step.amax() >= STEP_TOLERANCE && c < cost * (1.0 - 1e-6);
+                    (state, poses, cost) = (trial, trial_poses, c);
                     lambda = (lambda * 0.1).max(1e-9);
                     break;
                 }
                 lambda *= 10.0;
             }
+            // The last linearisation, a converged step away, serves the variances.
+            last = Some(lin);
             if !moved {
                 break;
             }
         }
-        let lin = self.linearise(&state, visible);
-        (state, lin, cost)
+        (state, last, cost)
     }
 
     /// `parent_from_child` of joint `j` at position `q`.
@@ -608,9 +614,10 @@ impl Observer {
         s
     }
 
-    /// Sum of squared residuals over the points whose body has a pose.
-    fn cost(&self, s: &State, visible: &[Vec<(Point3<f64>, Point3<f64>)>]) -> f64 {
-        self.forward(s)
+    /// Sum of squared residuals over the points whose body has a pose (`poses` from
+    /// [`Observer::forward`]).
+    fn cost(poses: &[Option<Isometry3<f64>>], visible: &[Vec<(Point3<f64>, Point3<f64>)>]) -> f64 {
+        poses
             .iter()
             .zip(visible)
             .filter_map(|(p, v)| p.map(|p| (p, v)))
@@ -618,10 +625,13 @@ impl Observer {
             .sum()
     }
 
-    /// Normal equations of the fit at `s`, with coordinates taken about the centroid of the
+    /// Normal equations of the fit at the body poses `poses`, with coordinates taken about the centroid of the
     /// visible points (better conditioned than about the camera).
-    fn linearise(&self, s: &State, visible: &[Vec<(Point3<f64>, Point3<f64>)>]) -> Option<Linear> {
-        let poses = self.forward(s);
+    fn linearise(
+        &self,
+        poses: &[Option<Isometry3<f64>>],
+        visible: &[Vec<(Point3<f64>, Point3<f64>)>],
+    ) -> Option<Linear> {
         let used: Vec<&Point3<f64>> = poses
             .iter()
             .zip(visible)
@@ -665,54 +675,68 @@ impl Observer {
                 }
             }
         }
-        let n = self.n_params;
-        let mut normal = DMatrix::<f64>::zeros(n, n);
-        let mut rhs = DVector::<f64>::zeros(n);
-        let mut seen = vec![false; n];
+        // Each body's 6 x 6 information [[n I, -[S]x], [[S]x, sum(|p|^2 I - p p^T)]] and
+        // gradient (sum r, sum p x r), p about the origin, r = observed - predicted; then
+        // summed over every body a parameter moves (its subtree in the fit).
+        let nb = self.bodies.len();
+        let mut info = vec![Matrix6::<f64>::zeros(); nb];
+        let mut grad = vec![Vector6::<f64>::zeros(); nb];
+        let mut points = vec![0usize; nb];
         for (b, pose) in poses.iter().enumerate() {
             let Some(pose) = pose else { continue };
-            if visible[b].is_empty() {
-                continue;
-            }
-            // The body's 6 x 6 information [[n I, -[S]x], [[S]x, sum(|p|^2 I - p p^T)]] and
-            // gradient (sum r, sum p x r), p about the origin, r = observed - predicted.
-            let mut count = 0.0;
-            let mut sum = Vector3::zeros();
-            let mut inertia = Matrix3::zeros();
-            let mut force = Vector3::zeros();
-            let mut torque = Vector3::zeros();
+            let (mut sum, mut inertia) = (Vector3::zeros(), Matrix3::zeros());
+            let (mut force, mut torque) = (Vector3::zeros(), Vector3::zeros());
             for (sp, o) in &visible[b] {
                 let p = (pose * sp).coords - origin;
                 let r = o.coords - origin - p;
-                count += 1.0;
                 sum += p;
                 inertia += Matrix3::identity() * p.norm_squared() - p * p.transpose();
                 force += r;
                 torque += p.cross(&r);
             }
+            let n = visible[b].len();
             let cross = sum.cross_matrix();
-            let cols = &self.cols[b];
-            // H times each parameter's twist.
-            let h_twist: Vec<Vector6<f64>> = cols
-                .iter()
-                .map(|&c| {
-                    let v = twist[c].fixed_rows::<3>(0).into_owned();
-                    let w = twist[c].fixed_rows::<3>(3).into_owned();
-                    let top = v * count - cross * w;
-                    let bottom = cross * v + inertia * w;
-                    Vector6::new(top.x, top.y, top.z, bottom.x, bottom.y, bottom.z)
-                })
-                .collect();
-            let grad = Vector6::new(force.x, force.y, force.z, torque.x, torque.y, torque.z);
-            for (a, &ca) in cols.iter().enumerate() {
-                seen[ca] = true;
-                rhs[ca] += twist[ca].dot(&grad);
-                for (hb, &cb) in h_twist.iter().zip(cols).skip(a) {
-                    let v = twist[ca].dot(hb);
-                    normal[(ca, cb)] += v;
-                    if ca != cb {
-                        normal[(cb, ca)] += v;
-                    }
+            let h = &mut info[b];
+            h.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&(Matrix3::identity() * n as f64));
+            h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-cross));
+            h.fixed_view_mut::<3, 3>(3, 0).copy_from(&cross);
+            h.fixed_view_mut::<3, 3>(3, 3).copy_from(&inertia);
+            grad[b] = Vector6::new(force.x, force.y, force.z, torque.x, torque.y, torque.z);
+            points[b] = n;
+        }
+        for &b in self.topo.iter().rev() {
+            if let Some(k) = self.link[b] {
+                let a = self.joints[k].parent;
+                let (h, g, n) = (info[b], grad[b], points[b]);
+                info[a] += h;
+                grad[a] += g;
+                points[a] += n;
+            }
+        }
+        // A parameter of body b moves b's subtree; the normal matrix entry with a parameter
+        // above it (or its own) is its twist against the subtree's information times the
+        // other's twist. Parameters on different branches share no point.
+        let n = self.n_params;
+        let mut normal = DMatrix::<f64>::zeros(n, n);
+        let mut rhs = DVector::<f64>::zeros(n);
+        let mut seen = vec![false; n];
+        for &b in &self.topo {
+            if points[b] == 0 {
+                continue;
+            }
+            let own: &[usize] = match self.link[b] {
+                None => &self.cols[b][..],
+                Some(_) => &self.cols[b][self.cols[b].len() - 1..],
+            };
+            for &c in own {
+                let moved = info[b] * twist[c];
+                seen[c] = true;
+                rhs[c] = twist[c].dot(&grad[b]);
+                for &other in &self.cols[b] {
+                    let v = moved.dot(&twist[other]);
+                    normal[(c, other)] = v;
+                    normal[(other, c)] = v;
                 }
             }
         }
@@ -883,6 +907,11 @@ impl Observer {
         Ok(rms_in_sigma(&self.fit_sequence(tracks)?, sigma))
     }
 }
+
+/// Gauss-Newton iterations per start, at most (two to four are typical).
+const MAX_ITERATIONS: usize = 30;
+/// A step whose largest component (metres or radians) is below this ends the descent.
+const STEP_TOLERANCE: f64 = 1e-6;
 
 const PI_6: f64 = std::f64::consts::PI / 6.0;
 
