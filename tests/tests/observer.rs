@@ -1,7 +1,8 @@
 //! The observer: joint positions of new frames from a discovered model.
 
-use kinetree_core::Error;
 use kinetree_core::geom::unwrap_angles;
+use kinetree_core::nalgebra::Point3;
+use kinetree_core::{Error, Warning};
 use kinetree_eval::aligned_rms;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
 use kinetree_structure::Observer;
@@ -166,4 +167,136 @@ fn keypoints_are_re_predicted_from_the_joints() {
         .expect("value");
     // 22 sigma measured.
     assert!(bad > 5.0 * r, "wrong axis: {bad} sigma against {r}");
+}
+
+fn frame_of(tracks: &kinetree_core::Tracks, t: usize) -> Vec<Option<Point3<f64>>> {
+    (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect()
+}
+
+/// The tree fit follows a joint whose child shows one or two points, where a per-body pose
+/// (three points) cannot; with none below the joint the position is unknown.
+#[test]
+fn a_joint_is_followed_from_two_child_points_and_unknown_from_none() {
+    let data = simulate(&paper_arm(3)).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    let observer = Observer::new(&model).expect("observer");
+    let last = model.joints.len() - 1;
+    let child = model.joints[last].child;
+    let points = &model.bodies[child].points;
+    let (mut compared, mut worst) = (0, 0.0f64);
+    for t in (10..90).step_by(4) {
+        let mut frame = frame_of(&data.tracks, t);
+        // Keep the first two visible points of the last link, hide the rest.
+        let mut kept = 0;
+        for &i in points {
+            if frame[i].is_some() && kept < 2 {
+                kept += 1;
+            } else {
+                frame[i] = None;
+            }
+        }
+        if kept < 2 {
+            continue;
+        }
+        assert!(observer.body_poses(&frame)[child].is_none());
+        let fit = observer.fit(&frame, None).expect("fit");
+        let (Some(q), Some(batch)) = (fit.positions[last], model.joints[last].positions[t]) else {
+            panic!("frame {t}: no position from two points");
+        };
+        let sd = fit.std[last].expect("std");
+        assert!(sd > 0.0 && sd < 0.05, "frame {t}: std {sd}");
+        worst = worst.max(kinetree_core::geom::wrap_pi(q - batch).abs());
+        compared += 1;
+        // Nothing below the joint: unknown, and so is the child's pose.
+        for &i in points {
+            frame[i] = None;
+        }
+        let fit = observer.fit(&frame, None).expect("fit");
+        assert_eq!(fit.positions[last], None, "frame {t}");
+        assert!(fit.poses[child].is_none());
+        assert!(fit.positions[..last].iter().all(Option::is_some));
+    }
+    assert!(compared >= 15, "{compared} frames compared");
+    // Two points 10-20 cm from the axis at 1 mm noise: about 0.01 rad.
+    assert!(worst < 0.05, "two points against all: {worst} rad");
+}
+
+/// A joint the model gets wrong (its pivot moved 8 cm) is freed with a warning, and the
+/// joint above it keeps its accuracy; its own positions then come from the body poses.
+#[test]
+fn a_joint_the_model_gets_wrong_is_freed() {
+    let data = simulate(&paper_arm(3)).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    let truth_of = |k: usize| {
+        let child = model.joints[k].child;
+        &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1]
+    };
+    let before: Vec<f64> = (0..2)
+        .map(|k| aligned_rms(&model.joints[k].positions, truth_of(k)).expect("rms"))
+        .collect();
+    assert!(before.iter().all(|&r| r < 0.01), "{before:?}");
+    let mut wrong = model.clone();
+    let p = wrong.joints[1].point_in_parent.expect("pivot");
+    wrong.joints[1].point_in_parent = Some([p[0] + 0.08, p[1], p[2]]);
+    wrong.warnings.clear();
+    kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
+    let freed: Vec<(usize, usize)> = wrong
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            Warning::JointNotFollowed { parent, child, .. } => Some((*parent, *child)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(freed, vec![(wrong.joints[1].parent, wrong.joints[1].child)]);
+    let after: Vec<f64> = (0..2)
+        .map(|k| aligned_rms(&wrong.joints[k].positions, truth_of(k)).expect("rms"))
+        .collect();
+    assert!(after[0] < 0.01, "the joint above: {after:?}");
+    assert!(
+        after[1] < 0.02,
+        "the freed joint, from the poses: {after:?}"
+    );
+}
+
+#[test]
+fn bad_fit_input_gets_typed_errors() {
+    let data = simulate(&paper_arm(5)).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    let observer = Observer::new(&model).expect("observer");
+    let frame = frame_of(&data.tracks, 0);
+    let fit = observer.fit(&frame, None).expect("fit");
+    // A previous fit of another model.
+    let mut other = fit.clone();
+    other.positions.push(None);
+    assert!(matches!(
+        observer.fit(&frame, Some(&other)),
+        Err(Error::Shape { .. })
+    ));
+    // Fits that do not match the tracks.
+    assert!(matches!(
+        observer.joint_excess(&data.tracks, &[fit]),
+        Err(Error::Shape { .. })
+    ));
+    // A body with two parents, and a cycle.
+    let mut two = model.clone();
+    let mut extra = two.joints[1].clone();
+    extra.parent = 0;
+    two.joints.push(extra);
+    assert!(matches!(Observer::new(&two), Err(Error::Config(_))));
+    let mut cycle = model.clone();
+    cycle.joints[0].parent = cycle.joints[1].child;
+    assert!(matches!(Observer::new(&cycle), Err(Error::Config(_))));
 }

@@ -991,40 +991,49 @@ impl Linear {
 pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<f64>> {
     let mut observer = Observer::new(model)?;
     let mut fits = observer.fit_sequence(tracks)?;
-    // Joints the model cannot follow are freed, the top-most first (a bad joint also spoils
-    // the fit below it), and the sequence refitted.
+    // Joints the model cannot follow are freed one at a time and the sequence refitted. A
+    // wrong joint also spoils the joints above it, which bend to absorb its miss (their
+    // excess can be the larger), so each round tries every joint over the limit and every
+    // joint below one, and frees the one whose freeing leaves the smallest residual.
     loop {
         let excess = observer.joint_excess(tracks, &fits)?;
-        let bad: Vec<usize> = (0..observer.joints.len())
+        let over: Vec<usize> = (0..observer.joints.len())
             .filter(|&k| excess[k].is_some_and(|e| e > MAX_JOINT_EXCESS))
             .collect();
-        let top: Vec<usize> = bad
-            .iter()
-            .copied()
-            .filter(|&k| {
-                let mut up = observer.parent_joint[observer.joints[k].parent];
-                while let Some(a) = up {
-                    if bad.contains(&a) {
-                        return false;
-                    }
-                    up = observer.parent_joint[observer.joints[a].parent];
-                }
-                true
-            })
-            .collect();
-        if top.is_empty() {
+        if over.is_empty() {
             break;
         }
-        for &k in &top {
-            observer.free_joint(k);
-            let j = &model.joints[k];
-            model.warnings.push(Warning::JointNotFollowed {
-                parent: j.parent,
-                child: j.child,
-                excess_in_sigma2: excess[k].unwrap_or(f64::NAN),
+        let mut best: Option<(usize, f64, Observer, Vec<FrameFit>)> = None;
+        for k in 0..observer.joints.len() {
+            if observer.joint_col[k].is_none() {
+                continue;
+            }
+            let below_over = over.iter().any(|&o| {
+                o == k
+                    || observer.joint_col[o]
+                        .is_some_and(|c| observer.cols[observer.joints[k].child].contains(&c))
             });
+            if !below_over {
+                continue;
+            }
+            let mut trial = observer.clone();
+            trial.free_joint(k);
+            let trial_fits = trial.fit_sequence(tracks)?;
+            let miss: f64 = trial_fits.iter().map(|f| f.sum_sq_m2).sum();
+            if best.as_ref().is_none_or(|b| miss < b.1) {
+                best = Some((k, miss, trial, trial_fits));
+            }
         }
-        fits = observer.fit_sequence(tracks)?;
+        let Some((k, _, freed, freed_fits)) = best else {
+            break;
+        };
+        (observer, fits) = (freed, freed_fits);
+        let j = &model.joints[k];
+        model.warnings.push(Warning::JointNotFollowed {
+            parent: j.parent,
+            child: j.child,
+            excess_in_sigma2: excess[k].unwrap_or(f64::NAN),
+        });
     }
     for (k, joint) in model.joints.iter_mut().enumerate() {
         let j = &observer.joints[k];
