@@ -310,10 +310,11 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// End-to-end recovery on `cases()` mechanisms drawn from the strategies by proptest's
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
-/// per 64 for platform rounding: 54 of the first 64 were recovered when this was written
-/// (167 of 200). Of the 33 failures in 200: 17 joint-position RMS (frames where a small
-/// parent or child has 3-4 visible points), 8 joints not exact, 8 one or two points on the
-/// wrong body. The failures are printed, and `any_mechanism_is_recovered` (ignored) shrinks
+/// per 64 for platform rounding: 58 of the first 64 were recovered when this was written
+/// (182 of 200; 167 before joint positions came from the whole-tree fit, which removed all
+/// 17 joint-position RMS failures). The 18 failures in 200: 10 joints not exact (a 3-6 cm
+/// body merged, or a type wrong), 8 one or two points on the wrong body. The failures are
+/// printed, and `any_mechanism_is_recovered` (ignored) shrinks
 /// one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {
@@ -338,7 +339,7 @@ fn most_mechanisms_are_recovered() {
         eprintln!("{f}");
     }
     let recovered = n - failures.len();
-    let required = n * 52 / 64;
+    let required = n * 56 / 64;
     assert!(
         recovered >= required,
         "{recovered} of {n} recovered, {required} required"

@@ -380,19 +380,12 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path) -> Result<()> {
         );
     }
     let observer = kinetree_structure::Observer::new(&model)?;
-    let mut columns: Vec<Vec<Option<f64>>> =
-        vec![Vec::with_capacity(tracks.n_frames()); observer.n_joints()];
-    for t in 0..tracks.n_frames() {
-        let frame: Vec<_> = (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
-        for (c, v) in columns.iter_mut().zip(observer.observe(&frame)?) {
-            c.push(v);
-        }
-    }
-    for (c, j) in columns.iter_mut().zip(&model.joints) {
-        if j.joint_type == "revolute" {
-            kinetree_core::geom::unwrap_angles(c);
-        }
-    }
+    // Each frame's fit starts from the frames before it, so revolute columns come out
+    // unwrapped.
+    let fits = observer.fit_sequence(&tracks)?;
+    let columns: Vec<Vec<Option<f64>>> = (0..observer.n_joints())
+        .map(|k| fits.iter().map(|f| f.positions[k]).collect())
+        .collect();
     let mut w = std::io::BufWriter::new(
         std::fs::File::create(output).with_context(|| format!("creating {}", output.display()))?,
     );
