@@ -15,6 +15,17 @@ fn config() -> PipelineConfig {
     }
 }
 
+/// The paper arm simulated from `seed` and the model discovered from all its frames.
+fn discovered_arm(seed: u64) -> (kinetree_synth::SynthData, kinetree_core::Model) {
+    let data = simulate(&paper_arm(seed)).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    (data, model)
+}
+
 fn observe_all(
     observer: &Observer,
     tracks: &kinetree_core::Tracks,
@@ -40,12 +51,7 @@ fn observe_all(
 
 #[test]
 fn observing_the_training_frames_reproduces_the_batch_positions() {
-    let data = simulate(&paper_arm(3)).expect("simulate");
-    let model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, model) = discovered_arm(3);
     // Through JSON, as a user would load it.
     let path = std::env::temp_dir().join(format!("kinetree-observer-{}.json", std::process::id()));
     kinetree_io::write_json(&path, &model).expect("write");
@@ -118,12 +124,7 @@ fn held_back_frames_follow_the_truth() {
 
 #[test]
 fn bad_observer_input_gets_typed_errors() {
-    let data = simulate(&paper_arm(5)).expect("simulate");
-    let mut model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, mut model) = discovered_arm(5);
     let observer = Observer::new(&model).expect("observer");
     assert!(matches!(
         observer.observe(&[None; 5]),
@@ -145,12 +146,7 @@ fn bad_observer_input_gets_typed_errors() {
 
 #[test]
 fn keypoints_are_re_predicted_from_the_joints() {
-    let data = simulate(&paper_arm(6)).expect("simulate");
-    let model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, model) = discovered_arm(6);
     let r = model.reprediction_rms_in_sigma.expect("reprediction");
     // Per-body fitted poses alone give about 1.45 sigma here. The whole-tree fit has fewer
     // free parameters per frame and carries the axes' errors (0.3 and 0.7 deg): 1.63
@@ -177,12 +173,7 @@ fn frame_of(tracks: &kinetree_core::Tracks, t: usize) -> Vec<Option<Point3<f64>>
 /// (three points) cannot; with none below the joint the position is unknown.
 #[test]
 fn a_joint_is_followed_from_two_child_points_and_unknown_from_none() {
-    let data = simulate(&paper_arm(3)).expect("simulate");
-    let model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, model) = discovered_arm(3);
     let observer = Observer::new(&model).expect("observer");
     let last = model.joints.len() - 1;
     let child = model.joints[last].child;
@@ -229,12 +220,7 @@ fn a_joint_is_followed_from_two_child_points_and_unknown_from_none() {
 /// joint above it keeps its accuracy; its own positions then come from the body poses.
 #[test]
 fn a_joint_the_model_gets_wrong_is_freed() {
-    let data = simulate(&paper_arm(3)).expect("simulate");
-    let model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, model) = discovered_arm(3);
     let truth_of = |k: usize| {
         let child = model.joints[k].child;
         &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1]
@@ -269,12 +255,7 @@ fn a_joint_the_model_gets_wrong_is_freed() {
 
 #[test]
 fn bad_fit_input_gets_typed_errors() {
-    let data = simulate(&paper_arm(5)).expect("simulate");
-    let model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, model) = discovered_arm(5);
     let observer = Observer::new(&model).expect("observer");
     let frame = frame_of(&data.tracks, 0);
     let fit = observer.fit(&frame, None).expect("fit");
@@ -296,6 +277,9 @@ fn bad_fit_input_gets_typed_errors() {
     extra.parent = 0;
     two.joints.push(extra);
     assert!(matches!(Observer::new(&two), Err(Error::Config(_))));
+    let mut itself = model.clone();
+    itself.joints[0].parent = itself.joints[0].child;
+    assert!(matches!(Observer::new(&itself), Err(Error::Config(_))));
     let mut cycle = model.clone();
     cycle.joints[0].parent = cycle.joints[1].child;
     assert!(matches!(Observer::new(&cycle), Err(Error::Config(_))));

@@ -143,9 +143,15 @@ impl Observer {
             .joints
             .iter()
             .map(|j| {
-                if j.parent >= nb || j.child >= nb || j.parent == j.child {
+                if j.parent >= nb || j.child >= nb {
                     return Err(Error::Config(format!(
                         "joint {} -> {} names a missing body",
+                        j.parent, j.child
+                    )));
+                }
+                if j.parent == j.child {
+                    return Err(Error::Config(format!(
+                        "joint {} -> {} joins a body to itself",
                         j.parent, j.child
                     )));
                 }
@@ -625,8 +631,8 @@ impl Observer {
             .sum()
     }
 
-    /// Normal equations of the fit at the body poses `poses`, with coordinates taken about the centroid of the
-    /// visible points (better conditioned than about the camera).
+    /// Normal equations of the fit at the body poses `poses`, with coordinates taken about
+    /// the centroid of the visible points (better conditioned than about the camera).
     fn linearise(
         &self,
         poses: &[Option<Isometry3<f64>>],
