@@ -124,7 +124,7 @@ fn held_back_frames_follow_the_truth() {
 
 #[test]
 fn bad_observer_input_gets_typed_errors() {
-    let (data, mut model) = discovered_arm(5);
+    let (_, mut model) = discovered_arm(5);
     let observer = Observer::new(&model).expect("observer");
     assert!(matches!(
         observer.observe(&[None; 5]),
