@@ -154,6 +154,21 @@ fn real_recordings_segment_into_their_labelled_segments() {
             );
             assert!(o.ari > 0.6, "{}: ARI {}", o.folder, o.ari);
         }
+        // Every model exports, multi-DoF (and rigid) joints included as floating joints.
+        let urdf = kinetree_io::export::to_urdf(&o.model)
+            .unwrap_or_else(|e| panic!("{}: URDF export: {e}", o.folder));
+        let multi = o
+            .model
+            .joints
+            .iter()
+            .filter(|j| !matches!(j.joint_type.as_str(), "revolute" | "prismatic"))
+            .count();
+        assert_eq!(
+            urdf.matches("type=\"floating\"").count(),
+            multi,
+            "{}",
+            o.folder
+        );
     }
 }
 

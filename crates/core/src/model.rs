@@ -115,7 +115,8 @@ pub struct Joint {
     pub reference_frame: usize,
     /// The child's body frame in the parent's body frame at joint position zero, estimated from
     /// every frame (each frame's relative pose carried back to zero through its position);
-    /// joint positions are measured from it (used by the observer).
+    /// joint positions are measured from it (used by the observer). For a multi-DoF joint, the
+    /// relative pose at `reference_frame`.
     #[serde(default)]
     pub reference_pose: Option<RigidTransform>,
     /// Joint position at every frame, from a kinematic fit of the whole tree to the frame's

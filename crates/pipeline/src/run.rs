@@ -548,8 +548,16 @@ impl Pipeline {
             let (positions, reference) = kinetree_structure::joint_positions(poses, &pair);
             let reference_frame = reference.unwrap_or(pair.reference_frame);
             let cam_parent = cam_from(poses, Some(parent), reference_frame);
+            // Single-DoF joints: averaged over all frames; others (multi-DoF, whose child is
+            // posed freely; URDF export still needs a pose): the reference frame's.
             let reference_pose = reference
                 .and_then(|r| kinetree_structure::joint_reference(poses, &pair, &positions, r))
+                .or_else(|| {
+                    kinetree_core::geom::relative_poses(poses, Some(parent), child)
+                        .get(reference_frame)
+                        .copied()
+                        .flatten()
+                })
                 .map(|x| RigidTransform {
                     rotation_xyzw: [x.rotation.i, x.rotation.j, x.rotation.k, x.rotation.w],
                     translation: [x.translation.x, x.translation.y, x.translation.z],
