@@ -4,7 +4,8 @@
 use kinetree_eval::evaluate;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
 use kinetree_synth::{
-    BodySpec, BoxShape, Camera, JointSpec, JointType, Mechanism, Scenario, Trajectory, simulate,
+    BodySpec, BoxShape, Camera, JointSpec, JointType, Mechanism, Scenario, SynthData, Trajectory,
+    simulate,
 };
 
 fn body(centre: [f64; 3], half: [f64; 3], points: usize) -> BodySpec {
@@ -68,7 +69,10 @@ fn base() -> BodySpec {
 }
 
 fn discover(s: &Scenario) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
-    let data = simulate(s).expect("simulate");
+    discover_data(&simulate(s).expect("simulate"))
+}
+
+fn discover_data(data: &SynthData) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
     let m = Pipeline::from_config(&PipelineConfig::default())
         .expect("pipeline")
         .run(&data.tracks)
@@ -76,6 +80,33 @@ fn discover(s: &Scenario) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
         .model;
     let e = evaluate(&m, &data.truth);
     (m, e)
+}
+
+/// Hides point `i` in frame `t` wherever `hide(t, i)`.
+fn hide(data: &mut SynthData, hide: impl Fn(usize, usize) -> bool) {
+    let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
+        (0..data.tracks.n_frames())
+            .map(|t| {
+                (0..data.tracks.n_points())
+                    .map(|i| {
+                        if hide(t, i) {
+                            None
+                        } else {
+                            data.tracks.get(t, i)
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+    data.tracks = kinetree_core::Tracks::from_points(&frames).expect("tracks");
+}
+
+/// The joint whose child holds point `point`.
+fn joint_with_child_point(m: &kinetree_core::Model, point: usize) -> &kinetree_core::model::Joint {
+    m.joints
+        .iter()
+        .find(|j| m.bodies[j.child].points.contains(&point))
+        .expect("joint")
 }
 
 #[test]
@@ -122,33 +153,10 @@ fn a_body_hidden_in_frame_zero_still_gets_its_joint() {
     );
     let mut data = simulate(&s).expect("simulate");
     // Hide body 2 (points 16-23) in the first 15 frames.
-    let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
-        (0..data.tracks.n_frames())
-            .map(|t| {
-                (0..data.tracks.n_points())
-                    .map(|i| {
-                        if t < 15 && i >= 16 {
-                            None
-                        } else {
-                            data.tracks.get(t, i)
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
-    data.tracks = kinetree_core::Tracks::from_points(&frames).expect("tracks");
-    let m = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover")
-        .model;
-    let e = evaluate(&m, &data.truth);
+    hide(&mut data, |t, i| t < 15 && i >= 16);
+    let (m, e) = discover_data(&data);
     assert!(e.structure_exact, "{e:?}");
-    let j = m
-        .joints
-        .iter()
-        .find(|j| m.bodies[j.child].points.contains(&16))
-        .expect("joint");
+    let j = joint_with_child_point(&m, 16);
     assert!(
         j.positions[..15].iter().all(Option::is_none),
         "no position while hidden"
@@ -187,33 +195,12 @@ fn the_reference_frame_avoids_a_poorly_seen_parent() {
     assert!(seen(16..24).len() >= 3, "body 2 has a pose in frame 0");
     let keep: Vec<usize> = seen(8..16).into_iter().take(3).collect();
     assert_eq!(keep.len(), 3);
-    let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
-        (0..data.tracks.n_frames())
-            .map(|t| {
-                (0..data.tracks.n_points())
-                    .map(|i| {
-                        if t == 0 && (8..16).contains(&i) && !keep.contains(&i) {
-                            None
-                        } else {
-                            data.tracks.get(t, i)
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
-    data.tracks = kinetree_core::Tracks::from_points(&frames).expect("tracks");
-    let m = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover")
-        .model;
-    let e = evaluate(&m, &data.truth);
+    hide(&mut data, |t, i| {
+        t == 0 && (8..16).contains(&i) && !keep.contains(&i)
+    });
+    let (m, e) = discover_data(&data);
     assert!(e.structure_exact, "{e:?}");
-    let j = m
-        .joints
-        .iter()
-        .find(|j| m.bodies[j.child].points.contains(&16))
-        .expect("joint");
+    let j = joint_with_child_point(&m, 16);
     assert_ne!(j.reference_frame, 0, "frame 0 has three parent points");
     assert_eq!(j.positions[j.reference_frame], Some(0.0));
 }
