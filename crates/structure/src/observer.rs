@@ -278,15 +278,20 @@ impl Observer {
     /// Every body's `camera_from_body` in one frame from its own visible points alone
     /// (Kabsch-Umeyama), `None` with fewer than three visible placed points or collinear ones.
     pub fn body_poses(&self, frame: &[Option<Point3<f64>>]) -> Vec<Option<Isometry3<f64>>> {
+        self.visible(frame).iter().map(|v| own_pose(v)).collect()
+    }
+
+    /// Per body, `(shape point, observation)` for its placed points visible (and finite) in
+    /// `frame`.
+    fn visible(&self, frame: &[Option<Point3<f64>>]) -> Vec<Vec<(Point3<f64>, Point3<f64>)>> {
         self.bodies
             .iter()
             .map(|b| {
-                let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = b
-                    .shape
+                b.shape
                     .iter()
                     .filter_map(|&(i, s)| frame.get(i).copied().flatten().map(|p| (s, p)))
-                    .unzip();
-                kabsch_with_rank_check(&src, &dst, 1e-6)
+                    .filter(|(_, p)| p.coords.iter().all(|x| x.is_finite()))
+                    .collect()
             })
             .collect()
     }
@@ -368,17 +373,7 @@ impl Observer {
                 found: format!("{} joints and {} bodies", p.positions.len(), p.poses.len()),
             });
         }
-        let visible: Vec<Vec<(Point3<f64>, Point3<f64>)>> = self
-            .bodies
-            .iter()
-            .map(|b| {
-                b.shape
-                    .iter()
-                    .filter_map(|&(i, s)| frame[i].map(|p| (s, p)))
-                    .filter(|(_, p)| p.coords.iter().all(|x| x.is_finite()))
-                    .collect()
-            })
-            .collect();
+        let visible = self.visible(frame);
         // From the frame's own poses, and from the previous frame's values where they differ
         // (a pose from three noisy points can start a joint far off, and a descent from there
         // may settle a whole turn away on another joint); the lower final cost wins.
@@ -517,13 +512,7 @@ impl Observer {
         prefer_previous: bool,
     ) -> State {
         let nb = self.bodies.len();
-        let own: Vec<Option<Isometry3<f64>>> = visible
-            .iter()
-            .map(|v| {
-                let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = v.iter().copied().unzip();
-                kabsch_with_rank_check(&src, &dst, 1e-6)
-            })
-            .collect();
+        let own: Vec<Option<Isometry3<f64>>> = visible.iter().map(|v| own_pose(v)).collect();
         let mut s = State {
             free: vec![None; nb],
             q: vec![None; self.joints.len()],
@@ -604,12 +593,7 @@ impl Observer {
                 let poses = self.forward(&trial);
                 let e: f64 = below
                     .iter()
-                    .filter_map(|&d| poses[d].map(|p| (d, p)))
-                    .flat_map(|(d, p)| {
-                        visible[d]
-                            .iter()
-                            .map(move |(s, o)| (p * s - o).norm_squared())
-                    })
+                    .filter_map(|&d| poses[d].map(|p| miss(&p, &visible[d])))
                     .sum();
                 if e < best.0 {
                     best = (e, c);
@@ -626,8 +610,7 @@ impl Observer {
         poses
             .iter()
             .zip(visible)
-            .filter_map(|(p, v)| p.map(|p| (p, v)))
-            .flat_map(|(p, v)| v.iter().map(move |(s, o)| (p * s - o).norm_squared()))
+            .filter_map(|(p, v)| p.map(|p| miss(&p, v)))
             .sum()
     }
 
@@ -821,16 +804,13 @@ impl Observer {
                 positions[k] = Self::measure(j, &(a.inverse() * b));
             }
         }
-        let (mut n_points, mut sum_sq_m2) = (0, 0.0);
-        for (p, v) in fitted.iter().zip(visible) {
-            if let Some(p) = p {
-                n_points += v.len();
-                sum_sq_m2 += v
-                    .iter()
-                    .map(|(s, o)| (p * s - o).norm_squared())
-                    .sum::<f64>();
-            }
-        }
+        let n_points = fitted
+            .iter()
+            .zip(visible)
+            .filter(|(p, _)| p.is_some())
+            .map(|(_, v)| v.len())
+            .sum();
+        let sum_sq_m2 = Self::cost(&fitted, visible);
         FrameFit {
             positions,
             std,
@@ -864,29 +844,21 @@ impl Observer {
         }
         let mut excess = vec![(0.0, 0usize); self.joints.len()];
         for (t, fit) in fits.iter().enumerate() {
+            let frame: Vec<Option<Point3<f64>>> =
+                (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+            let visible = self.visible(&frame);
             for (k, j) in self.joints.iter().enumerate() {
                 if self.joint_col[k].is_none() {
                     continue;
                 }
-                let Some(pose) = fit.poses.get(j.child).copied().flatten() else {
+                let v = &visible[j.child];
+                let (Some(pose), Some(own)) =
+                    (fit.poses.get(j.child).copied().flatten(), own_pose(v))
+                else {
                     continue;
                 };
-                let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = self.bodies[j.child]
-                    .shape
-                    .iter()
-                    .filter_map(|&(i, s)| tracks.get(t, i).map(|p| (s, p)))
-                    .unzip();
-                let Some(own) = kabsch_with_rank_check(&src, &dst, 1e-6) else {
-                    continue;
-                };
-                let miss = |x: &Isometry3<f64>| {
-                    src.iter()
-                        .zip(&dst)
-                        .map(|(s, d)| (x * s - d).norm_squared())
-                        .sum::<f64>()
-                };
-                excess[k].0 += miss(&pose) - miss(&own);
-                excess[k].1 += src.len();
+                excess[k].0 += miss(&pose, v) - miss(&own, v);
+                excess[k].1 += v.len();
             }
         }
         let var = self.sigma * self.sigma;
@@ -918,6 +890,21 @@ impl Observer {
 const MAX_ITERATIONS: usize = 30;
 /// A step whose largest component (metres or radians) is below this ends the descent.
 const STEP_TOLERANCE: f64 = 1e-6;
+
+/// A body's pose from its own visible points alone (Kabsch-Umeyama), `None` with fewer than
+/// three or collinear ones.
+fn own_pose(visible: &[(Point3<f64>, Point3<f64>)]) -> Option<Isometry3<f64>> {
+    let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = visible.iter().copied().unzip();
+    kabsch_with_rank_check(&src, &dst, 1e-6)
+}
+
+/// Sum of squared distances between `pose` applied to the shape points and the observations.
+fn miss(pose: &Isometry3<f64>, visible: &[(Point3<f64>, Point3<f64>)]) -> f64 {
+    visible
+        .iter()
+        .map(|(s, o)| (pose * s - o).norm_squared())
+        .sum()
+}
 
 const PI_6: f64 = std::f64::consts::PI / 6.0;
 
