@@ -247,6 +247,26 @@ fn a_joint_the_model_gets_wrong_is_freed() {
         .map(|k| aligned_rms(&wrong.joints[k].positions, truth_of(k)).expect("rms"))
         .collect();
     assert!(after[0] < 0.01, "the joint above: {after:?}");
+    // An observer built from the model frees the same joint: the training frames give the
+    // model's positions back (up to whole turns, the same in every frame).
+    let fits = Observer::new(&wrong)
+        .expect("observer")
+        .fit_sequence(&data.tracks)
+        .expect("fit");
+    for (k, joint) in wrong.joints.iter().enumerate() {
+        let offsets: Vec<f64> = joint
+            .positions
+            .iter()
+            .zip(&fits)
+            .filter_map(|(b, f)| Some(b.as_ref()? - f.positions[k].as_ref()?))
+            .collect();
+        assert!(offsets.len() > 90, "joint {k}: {} frames", offsets.len());
+        let turns = (offsets[0] / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+        assert!(
+            offsets.iter().all(|o| (o - turns).abs() < 1e-6),
+            "joint {k}: {offsets:?}"
+        );
+    }
     assert!(
         after[1] < 0.02,
         "the freed joint, from the poses: {after:?}"

@@ -568,13 +568,6 @@ impl Pipeline {
                 _ => (None, None),
             };
             let arr = |v: kinetree_core::nalgebra::Vector3<f64>| [v.x, v.y, v.z];
-            let known: Vec<f64> = positions.iter().flatten().copied().collect();
-            let range = (!known.is_empty()).then(|| {
-                [
-                    known.iter().copied().fold(f64::INFINITY, f64::min),
-                    known.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-                ]
-            });
             if !matches!(
                 pair.joint,
                 JointKind::Revolute { .. } | JointKind::Prismatic { .. }
@@ -602,7 +595,8 @@ impl Pipeline {
                 reference_frame,
                 reference_pose,
                 positions,
-                range,
+                // Set with the positions by `kinetree_structure::fit_model_positions`.
+                range: None,
                 dof: pair.dof,
                 ranks: Ranks {
                     translation: pair.translation.rank,

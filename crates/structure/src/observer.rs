@@ -109,7 +109,8 @@ struct State {
 }
 
 impl Observer {
-    /// Builds the observer from a model.
+    /// Builds the observer from a model. Joints its `joint_not_followed` warnings name are
+    /// freed (see [`Observer::free_joint`]), as they were when it was discovered.
     ///
     /// # Errors
     /// [`Error::Config`] when the model has no reference shapes (written by an older version),
@@ -216,6 +217,16 @@ impl Observer {
             cols: Vec::new(),
             n_params: 0,
         };
+        // Joints freed when the model was discovered stay free, so new frames are fitted as
+        // the discovery's were.
+        for w in &model.warnings {
+            if let Warning::JointNotFollowed { parent, child, .. } = w
+                && let Some(&Some(k)) = observer.parent_joint.get(*child)
+                && observer.joints[k].parent == *parent
+            {
+                observer.freed[k] = true;
+            }
+        }
         observer.lay_out();
         Ok(observer)
     }
@@ -977,7 +988,7 @@ impl Linear {
 /// every frame ([`Observer::fit_sequence`]) and returns the fit's RMS residual in units of
 /// the model's noise level (`None` with no usable frame). Each joint's reference pose is
 /// turned (or slid) to its position at the joint's reference frame, so the positions stay
-/// zero there; the observed ranges are recomputed.
+/// zero there; every joint's observed range is computed here.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
@@ -1030,30 +1041,31 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
     }
     for (k, joint) in model.joints.iter_mut().enumerate() {
         let j = &observer.joints[k];
-        if observer.joint_col[k].is_none() || observer.link[j.child] != Some(k) {
-            continue;
-        }
-        let mut column: Vec<Option<f64>> = fits.iter().map(|f| f.positions[k]).collect();
-        if let Some(zero) = column.get(joint.reference_frame).copied().flatten() {
-            let turned = Observer::joint_transform(j, zero);
-            let r = turned.rotation;
-            let t = turned.translation.vector;
-            joint.reference_pose = Some(kinetree_core::model::RigidTransform {
-                rotation_xyzw: [r.i, r.j, r.k, r.w],
-                translation: [t.x, t.y, t.z],
-            });
-            for v in column.iter_mut().flatten() {
-                *v -= zero;
+        // Joints in the fit and freed ones (from the fitted poses); multi-DoF ones keep the
+        // positions they came with.
+        if !matches!(j.measure, Measure::None) {
+            let mut column: Vec<Option<f64>> = fits.iter().map(|f| f.positions[k]).collect();
+            if let Some(zero) = column.get(joint.reference_frame).copied().flatten() {
+                let turned = Observer::joint_transform(j, zero);
+                let r = turned.rotation;
+                let t = turned.translation.vector;
+                joint.reference_pose = Some(kinetree_core::model::RigidTransform {
+                    rotation_xyzw: [r.i, r.j, r.k, r.w],
+                    translation: [t.x, t.y, t.z],
+                });
+                for v in column.iter_mut().flatten() {
+                    *v -= zero;
+                }
             }
+            joint.positions = column;
         }
-        let known: Vec<f64> = column.iter().flatten().copied().collect();
+        let known: Vec<f64> = joint.positions.iter().flatten().copied().collect();
         joint.range = (!known.is_empty()).then(|| {
             [
                 known.iter().copied().fold(f64::INFINITY, f64::min),
                 known.iter().copied().fold(f64::NEG_INFINITY, f64::max),
             ]
         });
-        joint.positions = column;
     }
     Ok(rms_in_sigma(&fits, model.noise.sigma_m))
 }
