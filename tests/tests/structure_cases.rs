@@ -68,6 +68,22 @@ fn base() -> BodySpec {
     body([0.0, 0.0, -0.05], [0.25, 0.25, 0.05], 8)
 }
 
+/// Base, an 8-point link on a revolute joint (points 8-15), and a second 8-point link
+/// (points 16-23) on a revolute or prismatic joint.
+fn two_links(second_revolute: bool) -> Mechanism {
+    Mechanism {
+        bodies: vec![
+            base(),
+            body([0.15, 0.0, 0.1], [0.15, 0.04, 0.04], 8),
+            body([0.3, 0.15, 0.1], [0.04, 0.15, 0.04], 8),
+        ],
+        joints: vec![
+            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
+            joint(1, 2, second_revolute, [0.0, 1.0, 0.2], [0.3, 0.0, 0.1]),
+        ],
+    }
+}
+
 fn discover(s: &Scenario) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
     discover_data(&simulate(s).expect("simulate"))
 }
@@ -135,17 +151,7 @@ fn revolute_turning_more_than_one_full_turn_is_unwrapped() {
 
 #[test]
 fn a_body_hidden_in_frame_zero_still_gets_its_joint() {
-    let mechanism = Mechanism {
-        bodies: vec![
-            base(),
-            body([0.15, 0.0, 0.1], [0.15, 0.04, 0.04], 8),
-            body([0.3, 0.15, 0.1], [0.04, 0.15, 0.04], 8),
-        ],
-        joints: vec![
-            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
-            joint(1, 2, false, [0.0, 1.0, 0.2], [0.3, 0.0, 0.1]),
-        ],
-    };
+    let mechanism = two_links(false);
     let s = scenario(
         mechanism,
         vec![sine(0.8, 0.25, 0.3), sine(0.08, 0.45, 1.0)],
@@ -170,17 +176,7 @@ fn a_body_hidden_in_frame_zero_still_gets_its_joint() {
 /// parent shows only three of its eight points in frame 0.
 #[test]
 fn the_reference_frame_avoids_a_poorly_seen_parent() {
-    let mechanism = Mechanism {
-        bodies: vec![
-            base(),
-            body([0.15, 0.0, 0.1], [0.15, 0.04, 0.04], 8),
-            body([0.3, 0.15, 0.1], [0.04, 0.15, 0.04], 8),
-        ],
-        joints: vec![
-            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.05]),
-            joint(1, 2, true, [0.0, 1.0, 0.2], [0.3, 0.0, 0.1]),
-        ],
-    };
+    let mechanism = two_links(true);
     let s = scenario(
         mechanism,
         vec![sine(0.8, 0.25, 0.3), sine(0.7, 0.45, 1.0)],
