@@ -54,7 +54,7 @@ fn observe_one_frame_9_joints_80_points(bencher: divan::Bencher) {
     });
 }
 
-/// The per-body Kabsch-Umeyama poses alone (the fit's starting point), for the ratio.
+/// Per-body Kabsch-Umeyama poses alone (what the fit once started from), for the ratio.
 #[divan::bench(sample_count = 200)]
 fn body_poses_one_frame_10_bodies_80_points(bencher: divan::Bencher) {
     let (observer, frames) = arm();
