@@ -250,6 +250,37 @@ fn classify(
 ) -> Result<PairDof> {
     let translation = rank_test(&c.u, &c.u_cov, 3, rule);
     let rotation = rank_test(&c.rot, &c.rot_cov, 3, rule);
+    // A rotation the slack hides (a slender body turning about its long axis, whose rotation
+    // is poorly known) makes a revolute joint prismatic or rigid. When the rotation stands
+    // out against the measured noise level (`hidden_next_rank`), rank 1 is tried, and kept
+    // only if it gives a revolute joint: a prismatic child whose poses carry a
+    // motion-dependent bias (box corners occluded as it slides) shows such a rotation too,
+    // but no fixed pivot explains its translation. Only the rotation is retried: on
+    // translations, mis-modelled anisotropic noise made a prismatic child's line a plane.
+    if let RankRule::Chi2 { z, .. } = rule
+        && rotation.rank == 0
+        && crate::rank::hidden_next_rank(&rotation, 3, z)
+    {
+        let mut turning = rotation.clone();
+        turning.rank = 1;
+        let retried = classify_ranks(c, a, b, rule, centre_settings, translation.clone(), turning)?;
+        if matches!(retried.joint, JointKind::Revolute { .. }) {
+            return Ok(retried);
+        }
+    }
+    classify_ranks(c, a, b, rule, centre_settings, translation, rotation)
+}
+
+/// [`classify`] with the translation and rotation rank tests decided.
+fn classify_ranks(
+    c: &PairColumns,
+    a: Option<usize>,
+    b: usize,
+    rule: RankRule,
+    centre_settings: CentreSettings,
+    translation: RankTest,
+    rotation: RankTest,
+) -> Result<PairDof> {
     let mut centre = RankTest::empty();
     let mut centre_uncentred = RankTest::empty();
     let mut sliding = RankTest::empty();

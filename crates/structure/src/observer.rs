@@ -291,7 +291,7 @@ impl Observer {
     /// Every body's `camera_from_body` in one frame from its own visible points alone
     /// (Kabsch-Umeyama), `None` with fewer than three visible placed points or collinear ones.
     pub fn body_poses(&self, frame: &[Option<Point3<f64>>]) -> Vec<Option<Isometry3<f64>>> {
-        self.visible(frame).iter().map(|v| own_pose(v)).collect()
+        self.visible(frame).iter().map(own_pose).collect()
     }
 
     /// Per body, `(shape point, observation)` for its placed points visible (and finite) in
