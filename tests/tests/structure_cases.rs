@@ -301,3 +301,58 @@ fn a_slender_link_turning_about_its_length_is_revolute() {
         assert!(e.joints_exact, "seed {seed}: joints {types:?}");
     }
 }
+
+/// A hinge below a 3 cm, four-point slider: the slider's own poses are noisy and missing in
+/// many frames, and the tester's axis and pivot inherit that noise (pivots 1.5-5 cm off on
+/// these seeds). Refined with the slider posed by the whole-tree fit, every pivot is within
+/// 1 cm of the true axis line in the slider's frame and every axis within 2.5 deg.
+#[test]
+fn a_hinge_below_a_small_slider_gets_its_axis_from_the_tree_fit() {
+    use kinetree_synth::{JointDraw, MechanismSpec};
+    let mut checked = 0;
+    for seed in 0..16 {
+        let spec = MechanismSpec {
+            joints: vec![
+                JointDraw {
+                    parent_pick: 0.0,
+                    revolute: false,
+                    axis: [0.7, -0.5, -0.4],
+                    size_m: 0.03,
+                    n_points: 4,
+                    amplitude: 0.5,
+                    phase: 0.0,
+                },
+                JointDraw {
+                    parent_pick: 0.0,
+                    revolute: true,
+                    axis: [-0.6, -0.5, -0.6],
+                    size_m: 0.25,
+                    n_points: 7,
+                    amplitude: 0.3,
+                    phase: 1.0,
+                },
+            ],
+            tree: false,
+            noise_sigma_m: 0.001,
+            dropout: 0.3,
+            seed,
+        };
+        let data = simulate(&spec.scenario()).expect("simulate");
+        let model = Pipeline::from_config(&PipelineConfig::default())
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("run")
+            .model;
+        let e = evaluate(&model, &data.truth);
+        if !e.joints_exact {
+            continue;
+        }
+        checked += 1;
+        let hinge = &e.joints[1];
+        let axis = hinge.axis_error_in_parent_deg.expect("axis");
+        let pivot = hinge.pivot_error_in_parent_m.expect("pivot");
+        assert!(axis < 2.5, "seed {seed}: axis {axis} deg");
+        assert!(pivot < 0.01, "seed {seed}: pivot {pivot} m");
+    }
+    assert!(checked >= 14, "{checked} of 16 seeds structurally exact");
+}

@@ -2,6 +2,7 @@
 //! extraction, a spanning tree rooted at the static body, joints and their positions.
 
 mod observer;
+mod refine;
 
 pub use observer::{
     FrameFit, MAX_JOINT_EXCESS, MAX_STD_M, MAX_STD_RAD, Observer, fit_model_positions,
