@@ -310,13 +310,13 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// End-to-end recovery on `cases()` mechanisms drawn from the strategies by proptest's
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
-/// per 64 for platform rounding: 60 of the first 64 were recovered when this was written
-/// (185 of 200, 590 of 640; 167 of 200 before joint positions came from the whole-tree fit,
-/// 182 before a rotation hidden by the chi-square slack could make a joint revolute). The 15
-/// failures in 200: 7 joints not exact (a wrong tree around a point misassigned near a
-/// joint axis, a 3-6 cm body merged, a type wrong), 8 one or two points on the wrong body.
-/// The failures are printed, and `any_mechanism_is_recovered` (ignored) shrinks one to a
-/// minimal mechanism.
+/// per 64 for platform rounding: 63 of the first 64 were recovered when this was written
+/// (193 of 200, 605 of 640). Before: 167 of 200 before joint positions came from the
+/// whole-tree fit, 182 before a rotation hidden by the chi-square slack could make a joint
+/// revolute, 185 before points near a joint axis were moved by the model's fit. The 7
+/// failures in 200 are all joints not exact (a wrong tree around a point misassigned near a
+/// joint axis of a prismatic child, a 3-6 cm body merged, a type wrong). The failures are
+/// printed, and `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {
     use proptest::strategy::ValueTree;
@@ -340,7 +340,7 @@ fn most_mechanisms_are_recovered() {
         eprintln!("{f}");
     }
     let recovered = n - failures.len();
-    let required = n * 58 / 64;
+    let required = n * 61 / 64;
     assert!(
         recovered >= required,
         "{recovered} of {n} recovered, {required} required"
@@ -351,11 +351,11 @@ proptest! {
     #![proptest_config(config())]
 
     /// The strict form: *every* mechanism recovered ([`recovery_failure`]). Ignored in CI
-    /// because it holds for about 92 % of these mechanisms (see `most_mechanisms_are_recovered`):
+    /// because it holds for about 95 % of these mechanisms (see `most_mechanisms_are_recovered`):
     /// run it with `cargo test --release -p kinetree-tests --test properties -- --ignored` to
     /// get a minimal failing mechanism.
     #[test]
-    #[ignore = "holds for about 92 % of mechanisms; see most_mechanisms_are_recovered"]
+    #[ignore = "holds for about 95 % of mechanisms; see most_mechanisms_are_recovered"]
     fn any_mechanism_is_recovered(spec in strategies::any_mechanism()) {
         if let Some(why) = recovery_failure(&spec) {
             prop_assert!(false, "{}", why);

@@ -34,6 +34,13 @@ pub enum Warning {
         /// The points.
         points: Vec<usize>,
     },
+    /// Points that a model's whole-tree fit placed on another body (its fitted motion
+    /// explained their tracks better than their own body's); they were moved there and the
+    /// bodies, joints and positions redone.
+    PointsReassigned {
+        /// The points.
+        points: Vec<usize>,
+    },
     /// A body whose fit residuals were far above the noise (it mixed points of bodies that
     /// move apart) was split in two.
     BodySplit {
@@ -117,6 +124,10 @@ impl std::fmt::Display for Warning {
             Warning::PointsAttached { points } => write!(
                 f,
                 "point(s) {points:?} discarded by the clustering were attached to the one body whose poses explain them"
+            ),
+            Warning::PointsReassigned { points } => write!(
+                f,
+                "point(s) {points:?} fitted another body's motion better than their own and were moved to it"
             ),
             Warning::BodySplit {
                 points,

@@ -50,6 +50,18 @@ pub struct Discovery {
     pub body_order: Vec<usize>,
 }
 
+/// A discovery's own parts, before the pair statistics and the matrix join them.
+#[derive(Debug)]
+struct Found {
+    model: Model,
+    body_order: Vec<usize>,
+    segmentation: Segmentation,
+    poses: BodyPoses,
+}
+
+/// How many times a model's fitted motions may move points to another body before the
+/// bodies are redone ([`kinetree_structure::points_fitting_another_body`]).
+const MODEL_PASSES: usize = 2;
 /// How many times rigidly co-moving bodies are merged and the poses redone.
 const MAX_MERGE_ROUNDS: usize = 3;
 /// Observed pairs a point needs with a body to be judged against it.
@@ -388,8 +400,89 @@ impl Pipeline {
         for g in &seg.discarded_groups {
             warnings.push(Warning::ClusterDiscarded { points: g.clone() });
         }
-        // Poses; drop bodies with fewer than two registered frames; merge bodies that move
-        // rigidly together.
+        // Bodies, their poses and pair tests, then the model. Once a model exists, points that
+        // another body's fitted motion explains better are moved there and the bodies redone,
+        // at most MODEL_PASSES times; a pass stands only if the moved points then fit their
+        // new bodies best (a point moved wrongly, once in 200 mechanisms, then fitted its new
+        // body at chi2/dof 4.3 against 2.9 for its old one). The segmentation's history (splits, merges, moves) accumulates over the
+        // passes; the model's own warnings are made anew by each.
+        let mut history = warnings;
+        let mut previous: Option<Found> = None;
+        let mut moved: Vec<usize> = Vec::new();
+        let mut pass = 0;
+        let found = loop {
+            let (bodies, poses, pairs) = self.bodies(tracks, &dmat, seg, sigma, &mut history)?;
+            let mut model = self.assemble(
+                tracks,
+                &bodies,
+                &poses,
+                pairs,
+                sigma,
+                source,
+                history.clone(),
+            )?;
+            let diag = kinetree_clustering::diagnostics(&dmat, &bodies);
+            model.0.point_confidence = diag.point_margin;
+            for body in &mut model.0.bodies {
+                body.internal_dissimilarity = diag.body_spread[model.1[body.id]];
+            }
+            model.0.reprediction_rms_in_sigma =
+                kinetree_structure::fit_model_positions(&mut model.0, tracks)?;
+            let found = Found {
+                body_order: model.1,
+                model: model.0,
+                segmentation: bodies,
+                poses,
+            };
+            if let Some(before) = previous.take()
+                && !kinetree_structure::points_settled(&found.model, tracks, &moved)?
+            {
+                break before;
+            }
+            let moves = if pass < MODEL_PASSES {
+                kinetree_structure::points_fitting_another_body(&found.model, tracks)?
+            } else {
+                Vec::new()
+            };
+            if moves.is_empty() {
+                break found;
+            }
+            let mut labels = found.segmentation.labels().to_vec();
+            for &(point, body) in &moves {
+                labels[point] = Some(found.body_order[body]);
+            }
+            moved = moves.iter().map(|&(point, _)| point).collect();
+            history.push(Warning::PointsReassigned {
+                points: moved.clone(),
+            });
+            seg = Segmentation::from_raw(&labels, 1);
+            seg.discarded_groups = found.segmentation.discarded_groups.clone();
+            previous = Some(found);
+            pass += 1;
+        };
+        Ok(Discovery {
+            body_order: found.body_order,
+            model: found.model,
+            stats,
+            dissimilarity: dmat,
+            segmentation: found.segmentation,
+            poses: found.poses,
+        })
+    }
+
+    /// From a segmentation to registered bodies and their pair tests: poses; bodies with fewer
+    /// than two registered frames dropped; bodies whose residuals show mixed points split;
+    /// discarded points attached where one body explains them (once); bodies that move
+    /// rigidly together merged when the union still fits as one. Returns the final
+    /// segmentation, its poses and every pair's DoF test.
+    fn bodies(
+        &self,
+        tracks: &Tracks,
+        dmat: &DissimilarityMatrix,
+        mut seg: Segmentation,
+        sigma: f64,
+        warnings: &mut Vec<Warning>,
+    ) -> Result<(Segmentation, BodyPoses, Vec<PairDof>)> {
         let mut poses;
         let mut pairs;
         let mut round = 0;
@@ -420,7 +513,7 @@ impl Pipeline {
             }
             if split_rounds < MAX_SPLIT_ROUNDS
                 && let Some(split) =
-                    split_mixed_bodies(&dmat, &seg, &poses, sigma, &mut warnings, &mut cannot_link)?
+                    split_mixed_bodies(dmat, &seg, &poses, sigma, warnings, &mut cannot_link)?
             {
                 split_rounds += 1;
                 seg = split;
@@ -449,7 +542,7 @@ impl Pipeline {
                 .iter()
                 .filter_map(|&(p, q)| Some((seg.body_of(p)?, seg.body_of(q)?)))
                 .collect();
-            forbidden.extend(pairwise_apart(&dmat, &seg));
+            forbidden.extend(pairwise_apart(dmat, &seg));
             // A merge stands only if the merged body still fits like one rigid body.
             let group = loop {
                 let group = rigid_groups(nb, &pairs, &forbidden);
@@ -485,22 +578,7 @@ impl Pipeline {
             seg = seg.merged(&group);
             round += 1;
         }
-        let mut model = self.assemble(tracks, &seg, &poses, pairs, sigma, source, warnings)?;
-        let diag = kinetree_clustering::diagnostics(&dmat, &seg);
-        model.0.point_confidence = diag.point_margin;
-        for body in &mut model.0.bodies {
-            body.internal_dissimilarity = diag.body_spread[model.1[body.id]];
-        }
-        model.0.reprediction_rms_in_sigma =
-            kinetree_structure::fit_model_positions(&mut model.0, tracks)?;
-        Ok(Discovery {
-            body_order: model.1,
-            model: model.0,
-            stats,
-            dissimilarity: dmat,
-            segmentation: seg,
-            poses,
-        })
+        Ok((seg, poses, pairs))
     }
 
     #[allow(clippy::too_many_arguments)]
