@@ -362,3 +362,91 @@ proptest! {
         }
     }
 }
+
+/// Issue 4's accuracy targets, on its own setting: random chains and trees of 1-8 joints
+/// mixing revolute and prismatic joints with 3D axes, at 1 mm noise and 30 % occlusion
+/// (`cases()` draws of the deterministic runner, noise and occlusion overridden). Per model:
+/// structure exact (joints, and identifiable ARI 1). Per joint: axis in the parent's frame
+/// under 1 deg, revolute pivot under 5 mm, joint RMS under 0.01 rad (or, for a body too small
+/// for that, `2 r` with `r` its one-frame rotation noise `sigma / (size / 2 sqrt(points))`,
+/// which no per-frame estimate beats) or 1 mm; joints of a model that is not structure-exact
+/// are not scored. Measured when this was written: on the 64 default draws, 64 models
+/// structure-exact, 258 of 262 axes, all 161 pivots and 252 of 262 positions within the
+/// targets; on 100, 99 models, 439 of 447, 279 of 279 and 431 of 447. Required: about those
+/// rates less two or three points (every miss is printed).
+#[test]
+fn issue_four_targets_at_one_millimetre() {
+    use proptest::strategy::ValueTree;
+    let n = cases() as usize;
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let strategy = strategies::any_mechanism();
+    let (mut structure, mut axes, mut pivots, mut rms) = ((0, 0), (0, 0), (0, 0), (0, 0));
+    let mut misses = Vec::new();
+    for case in 0..n {
+        let mut spec = strategy.new_tree(&mut runner).expect("draw").current();
+        spec.noise_sigma_m = 0.001;
+        spec.dropout = 0.3;
+        let data = simulate(&spec.scenario()).expect("simulate");
+        let sigma = spec.effective_noise_sigma_m();
+        structure.1 += 1;
+        let Ok(d) =
+            Pipeline::from_config(&PipelineConfig::default()).and_then(|p| p.run(&data.tracks))
+        else {
+            misses.push(format!("case {case}: no model"));
+            continue;
+        };
+        let e = kinetree_eval::evaluate(&d.model, &data.truth);
+        let ambiguous = kinetree_eval::ambiguous_points(&data.tracks, &data.truth, sigma.max(1e-6));
+        let ari = kinetree_eval::identifiable_ari(&d.model, &data.truth, &ambiguous);
+        if !(e.joints_exact && ari > 1.0 - 1e-12) {
+            misses.push(format!(
+                "case {case}: joints exact {}, identifiable ARI {ari:.3}",
+                e.joints_exact
+            ));
+            continue;
+        }
+        structure.0 += 1;
+        for (j, draw) in e.joints.iter().zip(&spec.joints) {
+            let axis = j.axis_error_in_parent_deg.unwrap_or(f64::INFINITY);
+            axes.1 += 1;
+            if axis < 1.0 {
+                axes.0 += 1;
+            } else {
+                misses.push(format!("case {case} joint {}: axis {axis:.2} deg", j.joint));
+            }
+            let position = j.position_rms.unwrap_or(f64::INFINITY);
+            let limit = if draw.revolute {
+                let pivot = j.pivot_error_in_parent_m.unwrap_or(f64::INFINITY);
+                pivots.1 += 1;
+                if pivot < 0.005 {
+                    pivots.0 += 1;
+                } else {
+                    misses.push(format!("case {case} joint {}: pivot {pivot:.4} m", j.joint));
+                }
+                let size = draw.size_m.clamp(0.02, 0.5);
+                let r = sigma / (0.5 * size * (draw.n_points.clamp(4, 12) as f64).sqrt());
+                0.01f64.max(2.0 * r)
+            } else {
+                0.001
+            };
+            rms.1 += 1;
+            if position < limit {
+                rms.0 += 1;
+            } else {
+                misses.push(format!(
+                    "case {case} joint {}: RMS {position:.4} (limit {limit:.4})",
+                    j.joint
+                ));
+            }
+        }
+    }
+    for m in &misses {
+        eprintln!("{m}");
+    }
+    let rate = |(k, of): (usize, usize)| k as f64 / of.max(1) as f64;
+    eprintln!("structure {structure:?}, axes {axes:?}, pivots {pivots:?}, positions {rms:?}");
+    assert!(rate(structure) >= 0.95, "structure exact {structure:?}");
+    assert!(rate(axes) >= 0.96, "axes {axes:?}");
+    assert!(rate(pivots) >= 0.99, "pivots {pivots:?}");
+    assert!(rate(rms) >= 0.93, "positions {rms:?}");
+}
