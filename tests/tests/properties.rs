@@ -363,6 +363,21 @@ proptest! {
     }
 }
 
+/// Counts one check in `count` (`(passed, of)`), and records why it failed in `misses`.
+fn tally(
+    count: &mut (usize, usize),
+    ok: bool,
+    misses: &mut Vec<String>,
+    why: impl FnOnce() -> String,
+) {
+    count.1 += 1;
+    if ok {
+        count.0 += 1;
+    } else {
+        misses.push(why());
+    }
+}
+
 /// Issue 4's accuracy targets, on its own setting: random chains and trees of 1-8 joints
 /// mixing revolute and prismatic joints with 3D axes, at 1 mm noise and 30 % occlusion
 /// (`cases()` draws of the deterministic runner, noise and occlusion overridden). Per model:
@@ -408,36 +423,27 @@ fn issue_four_targets_at_one_millimetre() {
         structure.0 += 1;
         for (j, draw) in e.joints.iter().zip(&spec.joints) {
             let axis = j.axis_error_in_parent_deg.unwrap_or(f64::INFINITY);
-            axes.1 += 1;
-            if axis < 1.0 {
-                axes.0 += 1;
-            } else {
-                misses.push(format!("case {case} joint {}: axis {axis:.2} deg", j.joint));
-            }
+            tally(&mut axes, axis < 1.0, &mut misses, || {
+                format!("case {case} joint {}: axis {axis:.2} deg", j.joint)
+            });
             let position = j.position_rms.unwrap_or(f64::INFINITY);
             let limit = if draw.revolute {
                 let pivot = j.pivot_error_in_parent_m.unwrap_or(f64::INFINITY);
-                pivots.1 += 1;
-                if pivot < 0.005 {
-                    pivots.0 += 1;
-                } else {
-                    misses.push(format!("case {case} joint {}: pivot {pivot:.4} m", j.joint));
-                }
+                tally(&mut pivots, pivot < 0.005, &mut misses, || {
+                    format!("case {case} joint {}: pivot {pivot:.4} m", j.joint)
+                });
                 let size = draw.size_m.clamp(0.02, 0.5);
                 let r = sigma / (0.5 * size * (draw.n_points.clamp(4, 12) as f64).sqrt());
                 0.01f64.max(2.0 * r)
             } else {
                 0.001
             };
-            rms.1 += 1;
-            if position < limit {
-                rms.0 += 1;
-            } else {
-                misses.push(format!(
+            tally(&mut rms, position < limit, &mut misses, || {
+                format!(
                     "case {case} joint {}: RMS {position:.4} (limit {limit:.4})",
                     j.joint
-                ));
-            }
+                )
+            });
         }
     }
     for m in &misses {

@@ -290,13 +290,7 @@ fn a_slender_link_turning_about_its_length_is_revolute() {
             dropout: 0.1,
             seed,
         };
-        let data = simulate(&spec.scenario()).expect("simulate");
-        let model = Pipeline::from_config(&PipelineConfig::default())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("run")
-            .model;
-        let e = evaluate(&model, &data.truth);
+        let (model, e) = discover(&spec.scenario());
         let types: Vec<&str> = model.joints.iter().map(|j| j.joint_type.as_str()).collect();
         assert!(e.joints_exact, "seed {seed}: joints {types:?}");
     }
@@ -337,13 +331,7 @@ fn a_hinge_below_a_small_slider_gets_its_axis_from_the_tree_fit() {
             dropout: 0.3,
             seed,
         };
-        let data = simulate(&spec.scenario()).expect("simulate");
-        let model = Pipeline::from_config(&PipelineConfig::default())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("run")
-            .model;
-        let e = evaluate(&model, &data.truth);
+        let (_, e) = discover(&spec.scenario());
         if !e.joints_exact {
             continue;
         }
