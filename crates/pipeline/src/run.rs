@@ -404,8 +404,9 @@ impl Pipeline {
         // another body's fitted motion explains better are moved there and the bodies redone,
         // at most MODEL_PASSES times; a pass stands only if the moved points then fit their
         // new bodies best (a point moved wrongly, once in 200 mechanisms, then fitted its new
-        // body at chi2/dof 4.3 against 2.9 for its old one). The segmentation's history (splits, merges, moves) accumulates over the
-        // passes; the model's own warnings are made anew by each.
+        // body at chi2/dof 4.3 against 2.9 for its old one). The segmentation's history
+        // (splits, merges, moves) accumulates over the passes; the model's own warnings are
+        // made anew by each.
         let mut history = warnings;
         let mut previous: Option<Found> = None;
         let mut moved: Vec<usize> = Vec::new();
