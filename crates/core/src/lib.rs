@@ -10,6 +10,7 @@ mod pairs;
 mod poses;
 mod segmentation;
 mod stage;
+pub mod stats;
 mod tracks;
 mod warning;
 

@@ -29,11 +29,7 @@ pub enum RankRule {
     },
 }
 
-/// Upper quantile of `chi^2_k / k` at `z` standard normal deviations (Wilson-Hilferty).
-pub fn chi2_per_dof_quantile(k: f64, z: f64) -> f64 {
-    let c = 2.0 / (9.0 * k.max(1.0));
-    (1.0 - c + z * c.sqrt()).powi(3)
-}
+pub use kinetree_core::stats::chi2_per_dof_quantile;
 
 /// Whether a chi-square rank test ([`RankRule::Chi2`] on centred columns of dimension `dim`)
 /// that stopped at rank `r` hides a rank `r + 1` structure because its noise model is too

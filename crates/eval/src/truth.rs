@@ -203,8 +203,7 @@ pub fn ambiguous_points(tracks: &Tracks, truth: &GroundTruth, sigma_m: f64) -> V
                 return true;
             }
             let k = 3.0 * (seen.len() - 1) as f64;
-            let c = 2.0 / (9.0 * k);
-            let bound = (1.0 - c + 4.0 * c.sqrt()).powi(3);
+            let bound = kinetree_core::stats::chi2_per_dof_quantile(k, 4.0);
             (0..nb).filter(|&b| b != truth.point_body[i]).any(|b| {
                 let z: Vec<Vector3<f64>> = seen
                     .iter()

@@ -54,8 +54,7 @@ pub fn point_misfit(
 /// Upper bound on `chi^2_k / k` for a rigidly attached point: the Wilson-Hilferty quantile at
 /// `z` standard deviations, times `slack` for the approximations in the predicted variance.
 pub fn misfit_bound(k: f64, z: f64, slack: f64) -> f64 {
-    let c = 2.0 / (9.0 * k);
-    slack * (1.0 - c + z * c.sqrt()).powi(3)
+    slack * kinetree_core::stats::chi2_per_dof_quantile(k, z)
 }
 
 /// Gives every unassigned point (seen in at least [`MIN_SHARED_FRAMES`] frames with some body)

@@ -8,6 +8,7 @@
 
 use crate::observer::Observer;
 use kinetree_core::nalgebra::{Isometry3, Vector3};
+use kinetree_core::stats::chi2_per_dof_quantile;
 use kinetree_core::{MIN_BODY_POINTS, Model, Result, Tracks};
 
 /// Fewest frames in which a point must be seen with a body's fitted pose to be judged
@@ -141,8 +142,7 @@ pub fn points_fitting_another_body(model: &Model, tracks: &Tracks) -> Result<Vec
             continue;
         };
         let margin = MIN_MARGIN.max(2.0 * (2.0 / k).sqrt());
-        let wh = 2.0 / (9.0 * k);
-        let bound = 1.6 * (1.0 - wh + 4.0 * wh.sqrt()).powi(3);
+        let bound = 1.6 * chi2_per_dof_quantile(k, 4.0);
         let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
         if fitted(own_body) && fitted(c) && own - other > margin && other <= bound {
             moves.push((i, c));
