@@ -336,3 +336,21 @@ fn bad_fit_input_gets_typed_errors() {
     cycle.joints[0].parent = cycle.joints[1].child;
     assert!(matches!(Observer::new(&cycle), Err(Error::Config(_))));
 }
+
+/// Fitted motions used with a model they were not fitted for: a typed error from both checks.
+#[test]
+fn fitted_motions_of_another_model_are_a_typed_error() {
+    let (data, model) = discovered_arm(5);
+    let motions = kinetree_structure::FittedMotions::new(&model, &data.tracks).expect("fit");
+    assert!(motions.points_settled(&model, &data.tracks, &[0]).is_ok());
+    let mut other = model.clone();
+    other.bodies.push(other.bodies[0].clone());
+    assert!(matches!(
+        motions.points_fitting_another_body(&other, &data.tracks),
+        Err(Error::Shape { .. })
+    ));
+    assert!(matches!(
+        motions.points_settled(&other, &data.tracks, &[0]),
+        Err(Error::Shape { .. })
+    ));
+}

@@ -60,7 +60,7 @@ struct Found {
 }
 
 /// How many times a model's fitted motions may move points to another body before the
-/// bodies are redone ([`kinetree_structure::points_fitting_another_body`]).
+/// bodies are redone ([`kinetree_structure::FittedMotions::points_fitting_another_body`]).
 const MODEL_PASSES: usize = 2;
 /// How many times rigidly co-moving bodies are merged and the poses redone.
 const MAX_MERGE_ROUNDS: usize = 3;
@@ -435,13 +435,15 @@ impl Pipeline {
                 segmentation: bodies,
                 poses,
             };
+            // One whole-tree fit of the new model serves both checks.
+            let motions = kinetree_structure::FittedMotions::new(&found.model, tracks)?;
             if let Some(before) = previous.take()
-                && !kinetree_structure::points_settled(&found.model, tracks, &moved)?
+                && !motions.points_settled(&found.model, tracks, &moved)?
             {
                 break before;
             }
             let moves = if pass < MODEL_PASSES {
-                kinetree_structure::points_fitting_another_body(&found.model, tracks)?
+                motions.points_fitting_another_body(&found.model, tracks)?
             } else {
                 Vec::new()
             };

@@ -8,9 +8,7 @@ mod refine;
 pub use observer::{
     FrameFit, MAX_JOINT_EXCESS, MAX_STD_M, MAX_STD_RAD, Observer, fit_model_positions,
 };
-pub use reassign::{
-    MAX_BODY_MEDIAN, MIN_FRAMES, MIN_MARGIN, points_fitting_another_body, points_settled,
-};
+pub use reassign::{FittedMotions, MAX_BODY_MEDIAN, MIN_FRAMES, MIN_MARGIN};
 
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{

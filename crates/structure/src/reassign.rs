@@ -9,7 +9,7 @@
 use crate::observer::Observer;
 use kinetree_core::nalgebra::{Isometry3, Vector3};
 use kinetree_core::stats::chi2_per_dof_quantile;
-use kinetree_core::{MIN_BODY_POINTS, Model, Result, Tracks};
+use kinetree_core::{Error, MIN_BODY_POINTS, Model, Result, Tracks};
 
 /// Fewest frames in which a point must be seen with a body's fitted pose to be judged
 /// against it.
@@ -59,17 +59,13 @@ fn misfit(
     Some((chi2 / k, k))
 }
 
-/// Every body's fitted pose in every frame (`[body][frame]`) from the whole-tree fit of
-/// `model` on `tracks`.
-fn fitted_poses(model: &Model, tracks: &Tracks) -> Result<Vec<Vec<Option<Isometry3<f64>>>>> {
-    let fits = Observer::new(model)?.fit_sequence(tracks)?;
-    Ok((0..model.bodies.len())
-        .map(|b| {
-            fits.iter()
-                .map(|f| f.poses.get(b).copied().flatten())
-                .collect()
-        })
-        .collect())
+/// Every body's pose in every frame from the whole-tree fit of a model
+/// ([`Observer::fit_sequence`]): computed once, then used by
+/// [`FittedMotions::points_fitting_another_body`] and [`FittedMotions::points_settled`].
+#[derive(Debug, Clone)]
+pub struct FittedMotions {
+    /// `[body][frame]`, `None` where the fit leaves the body's pose undetermined.
+    body_poses: Vec<Vec<Option<Isometry3<f64>>>>,
 }
 
 /// `point`'s `chi^2 / k` on its own body `own`, and the other body whose fitted poses explain
@@ -98,73 +94,115 @@ fn body_of(model: &Model, tracks: &Tracks, point: usize) -> Option<usize> {
         .filter(|&b| b < model.bodies.len() && point < tracks.n_points())
 }
 
-/// Points of `model` (discovered on `tracks`) that another body's fitted motion explains
-/// better than their own body's, as `(point, body)` in the model's numbering. Every body is
-/// posed in every frame by the whole-tree fit ([`Observer::fit_sequence`]); a point moves
-/// when the other body's `chi^2 / k` (see [`MIN_MARGIN`]) is lower than its own by the
-/// margin and within the Wilson-Hilferty bound at 4 standard deviations (times 1.6 for the
-/// fit's own errors), when both bodies fit their points well ([`MAX_BODY_MEDIAN`]), and when
-/// its body keeps at least three points.
-///
-/// # Errors
-/// As [`Observer::new`] and [`Observer::fit_sequence`].
-pub fn points_fitting_another_body(model: &Model, tracks: &Tracks) -> Result<Vec<(usize, usize)>> {
-    let body_poses = fitted_poses(model, tracks)?;
-    let sigma = model.noise.sigma_m;
-    let mut left: Vec<usize> = model.bodies.iter().map(|b| b.points.len()).collect();
-    // Per body, the median of its points' own misfits (see MAX_BODY_MEDIAN).
-    let body_median: Vec<Option<f64>> = model
-        .bodies
-        .iter()
-        .enumerate()
-        .map(|(b, body)| {
-            let mut m: Vec<f64> = body
-                .points
-                .iter()
-                .filter(|&&i| i < tracks.n_points())
-                .filter_map(|&i| misfit(&body_poses[b], tracks, i, sigma).map(|m| m.0))
-                .collect();
-            m.sort_by(f64::total_cmp);
-            m.get(m.len() / 2).copied()
+impl FittedMotions {
+    /// The whole-tree fit of `model` on `tracks`.
+    ///
+    /// # Errors
+    /// As [`Observer::new`] and [`Observer::fit_sequence`].
+    pub fn new(model: &Model, tracks: &Tracks) -> Result<Self> {
+        let fits = Observer::new(model)?.fit_sequence(tracks)?;
+        Ok(Self {
+            body_poses: (0..model.bodies.len())
+                .map(|b| {
+                    fits.iter()
+                        .map(|f| f.poses.get(b).copied().flatten())
+                        .collect()
+                })
+                .collect(),
         })
-        .collect();
-    let mut moves = Vec::new();
-    for i in 0..model.point_body.len() {
-        let Some(own_body) = body_of(model, tracks, i) else {
-            continue;
-        };
-        if left[own_body] <= MIN_BODY_POINTS {
-            continue;
-        }
-        let Some((own, (other, k), c)) =
-            own_and_best_other(&body_poses, tracks, i, own_body, sigma)
-        else {
-            continue;
-        };
-        let margin = MIN_MARGIN.max(2.0 * (2.0 / k).sqrt());
-        let bound = 1.6 * chi2_per_dof_quantile(k, 4.0);
-        let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
-        if fitted(own_body) && fitted(c) && own - other > margin && other <= bound {
-            moves.push((i, c));
-            left[own_body] -= 1;
-        }
     }
-    Ok(moves)
-}
 
-/// Whether each of `points` fits its own body in `model` at least as well as any other body,
-/// against the whole-tree fit's poses: the check that points moved by
-/// [`points_fitting_another_body`] settled where they went. A point that cannot be scored
-/// counts as settled.
-///
-/// # Errors
-/// As [`Observer::new`] and [`Observer::fit_sequence`].
-pub fn points_settled(model: &Model, tracks: &Tracks, points: &[usize]) -> Result<bool> {
-    let body_poses = fitted_poses(model, tracks)?;
-    let sigma = model.noise.sigma_m;
-    Ok(points.iter().all(|&i| {
-        body_of(model, tracks, i)
-            .and_then(|own| own_and_best_other(&body_poses, tracks, i, own, sigma))
-            .is_none_or(|(mine, (other, _), _)| mine <= other)
-    }))
+    /// [`Error::Shape`] unless these motions were fitted for `model`'s bodies on `tracks`.
+    fn check(&self, model: &Model, tracks: &Tracks) -> Result<()> {
+        if self.body_poses.len() != model.bodies.len()
+            || self.body_poses.iter().any(|p| p.len() != tracks.n_frames())
+        {
+            return Err(Error::Shape {
+                expected: format!(
+                    "fitted motions of {} bodies over {} frames",
+                    model.bodies.len(),
+                    tracks.n_frames()
+                ),
+                found: format!("{} bodies", self.body_poses.len()),
+            });
+        }
+        Ok(())
+    }
+
+    /// Points of `model` (discovered on `tracks`) that another body's fitted motion explains
+    /// better than their own body's, as `(point, body)` in the model's numbering, against these
+    /// motions (fitted for `model`). A point moves when the other body's `chi^2 / k` (see
+    /// [`MIN_MARGIN`]) is lower than its own by the margin and within the Wilson-Hilferty
+    /// bound at 4 standard deviations (times 1.6 for the fit's own errors), when both bodies
+    /// fit their points well ([`MAX_BODY_MEDIAN`]), and when its body keeps at least three
+    /// points.
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
+    pub fn points_fitting_another_body(
+        &self,
+        model: &Model,
+        tracks: &Tracks,
+    ) -> Result<Vec<(usize, usize)>> {
+        self.check(model, tracks)?;
+        let body_poses = &self.body_poses;
+        let sigma = model.noise.sigma_m;
+        let mut left: Vec<usize> = model.bodies.iter().map(|b| b.points.len()).collect();
+        // Per body, the median of its points' own misfits (see MAX_BODY_MEDIAN).
+        let body_median: Vec<Option<f64>> = model
+            .bodies
+            .iter()
+            .enumerate()
+            .map(|(b, body)| {
+                let mut m: Vec<f64> = body
+                    .points
+                    .iter()
+                    .filter(|&&i| i < tracks.n_points())
+                    .filter_map(|&i| misfit(&body_poses[b], tracks, i, sigma).map(|m| m.0))
+                    .collect();
+                m.sort_by(f64::total_cmp);
+                m.get(m.len() / 2).copied()
+            })
+            .collect();
+        let mut moves = Vec::new();
+        for i in 0..model.point_body.len() {
+            let Some(own_body) = body_of(model, tracks, i) else {
+                continue;
+            };
+            if left[own_body] <= MIN_BODY_POINTS {
+                continue;
+            }
+            let Some((own, (other, k), c)) =
+                own_and_best_other(body_poses, tracks, i, own_body, sigma)
+            else {
+                continue;
+            };
+            let margin = MIN_MARGIN.max(2.0 * (2.0 / k).sqrt());
+            let bound = 1.6 * chi2_per_dof_quantile(k, 4.0);
+            let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
+            if fitted(own_body) && fitted(c) && own - other > margin && other <= bound {
+                moves.push((i, c));
+                left[own_body] -= 1;
+            }
+        }
+        Ok(moves)
+    }
+
+    /// Whether each of `points` fits its own body in `model` at least as well as any other body,
+    /// against the whole-tree fit's poses: the check that points moved by
+    /// [`FittedMotions::points_fitting_another_body`] settled where they went. A point that cannot be scored
+    /// counts as settled.
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
+    pub fn points_settled(&self, model: &Model, tracks: &Tracks, points: &[usize]) -> Result<bool> {
+        self.check(model, tracks)?;
+        let body_poses = &self.body_poses;
+        let sigma = model.noise.sigma_m;
+        Ok(points.iter().all(|&i| {
+            body_of(model, tracks, i)
+                .and_then(|own| own_and_best_other(body_poses, tracks, i, own, sigma))
+                .is_none_or(|(mine, (other, _), _)| mine <= other)
+        }))
+    }
 }
