@@ -103,7 +103,7 @@ fn split_mixed_bodies(
             continue;
         };
         let ratio = residual / sigma;
-        if ratio <= SPLIT_RESIDUAL_IN_SIGMA || track.points.len() < 4 {
+        if track.points.len() < 4 {
             continue;
         }
         let pts = &track.points;
@@ -127,6 +127,19 @@ fn split_mixed_bodies(
         if parts.n_bodies() == 0 {
             continue;
         }
+        let members = parts.members();
+        // The pairwise measure keeps the two parts apart, as the merge guard would.
+        let apart = match &members[..] {
+            [first, second] => {
+                let global = |g: &[usize]| g.iter().map(|&x| pts[x]).collect::<Vec<_>>();
+                mean_cross(dmat, &global(first), &global(second))
+                    .is_some_and(|d| d > dmat.suggested_cut)
+            }
+            _ => false,
+        };
+        if ratio <= SPLIT_RESIDUAL_IN_SIGMA && !apart {
+            continue;
+        }
         any = true;
         warnings.push(Warning::BodySplit {
             points: pts.clone(),
@@ -139,7 +152,6 @@ fn split_mixed_bodies(
                 None => None,
             };
         }
-        let members = parts.members();
         if let [first, second] = &members[..] {
             cannot_link.push((pts[first[0]], pts[second[0]]));
         }
@@ -169,21 +181,27 @@ fn pairwise_apart(m: &DissimilarityMatrix, seg: &Segmentation) -> Vec<(usize, us
     let mut out = Vec::new();
     for a in 0..members.len() {
         for b in a + 1..members.len() {
-            let (mut sum, mut count) = (0.0, 0usize);
-            for &i in &members[a] {
-                for &j in &members[b] {
-                    if let Some(d) = m.get(i, j) {
-                        sum += d;
-                        count += 1;
-                    }
-                }
-            }
-            if count > 0 && sum / count as f64 > m.suggested_cut {
+            if mean_cross(m, &members[a], &members[b]).is_some_and(|d| d > m.suggested_cut) {
                 out.push((a, b));
             }
         }
     }
     out
+}
+
+/// Mean dissimilarity over the observed pairs between two groups of points; `None` when no
+/// pair was observed.
+fn mean_cross(m: &DissimilarityMatrix, a: &[usize], b: &[usize]) -> Option<f64> {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for &i in a {
+        for &j in b {
+            if let Some(d) = m.get(i, j) {
+                sum += d;
+                count += 1;
+            }
+        }
+    }
+    (count > 0).then(|| sum / count as f64)
 }
 
 /// Groups of bodies to merge because they move rigidly together: complete linkage over the
