@@ -354,3 +354,42 @@ fn fitted_motions_of_another_model_are_a_typed_error() {
         Err(Error::Shape { .. })
     ));
 }
+
+/// The fitted motions laid onto the per-body poses: the same body frames (each fitted pose
+/// within a few pose-noise widths of the body's own), only registered frames posed, and a
+/// typed error for a body order or per-body poses of another segmentation.
+#[test]
+fn fitted_motions_onto_per_body_poses() {
+    let data = simulate(&paper_arm(5)).expect("simulate");
+    let d = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run");
+    let motions = kinetree_structure::FittedMotions::new(&d.model, &data.tracks).expect("fit");
+    let fitted = motions
+        .onto_body_poses(&d.poses, &d.body_order)
+        .expect("onto");
+    let mut compared = 0;
+    for (own, new) in d.poses.bodies.iter().zip(&fitted.bodies) {
+        for (a, b) in own.cam_from_body.iter().zip(&new.cam_from_body) {
+            assert_eq!(a.is_some(), b.is_some());
+            if let (Some(a), Some(b)) = (a, b) {
+                let diff = a.inverse() * b;
+                assert!(diff.rotation.angle() < 0.05, "{}", diff.rotation.angle());
+                assert!(diff.translation.vector.norm() < 0.01);
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 100, "{compared} poses compared");
+    assert!(matches!(
+        motions.onto_body_poses(&d.poses, &d.body_order[1..]),
+        Err(Error::Shape { .. })
+    ));
+    let mut fewer = d.poses.clone();
+    fewer.bodies.pop();
+    assert!(matches!(
+        motions.onto_body_poses(&fewer, &d.body_order),
+        Err(Error::Shape { .. })
+    ));
+}

@@ -296,21 +296,23 @@ fn every_clusterer_cuts_to_a_given_number_of_bodies() {
     );
 }
 
-/// Seven mechanisms of the rate test's deterministic draw (`strategies::any_mechanism()`,
-/// 1.4-4.8 mm of noise) where one point near a joint axis landed on the neighbouring body:
+/// Eight mechanisms of the rate test's deterministic draw (`strategies::any_mechanism()`,
+/// 0.3-4.8 mm of noise) where one point near a joint axis landed on the neighbouring body:
 /// pairwise it is rigid to both, and against per-body poses it fits both. The model's
 /// whole-tree fit tells them apart, the point is moved back (a `points_reassigned` warning)
-/// and every identifiable point ends on its body. Before the move existed, all seven had an
-/// identifiable ARI of 0.95-0.98.
+/// and every identifiable point ends on its body. Before the move existed, the first seven had
+/// an identifiable ARI of 0.95-0.98. Case 172 (0.3 mm) needs the pair tests on fitted poses
+/// (a prismatic parent's tree was wrong without them) and a target body whose median misfit,
+/// 2.9 from model error at that noise, is over `MAX_BODY_MEDIAN` but above the point's 1.6.
 #[test]
 fn points_near_a_joint_axis_are_moved_by_the_model_fit() {
     let mut runner = TestRunner::deterministic();
     let strategy = strategies::any_mechanism();
-    let specs: Vec<MechanismSpec> = (0..151)
+    let specs: Vec<MechanismSpec> = (0..173)
         .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
         .collect();
     let mut reassigned = 0;
-    for case in [9, 43, 76, 88, 114, 116, 150] {
+    for case in [9, 43, 76, 88, 114, 116, 150, 172] {
         let spec = &specs[case];
         let data = simulate(&spec.scenario()).expect("simulate");
         let d = Pipeline::from_config(&PipelineConfig::default())
@@ -332,5 +334,5 @@ fn points_near_a_joint_axis_are_moved_by_the_model_fit() {
             reassigned += 1;
         }
     }
-    assert!(reassigned >= 5, "{reassigned} of 7 moved points");
+    assert!(reassigned >= 6, "{reassigned} of 8 moved points");
 }

@@ -93,6 +93,15 @@ pub enum Warning {
         /// The miss beyond the child's own pose, per point, in units of sigma^2.
         excess_in_sigma2: f64,
     },
+    /// The model had multi-DoF joints, so every pair was tested again on the poses of its
+    /// whole-tree fit and the model rebuilt on them; the rebuilt model, with fewer multi-DoF
+    /// joints, was kept. Pair tests, joints and positions are the rebuilt model's.
+    PairsRetested {
+        /// Multi-DoF joints of the first model.
+        multi_dof_before: usize,
+        /// Multi-DoF joints of the rebuilt one.
+        multi_dof_after: usize,
+    },
     /// The noise level was estimated from the data.
     NoiseEstimated {
         /// The estimate, per-coordinate std-dev in metres.
@@ -164,6 +173,13 @@ impl std::fmt::Display for Warning {
             } => write!(
                 f,
                 "joint {parent} -> {child}: its child misses the whole-tree fit by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose; its positions come from the two bodies' poses"
+            ),
+            Warning::PairsRetested {
+                multi_dof_before,
+                multi_dof_after,
+            } => write!(
+                f,
+                "pairs tested again on the whole-tree fit's poses: {multi_dof_before} multi-DoF joint(s) became {multi_dof_after}"
             ),
             Warning::NoiseEstimated { sigma_m } => write!(
                 f,

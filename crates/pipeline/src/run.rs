@@ -13,6 +13,7 @@ use kinetree_core::{
 use kinetree_dissimilarity::{
     estimate_noise_sigma, estimate_noise_sigma_nearest_rigid, pair_stats, refine_noise_sigma,
 };
+use kinetree_structure::FittedMotions;
 
 /// The stages, built from a [`PipelineConfig`] or supplied by the caller.
 #[derive(Debug)]
@@ -57,6 +58,8 @@ struct Found {
     body_order: Vec<usize>,
     segmentation: Segmentation,
     poses: BodyPoses,
+    /// The segmentation's warnings the model was made with (its own come on top).
+    history: Vec<Warning>,
 }
 
 /// How many times a model's fitted motions may move points to another body before the
@@ -422,49 +425,50 @@ impl Pipeline {
         // another body's fitted motion explains better are moved there and the bodies redone,
         // at most MODEL_PASSES times; a pass stands only if the moved points then fit their
         // new bodies best (a point moved wrongly, once in 200 mechanisms, then fitted its new
-        // body at chi2/dof 4.3 against 2.9 for its old one). The segmentation's history
-        // (splits, merges, moves) accumulates over the passes; the model's own warnings are
-        // made anew by each.
+        // body at chi2/dof 4.3 against 2.9 for its old one). A model left with nothing to move
+        // but with multi-DoF joints is rebuilt on pair tests of its whole-tree fit's poses when
+        // that removes some (`retest_on_fitted_poses`), and the rebuilt model's fit may move
+        // points in turn (a wrong tree had hidden them). The segmentation's
+        // history (splits, merges, moves) accumulates over the passes; the model's own
+        // warnings are made anew by each.
         let mut history = warnings;
         let mut previous: Option<Found> = None;
         let mut moved: Vec<usize> = Vec::new();
         let mut pass = 0;
         let found = loop {
             let (bodies, poses, pairs) = self.bodies(tracks, &dmat, seg, sigma, &mut history)?;
-            let mut model = self.assemble(
+            let mut found = self.model(
                 tracks,
-                &bodies,
-                &poses,
+                &dmat,
+                bodies,
+                poses,
                 pairs,
                 sigma,
                 source,
                 history.clone(),
             )?;
-            let diag = kinetree_clustering::diagnostics(&dmat, &bodies);
-            model.0.point_confidence = diag.point_margin;
-            for body in &mut model.0.bodies {
-                body.internal_dissimilarity = diag.body_spread[model.1[body.id]];
-            }
-            model.0.reprediction_rms_in_sigma =
-                kinetree_structure::fit_model_positions(&mut model.0, tracks)?;
-            let found = Found {
-                body_order: model.1,
-                model: model.0,
-                segmentation: bodies,
-                poses,
-            };
             // One whole-tree fit of the new model serves both checks.
-            let motions = kinetree_structure::FittedMotions::new(&found.model, tracks)?;
+            let motions = FittedMotions::new(&found.model, tracks)?;
             if let Some(before) = previous.take()
                 && !motions.points_settled(&found.model, tracks, &moved)?
             {
                 break before;
             }
-            let moves = if pass < MODEL_PASSES {
+            let mut moves = if pass < MODEL_PASSES {
                 motions.points_fitting_another_body(&found.model, tracks)?
             } else {
                 Vec::new()
             };
+            if moves.is_empty()
+                && let Some(again) =
+                    self.retest_on_fitted_poses(tracks, &dmat, &found, &motions, sigma, source)?
+            {
+                found = again;
+                if pass < MODEL_PASSES {
+                    moves = FittedMotions::new(&found.model, tracks)?
+                        .points_fitting_another_body(&found.model, tracks)?;
+                }
+            }
             if moves.is_empty() {
                 break found;
             }
@@ -489,6 +493,91 @@ impl Pipeline {
             segmentation: found.segmentation,
             poses: found.poses,
         })
+    }
+
+    /// The model of a segmentation's bodies, poses and pair tests: the tree, joints and
+    /// their positions from the whole-tree fit, and the segmentation diagnostics.
+    #[allow(clippy::too_many_arguments)]
+    fn model(
+        &self,
+        tracks: &Tracks,
+        dmat: &DissimilarityMatrix,
+        bodies: Segmentation,
+        poses: BodyPoses,
+        pairs: Vec<PairDof>,
+        sigma: f64,
+        source: NoiseSource,
+        history: Vec<Warning>,
+    ) -> Result<Found> {
+        let (mut model, body_order) = self.assemble(
+            tracks,
+            &bodies,
+            &poses,
+            pairs,
+            sigma,
+            source,
+            history.clone(),
+        )?;
+        let diag = kinetree_clustering::diagnostics(dmat, &bodies);
+        model.point_confidence = diag.point_margin;
+        for body in &mut model.bodies {
+            body.internal_dissimilarity = diag.body_spread[body_order[body.id]];
+        }
+        model.reprediction_rms_in_sigma =
+            kinetree_structure::fit_model_positions(&mut model, tracks)?;
+        Ok(Found {
+            body_order,
+            model,
+            segmentation: bodies,
+            poses,
+            history,
+        })
+    }
+
+    /// When the model has multi-DoF joints, every pair is tested again on the poses of its
+    /// whole-tree fit (`motions`), which pose a small body through its joint and every
+    /// keypoint below it rather than from its own few points, and the model is rebuilt on
+    /// them. Returns the rebuilt model when it has fewer multi-DoF joints.
+    fn retest_on_fitted_poses(
+        &self,
+        tracks: &Tracks,
+        dmat: &DissimilarityMatrix,
+        found: &Found,
+        motions: &FittedMotions,
+        sigma: f64,
+        source: NoiseSource,
+    ) -> Result<Option<Found>> {
+        let multi = |m: &Model| {
+            m.joints
+                .iter()
+                .filter(|j| j.joint_type == "multi_dof")
+                .count()
+        };
+        let before = multi(&found.model);
+        if before == 0 {
+            return Ok(None);
+        }
+        let fitted = motions.onto_body_poses(&found.poses, &found.body_order)?;
+        let pairs = self.all_pairs(&fitted, sigma)?;
+        let mut again = self.model(
+            tracks,
+            dmat,
+            found.segmentation.clone(),
+            fitted,
+            pairs,
+            sigma,
+            source,
+            found.history.clone(),
+        )?;
+        let after = multi(&again.model);
+        if after >= before {
+            return Ok(None);
+        }
+        again.model.warnings.push(Warning::PairsRetested {
+            multi_dof_before: before,
+            multi_dof_after: after,
+        });
+        Ok(Some(again))
     }
 
     /// From a segmentation to registered bodies and their pair tests: poses; bodies with fewer
