@@ -345,42 +345,66 @@ fn a_hinge_below_a_small_slider_gets_its_axis_from_the_tree_fit() {
     assert!(checked >= 14, "{checked} of 16 seeds structurally exact");
 }
 
-/// Three mechanisms of the rate test's deterministic draw (`strategies::any_mechanism()`,
-/// 1.1-2.6 mm of noise, 15-37 % occlusion) where a slide was typed multi-DoF: its parent, a
-/// 10-30 cm body of 5 points with a third of its frames unposed, bends the child's straight
-/// path by its pose errors (the child's translation missed a line at chi2/dof 5.4 against a
-/// bound of 4.0 on case 287; off the line by 14 mm RMS with per-body poses, 1.6 mm with the
-/// whole-tree fit's). Tested again on the fitted poses, every joint comes out with its type
-/// (a `pairs_retested` warning). Before the retest, all three had a joint typed multi-DoF.
-#[test]
-fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
+/// The first `n` mechanisms of the rate test's deterministic draw
+/// (`strategies::any_mechanism()`).
+fn rate_draw(n: usize) -> Vec<kinetree_synth::MechanismSpec> {
     use proptest::strategy::{Strategy, ValueTree};
     let mut runner = proptest::test_runner::TestRunner::deterministic();
     let strategy = kinetree_synth::strategies::any_mechanism();
-    let specs: Vec<_> = (0..458)
+    (0..n)
         .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
+        .collect()
+}
+
+/// The default pipeline on a drawn mechanism, its model's warnings, and the true joints it
+/// gets wrong (not found or wrongly typed).
+fn wrong_joints(spec: &kinetree_synth::MechanismSpec) -> (Vec<kinetree_core::Warning>, Vec<usize>) {
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let d = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    let e = evaluate(&d.model, &data.truth);
+    let wrong = e
+        .joints
+        .iter()
+        .enumerate()
+        .filter(|(_, j)| !(j.found && j.type_ok))
+        .map(|(k, _)| k)
         .collect();
+    (d.model.warnings, wrong)
+}
+
+/// Three mechanisms of the rate test's deterministic draw (1.1-2.6 mm of noise, 15-37 %
+/// occlusion) where a slide was typed multi-DoF: its parent, a 10-30 cm body of 5 points with
+/// a third of its frames unposed, bends the child's straight path by its pose errors (the
+/// child's translation missed a line at chi2/dof 5.4 against a bound of 4.0 on case 287; off
+/// the line by 14 mm RMS with per-body poses, 1.6 mm with the whole-tree fit's). Tested again
+/// on the fitted poses, every joint comes out with its type (a `pairs_retested` warning).
+/// Before the retest, all three had a joint typed multi-DoF.
+#[test]
+fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
+    let specs = rate_draw(458);
     for case in [159, 287, 457] {
-        let data = simulate(&specs[case].scenario()).expect("simulate");
-        let d = Pipeline::from_config(&PipelineConfig::default())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover");
-        let e = evaluate(&d.model, &data.truth);
-        let wrong: Vec<_> = e
-            .joints
-            .iter()
-            .enumerate()
-            .filter(|(_, j)| !(j.found && j.type_ok))
-            .map(|(k, _)| k)
-            .collect();
-        assert!(e.joints_exact, "case {case}: wrong joints {wrong:?}");
+        let (warnings, wrong) = wrong_joints(&specs[case]);
+        assert!(wrong.is_empty(), "case {case}: wrong joints {wrong:?}");
         assert!(
-            d.model
-                .warnings
+            warnings
                 .iter()
                 .any(|w| matches!(w, kinetree_core::Warning::PairsRetested { .. })),
             "case {case}: no retest"
         );
     }
+}
+
+/// Case 397 of the rate test's draw: a slide whose parent is a 2 cm body of 4 points. Its
+/// rotation residuals were 0.12 at rank 0 and 0.003 at rank 1 (whitened columns of nearly one
+/// direction), and the hidden-rotation rule read the ratio as a rotation, typing the slide
+/// revolute. With rank 0 required over the nominal noise (`kinetree_dof::MIN_EXCESS`) it is
+/// prismatic.
+#[test]
+fn a_slide_under_a_two_centimetre_parent_stays_prismatic() {
+    let specs = rate_draw(398);
+    let (_, wrong) = wrong_joints(&specs[397]);
+    assert!(wrong.is_empty(), "wrong joints {wrong:?}");
 }
