@@ -4,6 +4,14 @@ use kinetree_core::nalgebra::{Point3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
+/// Cases per property (and draws per rate test): `PROPTEST_CASES` when set, else 64.
+pub fn cases() -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(64)
+}
+
 /// Eight keypoints of one rigid 20 x 15 x 10 cm body tumbling through 2 rad about a fixed
 /// axis over `frames` frames, 1.5 m in front of the camera and drifting 10 cm, with Gaussian
 /// noise of std-dev `sigma_m` per coordinate drawn from `seed`. `mistrack(frame, point)` is

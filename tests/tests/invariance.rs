@@ -1,13 +1,16 @@
 //! Invariances: the discovered structure does not depend on the camera pose, the order of
 //! the points, the unit of length, the direction of time or dropping every other frame.
+//! Fixed seeds of the random box mechanisms, and rates over the strategies' random
+//! mechanisms (`PROPTEST_CASES` of them, 64 by default).
 
 use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use kinetree_core::{Model, Tracks};
 use kinetree_pipeline::{Pipeline, PipelineConfig};
-use kinetree_synth::{RandomParams, random_scenario, simulate};
+use kinetree_synth::{RandomParams, random_scenario, simulate, strategies};
+use kinetree_tests::cases;
 
 /// The structure as point sets: bodies, and joints as (parent points, child points, type).
-#[derive(Debug, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 struct Structure {
     bodies: Vec<Vec<usize>>,
     joints: Vec<(Vec<usize>, Vec<usize>, String)>,
@@ -215,5 +218,151 @@ fn a_moving_camera_gives_the_same_joints_and_no_static_body() {
             j
         };
         assert_eq!(undirected(&got), undirected(&expected), "seed {seed}");
+    }
+}
+
+/// The structure found on `tracks` with the default pipeline (noise estimated), or the error's
+/// text; `original_index` as in [`structure`].
+fn found(tracks: &Tracks, original_index: &[usize]) -> std::result::Result<Structure, String> {
+    Pipeline::from_config(&PipelineConfig::default())
+        .and_then(|p| p.run(tracks))
+        .map(|d| structure(&d.model, original_index))
+        .map_err(|e| e.to_string())
+}
+
+/// The order `order[i]` = original index of point `i`, shuffled by `rng`.
+fn shuffled(n: usize, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<usize> {
+    use rand::seq::SliceRandom;
+    let mut order: Vec<usize> = (0..n).collect();
+    order.shuffle(rng);
+    order
+}
+
+/// The five transforms of the invariance rate test, in its order.
+const TRANSFORMS: [&str; 5] = [
+    "camera moved",
+    "points permuted",
+    "millimetres",
+    "time reversed",
+    "every other frame dropped",
+];
+
+/// Each transform of a mechanism's tracks with the original index of each of its points: a
+/// rigid motion of the whole scene and a permutation of the points (both drawn from `rng`),
+/// millimetres instead of metres, time reversed, every other frame dropped.
+fn transformed(tracks: &Tracks, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Tracks, Vec<usize>)> {
+    use rand::Rng;
+    let n = tracks.n_points();
+    let identity: Vec<usize> = (0..n).collect();
+    let mut draw = |scale: f64| Vector3::from_fn(|_, _| rng.random_range(-scale..scale));
+    let motion = Isometry3::from_parts(
+        Translation3::from(draw(2.0)),
+        UnitQuaternion::from_scaled_axis(draw(3.0)),
+    );
+    let order = shuffled(n, rng);
+    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
+        .map(|t| order.iter().map(|&i| tracks.get(t, i)).collect())
+        .collect();
+    let reversed: Vec<usize> = (0..tracks.n_frames()).rev().collect();
+    let halved: Vec<usize> = (0..tracks.n_frames()).step_by(2).collect();
+    vec![
+        (
+            tracks.map_points(|p| motion * p).expect("moved"),
+            identity.clone(),
+        ),
+        (Tracks::from_points(&frames).expect("permuted"), order),
+        (
+            tracks
+                .map_points(|p| Point3::from(p.coords * 1000.0))
+                .expect("mm"),
+            identity.clone(),
+        ),
+        (
+            tracks.select_frames(&reversed).expect("reversed"),
+            identity.clone(),
+        ),
+        (tracks.select_frames(&halved).expect("halved"), identity),
+    ]
+}
+
+/// Invariances over the strategies' random mechanisms (1-8 joints, 2-50 cm bodies, 0-5 mm
+/// noise, 0-40 % occlusion): on `cases()` mechanisms of the rate test's deterministic draw,
+/// the structure found (bodies as point sets, joints with their types, the default pipeline
+/// with the noise estimated) after each of [`TRANSFORMS`] equals the original one.
+///
+/// Exact equality cannot hold for every mechanism: the transforms change the rounding of
+/// every computation, and a 4-point body with three visible points nearly collinear amplifies
+/// it (its poses differed by 1e-8 between metres and millimetres), so a decision that sits on
+/// its threshold can go either way; dropping frames halves the data. So each is a rate.
+/// Measured on 640 draws: 639 the same with the camera moved, 638 with the points permuted,
+/// in millimetres and with time reversed (the misses are two mechanisms, 228 and 411, that
+/// the rate test also fails), 592 with every other frame dropped (62 of the first 64). The
+/// deep pass (`PROPTEST_CASES=640`) found and this session fixed:
+/// pair tests that took the lower-numbered body as the frame (the permutation changed the
+/// tree on 7 of 200), multi-DoF tree edges of equal cost ordered by numbering, a noise-free
+/// floor (1e-9 of the distances) below the precision of the later iterations, the reference
+/// frame of the pair tests taken as the earliest of tied frames (time reversal), and the
+/// whole-tree fit's tolerances in metres (units). Required: the measured rates less a case
+/// per 64 (two for the dropped frames).
+#[test]
+fn invariances_hold_on_most_mechanisms() {
+    use proptest::strategy::{Strategy, ValueTree};
+    use rand::SeedableRng;
+    let n = cases() as usize;
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let strategy = strategies::any_mechanism();
+    let mut differ: Vec<Vec<usize>> = vec![Vec::new(); TRANSFORMS.len()];
+    for case in 0..n {
+        let spec = strategy.new_tree(&mut runner).expect("draw").current();
+        let tracks = simulate(&spec.scenario()).expect("simulate").tracks;
+        let identity: Vec<usize> = (0..tracks.n_points()).collect();
+        let expected = found(&tracks, &identity);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(case as u64);
+        for (k, (t, index)) in transformed(&tracks, &mut rng).iter().enumerate() {
+            if found(t, index) != expected {
+                differ[k].push(case);
+            }
+        }
+    }
+    for (k, name) in TRANSFORMS.iter().enumerate() {
+        eprintln!("{name}: {} of {n} differ {:?}", differ[k].len(), differ[k]);
+    }
+    for (k, name) in TRANSFORMS.iter().enumerate() {
+        let same = n - differ[k].len();
+        let required = n * if k == 4 { 58 } else { 63 } / 64;
+        assert!(
+            same >= required,
+            "{name}: {same} of {n} the same, {required} required; differ: {:?}",
+            differ[k]
+        );
+    }
+}
+
+/// Two mechanisms of the rate test's draw (cases 81 and 100) whose tree changed when their
+/// points were permuted (reversed, then rotated by a third), before the pair tests took the
+/// better-posed body as the frame instead of the lower-numbered one: a pair's test of `b` in
+/// `a`'s frame is not that of `a` in `b`'s, and the numbering follows the points.
+#[test]
+fn permuting_the_points_of_drawn_mechanisms_permutes_the_result() {
+    use proptest::strategy::{Strategy, ValueTree};
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let strategy = strategies::any_mechanism();
+    let specs: Vec<_> = (0..101)
+        .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
+        .collect();
+    for case in [81, 100] {
+        let tracks = simulate(&specs[case].scenario()).expect("simulate").tracks;
+        let n = tracks.n_points();
+        let order: Vec<usize> = (0..n).map(|k| (n - 1 - k + n / 3) % n).collect();
+        let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
+            .map(|t| order.iter().map(|&i| tracks.get(t, i)).collect())
+            .collect();
+        let permuted = Tracks::from_points(&frames).expect("permuted");
+        let identity: Vec<usize> = (0..n).collect();
+        assert_eq!(
+            found(&permuted, &order),
+            found(&tracks, &identity),
+            "case {case}"
+        );
     }
 }

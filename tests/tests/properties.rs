@@ -12,12 +12,7 @@ use kinetree_pose::kabsch;
 use kinetree_synth::{simulate, strategies};
 use proptest::prelude::*;
 
-fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(64)
-}
+use kinetree_tests::cases;
 
 fn config() -> ProptestConfig {
     ProptestConfig {
@@ -311,12 +306,12 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
 /// per 64 for platform rounding: 63 of the first 64 were recovered when this was written
-/// (195 of 200, 610 of 640: the deep pass meets the requirement with no case to spare).
-/// Before: 167 of 200 before joint positions came from the whole-tree fit, 182 before a
-/// rotation hidden by the chi-square slack could make a joint revolute, 185 before points
-/// near a joint axis were moved by the model's fit, 193 (605 of 640) before models with
-/// multi-DoF joints were retested on their fitted poses and the hidden-rotation rule asked
-/// for a residual over the noise. The 5 failures in 200 are all joints not exact (wrong
+/// (195 of 200, 612 of 640; the deep pass needs 610). Before: 167 of 200 before joint
+/// positions came from the whole-tree fit, 182 before a rotation hidden by the chi-square
+/// slack could make a joint revolute, 185 before points near a joint axis were moved by the
+/// model's fit, 193 (605 of 640) before models with multi-DoF joints were retested on their
+/// fitted poses, the hidden-rotation rule asked for a residual over the noise, and pair tests
+/// took the better-posed body as the frame and a time-symmetric reference frame. The 5 failures in 200 are all joints not exact (wrong
 /// trees, a 3-6 cm body merged, a type wrong). The failures are printed, and
 /// `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
 #[test]

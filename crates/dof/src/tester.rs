@@ -110,18 +110,20 @@ fn pair_columns(
         let y = xk.translation.vector.cross_matrix();
         u_cov.push(oa + r_x * ob * r_x.transpose() + y * ja * y.transpose());
     }
-    // Reference: the earliest common frame with the most precise relative rotation. The
-    // precision depends only on which points are visible, so many frames tie exactly up to
-    // rounding; breaking ties by rounding made the choice (and a borderline decision) change
-    // under a rigid motion of the whole scene.
+    // Reference: a common frame with the most precise relative rotation. The precision
+    // depends only on which points are visible, so many frames tie exactly up to rounding;
+    // breaking ties by rounding made the choice (and a borderline decision) change under a
+    // rigid motion of the whole scene, and taking the earliest made it change when time ran
+    // backwards. Among the tied frames, the one whose relative rotation is nearest all the
+    // others' (least sum of squared angles) is taken: it depends on neither.
     let best = rot_cov
         .iter()
         .map(Matrix3::trace)
         .fold(f64::INFINITY, f64::min);
-    let r = rot_cov
-        .iter()
-        .position(|c| c.trace() <= best * (1.0 + 1e-9))
-        .unwrap_or(0);
+    let tied: Vec<usize> = (0..rot_cov.len())
+        .filter(|&i| rot_cov[i].trace() <= best * (1.0 + 1e-9))
+        .collect();
+    let r = medoid_rotation(&frames, &x, &tied);
     let reference_frame = frames[r];
     let x_ref = x[reference_frame].ok_or_else(|| Error::Numerical("lost reference pose".into()))?;
     let y_ref = x_ref.translation.vector;
@@ -159,6 +161,28 @@ fn pair_columns(
         a_cov,
         b_cov,
     })
+}
+
+/// Among the candidate columns `tied` (indices into `frames`), the one whose relative rotation
+/// has the least sum of squared angles to every frame's (the earliest on an exact tie).
+fn medoid_rotation(
+    frames: &[usize],
+    x: &[Option<kinetree_core::nalgebra::Isometry3<f64>>],
+    tied: &[usize],
+) -> usize {
+    let rotations: Vec<UnitQuaternion<f64>> = frames
+        .iter()
+        .filter_map(|&t| x[t].map(|p| p.rotation))
+        .collect();
+    let mut best: Option<(usize, f64)> = None;
+    for &i in tied {
+        let q = rotations[i];
+        let cost: f64 = rotations.iter().map(|o| q.angle_to(o).powi(2)).sum();
+        if best.is_none_or(|(_, c)| cost < c * (1.0 - 1e-12)) {
+            best = Some((i, cost));
+        }
+    }
+    best.map_or(0, |(i, _)| i)
 }
 
 /// Reference-free test for a fixed pivot: is there a point fixed in both bodies, `c` in

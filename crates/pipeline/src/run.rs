@@ -170,6 +170,47 @@ fn split_mixed_bodies(
     Ok(Some(out))
 }
 
+/// How poorly a body is posed, and how far it travels: the median over its registered frames
+/// of its rotation's standard deviation per unit noise (infinite when never registered), and
+/// the path length of its origin over its registered frames. Both depend on the body's
+/// keypoints, their visibility and motion, not on how the bodies or points are numbered, where
+/// the camera is, or which way time runs.
+fn pose_spread(track: &BodyTrack) -> (f64, f64) {
+    let mut s: Vec<f64> = track
+        .quality
+        .iter()
+        .flatten()
+        .map(|q| q.rot_std_per_sigma)
+        .collect();
+    if s.is_empty() {
+        return (f64::INFINITY, 0.0);
+    }
+    s.sort_by(f64::total_cmp);
+    let origins: Vec<_> = track
+        .cam_from_body
+        .iter()
+        .flatten()
+        .map(|p| p.translation.vector)
+        .collect();
+    let travel = origins.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+    (s[s.len() / 2], travel)
+}
+
+/// Whether body `j` should be the frame of the pair `(i, j)`: it is better posed, or equally
+/// well posed (within rounding) and travels less. Exact ties keep the lower index as the
+/// frame (identical bodies moving identically).
+fn frame_first(spread: &[(f64, f64)], i: usize, j: usize) -> bool {
+    let differs = |a: f64, b: f64| (a - b).abs() > 1e-9 * a.abs().max(b.abs());
+    let ((si, ti), (sj, tj)) = (spread[i], spread[j]);
+    if differs(si, sj) {
+        sj < si
+    } else if differs(ti, tj) {
+        tj < ti
+    } else {
+        false
+    }
+}
+
 /// Pairs of bodies the pairwise measure keeps apart: the mean dissimilarity over their
 /// observed cross pairs is above the measure's cut. The rigid merge never joins them.
 ///
@@ -298,21 +339,37 @@ impl Pipeline {
         Ok((d, s))
     }
 
+    /// Every pair's DoF test: each body against the camera frame, and each pair of bodies
+    /// with the better-posed one as the frame (see [`pose_spread`] and [`frame_first`]). The test of `b` in `a`'s
+    /// frame is not that of `a` in `b`'s (the frame's rotation noise acts at the lever arm of
+    /// the other's origin), so the direction must not follow the body numbering, which
+    /// follows the order of the points: with the lower index as the frame, permuting the
+    /// points changed the tree on 7 of 200 random mechanisms.
     fn all_pairs(&self, poses: &BodyPoses, sigma: f64) -> Result<Vec<PairDof>> {
         let input = DofInput {
             poses,
             noise_sigma_m: sigma,
         };
         let n = poses.bodies.len();
+        let spread: Vec<(f64, f64)> = poses.bodies.iter().map(pose_spread).collect();
         let mut out = Vec::new();
-        let frames: Vec<Option<usize>> = std::iter::once(None).chain((0..n).map(Some)).collect();
-        for (i, &a) in frames.iter().enumerate() {
-            for &b in &frames[i + 1..] {
-                let Some(b) = b else { continue };
-                match self.dof.test_pair(&input, a, b) {
-                    Ok(p) => out.push(p),
-                    Err(Error::Degenerate(_)) => {}
-                    Err(e) => return Err(e),
+        let mut test = |a: Option<usize>, b: usize| -> Result<()> {
+            match self.dof.test_pair(&input, a, b) {
+                Ok(p) => out.push(p),
+                Err(Error::Degenerate(_)) => {}
+                Err(e) => return Err(e),
+            }
+            Ok(())
+        };
+        for b in 0..n {
+            test(None, b)?;
+        }
+        for i in 0..n {
+            for j in i + 1..n {
+                if frame_first(&spread, i, j) {
+                    test(Some(j), i)?;
+                } else {
+                    test(Some(i), j)?;
                 }
             }
         }

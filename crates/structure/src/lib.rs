@@ -94,7 +94,11 @@ pub struct Tree {
     pub order: Vec<usize>,
 }
 
-/// Edge cost for the spanning tree: single-DoF joints first, the clearest fits first.
+/// Edge cost for the spanning tree: single-DoF joints first, the clearest fits first; then
+/// multi-DoF pairs by their number of DoF and, among those with as many, the one whose motion
+/// beyond its largest translation and rotation is smallest (the nearest to a joint). Without
+/// that last term, equal costs left the choice to the order of the edges, which follows the
+/// numbering of the points.
 fn edge_cost(p: &PairDof) -> f64 {
     let single = matches!(
         p.joint,
@@ -103,7 +107,12 @@ fn edge_cost(p: &PairDof) -> f64 {
     if single {
         1.0 + p.fit_ratio.min(0.999)
     } else {
-        1.0 + p.dof.max(1) as f64
+        let extra: f64 = [&p.translation.whitened, &p.rotation.whitened]
+            .iter()
+            .flat_map(|w| w.iter().skip(1))
+            .filter(|v| v.is_finite())
+            .sum();
+        1.0 + p.dof.max(1) as f64 + extra / (1.0 + extra)
     }
 }
 

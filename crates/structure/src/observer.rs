@@ -51,7 +51,8 @@ pub struct FrameFit {
 
 /// A revolute position whose standard deviation exceeds this (radians) is reported unknown.
 pub const MAX_STD_RAD: f64 = 0.5;
-/// A prismatic position whose standard deviation exceeds this (metres) is reported unknown.
+/// A prismatic position whose standard deviation exceeds this (metres at 1 mm of noise; it
+/// scales with the model's noise level, 100 sigma) is reported unknown.
 pub const MAX_STD_M: f64 = 0.1;
 /// A parameter whose variance inflation (its variance over what it would be were it the
 /// only free one) exceeds this is not determined by the frame.
@@ -463,7 +464,7 @@ impl Observer {
                     // next step predicted from the last two (their ratio is the rate of
                     // convergence) is under PREDICTED_STEP_TOLERANCE, or the step lowers the
                     // cost by under a millionth.
-                    let size = step.amax();
+                    let size = self.step_size(&step);
                     let predicted = previous_step.map_or(f64::INFINITY, |p| size * size / p);
                     moved = size >= STEP_TOLERANCE
                         && predicted >= PREDICTED_STEP_TOLERANCE
@@ -799,6 +800,39 @@ impl Observer {
     }
 
     /// `s` moved by `step` (free poses turned about `origin`), into `out`.
+    /// Metres per "millimetre of noise": the model's noise level over 1 mm. The fit's length
+    /// tolerances ([`STEP_TOLERANCE`], [`MAX_STD_M`]) were set at 1 mm of noise and scale with
+    /// it, so a model in millimetres (noise 1, not 0.001) fits to the same relative precision
+    /// and decides the same: with fixed tolerances in metres, the invariance property found a
+    /// mechanism whose tree changed when its tracks were given in millimetres.
+    fn length_unit(&self) -> f64 {
+        let u = self.sigma / 1e-3;
+        if u.is_finite() && u > 0.0 { u } else { 1.0 }
+    }
+
+    /// The largest component of a descent step, lengths in [`Observer::length_unit`]s and
+    /// angles in radians.
+    fn step_size(&self, step: &DVector<f64>) -> f64 {
+        let unit = self.length_unit();
+        let mut size: f64 = 0.0;
+        for c in self.free_col.iter().flatten() {
+            for i in 0..3 {
+                size = size
+                    .max(step[c + i].abs() / unit)
+                    .max(step[c + 3 + i].abs());
+            }
+        }
+        for (k, c) in self.joint_col.iter().enumerate() {
+            let Some(c) = *c else { continue };
+            let v = step[c].abs();
+            size = size.max(match self.joints[k].measure {
+                Measure::Revolute(..) => v,
+                _ => v / unit,
+            });
+        }
+        size
+    }
+
     fn apply(&self, s: &State, step: &DVector<f64>, origin: &Vector3<f64>, out: &mut State) {
         out.free.clone_from(&s.free);
         out.q.clone_from(&s.q);
@@ -840,7 +874,7 @@ impl Observer {
             std[k] = Some(sd);
             let limit = match j.measure {
                 Measure::Revolute(..) => MAX_STD_RAD,
-                _ => MAX_STD_M,
+                _ => MAX_STD_M * self.length_unit(),
             };
             if determined(c) && sd <= limit {
                 positions[k] = d.state.q[k];
@@ -944,14 +978,15 @@ impl Observer {
 
 /// Gauss-Newton iterations per start, at most (two to four are typical).
 const MAX_ITERATIONS: usize = 30;
-/// A step whose largest component (metres or radians) is below this ends the descent. Near
+/// A step whose largest component (metres at 1 mm of noise, see [`Observer::length_unit`], or
+/// radians) is below this ends the descent. Near
 /// the solution each step is at most about 1 % of the one before (measured on the observer
 /// benchmark's arm: steps of 8e-3, 8e-5, 3e-7), so the state after a step below 1e-4 is
 /// within about a micron or microradian of the minimum, far below any noise; a further
 /// iteration to confirm it took a quarter of a frame's fit.
 const STEP_TOLERANCE: f64 = 1e-4;
 /// The descent also ends when the next step, predicted as `s_k^2 / s_(k-1)` from the last two
-/// step sizes, is below this (metres or radians): measured on the observer benchmark's arm,
+/// step sizes, is below this (as [`STEP_TOLERANCE`]): measured on the observer benchmark's arm,
 /// the actual next step was a third to a fifth of the prediction (2.7e-4 after 2.0e-2:
 /// predicted 3.6e-6, then 6.3e-7).
 const PREDICTED_STEP_TOLERANCE: f64 = 1e-5;
