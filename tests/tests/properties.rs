@@ -306,14 +306,15 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
 /// per 64 for platform rounding: 63 of the first 64 were recovered when this was written
-/// (195 of 200, 612 of 640; the deep pass needs 610). Before: 167 of 200 before joint
+/// (196 of 200, 614 of 640; the deep pass needs 610). Before: 167 of 200 before joint
 /// positions came from the whole-tree fit, 182 before a rotation hidden by the chi-square
 /// slack could make a joint revolute, 185 before points near a joint axis were moved by the
-/// model's fit, 193 (605 of 640) before models with multi-DoF joints were retested on their
-/// fitted poses, the hidden-rotation rule asked for a residual over the noise, and pair tests
-/// took the better-posed body as the frame and a time-symmetric reference frame. The 5 failures in 200 are all joints not exact (wrong
-/// trees, a 3-6 cm body merged, a type wrong). The failures are printed, and
-/// `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
+/// model's fit, 193 (605 of 640) before session 6 (models with multi-DoF joints retested on
+/// their fitted poses, the hidden-rotation rule asking for a residual over the noise, pair
+/// tests with the better-posed body as the frame and a time-symmetric reference frame,
+/// unassigned points regrouped by their poses). The 4 failures in 200 are all joints not
+/// exact (types, a wrong tree, a 4 cm body merged with its child). The failures are printed,
+/// and `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {
     use proptest::strategy::ValueTree;

@@ -34,6 +34,12 @@ pub enum Warning {
         /// The points.
         points: Vec<usize>,
     },
+    /// Points the segmentation had left unassigned that move together as one rigid body
+    /// (their poses fit as one); each group became a body.
+    UnassignedPointsGrouped {
+        /// The groups of points.
+        groups: Vec<Vec<usize>>,
+    },
     /// Points that a model's whole-tree fit placed on another body (its fitted motion
     /// explained their tracks better than their own body's); they were moved there and the
     /// bodies, joints and positions redone.
@@ -133,6 +139,10 @@ impl std::fmt::Display for Warning {
             Warning::PointsAttached { points } => write!(
                 f,
                 "point(s) {points:?} discarded by the clustering were attached to the one body whose poses explain them"
+            ),
+            Warning::UnassignedPointsGrouped { groups } => write!(
+                f,
+                "point groups {groups:?} left unassigned by the clustering move as rigid bodies and became bodies"
             ),
             Warning::PointsReassigned { points } => write!(
                 f,

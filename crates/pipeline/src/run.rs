@@ -110,21 +110,8 @@ fn split_mixed_bodies(
             continue;
         }
         let pts = &track.points;
-        let n = pts.len();
-        let mut values = Vec::with_capacity(kinetree_core::n_pairs(n));
-        for (x, &i) in pts.iter().enumerate() {
-            for &j in &pts[x + 1..] {
-                values.push(dmat.get(i, j).unwrap_or(f64::NAN));
-            }
-        }
-        let sub = DissimilarityMatrix {
-            n_points: n,
-            values,
-            suggested_cut: dmat.suggested_cut,
-            measure: dmat.measure.clone(),
-        };
         let parts = splitter.cluster(&ClusteringInput {
-            dissimilarity: &sub,
+            dissimilarity: &sub_matrix(dmat, pts),
             seed: 0,
         })?;
         if parts.n_bodies() == 0 {
@@ -168,6 +155,41 @@ fn split_mixed_bodies(
         .extend(seg.discarded_groups.iter().cloned());
     out.discarded_groups.sort();
     Ok(Some(out))
+}
+
+/// The dissimilarities among `points` (unknown pairs NaN), with the matrix's cut and measure.
+fn sub_matrix(dmat: &DissimilarityMatrix, points: &[usize]) -> DissimilarityMatrix {
+    let mut values = Vec::with_capacity(kinetree_core::n_pairs(points.len()));
+    for (x, &i) in points.iter().enumerate() {
+        for &j in &points[x + 1..] {
+            values.push(dmat.get(i, j).unwrap_or(f64::NAN));
+        }
+    }
+    DissimilarityMatrix {
+        n_points: points.len(),
+        values,
+        suggested_cut: dmat.suggested_cut,
+        measure: dmat.measure.clone(),
+    }
+}
+
+/// The two halves of `points` by average linkage on their own sub-matrix (each of at least
+/// three points; fewer halves when a side is smaller).
+fn halves(dmat: &DissimilarityMatrix, points: &[usize]) -> Result<Vec<Vec<usize>>> {
+    let splitter =
+        kinetree_clustering::Hierarchical::new(kinetree_clustering::HierarchicalParams {
+            n_clusters: Some(2),
+            ..kinetree_clustering::HierarchicalParams::default()
+        })?;
+    let parts = splitter.cluster(&ClusteringInput {
+        dissimilarity: &sub_matrix(dmat, points),
+        seed: 0,
+    })?;
+    Ok(parts
+        .members()
+        .iter()
+        .map(|m| m.iter().map(|&x| points[x]).collect())
+        .collect())
 }
 
 /// How poorly a body is posed, and how far it travels: the median over its registered frames
@@ -376,6 +398,41 @@ impl Pipeline {
         Ok(out)
     }
 
+    /// Groups of at least three points the segmentation left unassigned that move as one rigid
+    /// body ([`Pipeline::points_fit_as_one`]): all of them if they do, else each half by
+    /// average linkage, and so on down. The pairwise measure can break a small body apart (4
+    /// points have 6 pairs, and with the F-test's `q` uniform on rigid pairs a point's mean to
+    /// the others is over the cut one time in a dozen); its poses still show one body.
+    fn regroup_unassigned(
+        &self,
+        tracks: &Tracks,
+        dmat: &DissimilarityMatrix,
+        seg: &Segmentation,
+        sigma: f64,
+    ) -> Result<Vec<Vec<usize>>> {
+        let left: Vec<usize> = (0..tracks.n_points())
+            .filter(|&i| seg.body_of(i).is_none() && tracks.visible_count(i) >= 2)
+            .collect();
+        let mut stack = vec![left];
+        let mut out = Vec::new();
+        while let Some(group) = stack.pop() {
+            if group.len() < kinetree_core::MIN_BODY_POINTS {
+                continue;
+            }
+            if self.points_fit_as_one(tracks, &group, sigma)? {
+                out.push(group);
+                continue;
+            }
+            let parts = halves(dmat, &group)?;
+            if parts.len() == 1 && parts[0].len() == group.len() {
+                continue;
+            }
+            stack.extend(parts);
+        }
+        out.sort();
+        Ok(out)
+    }
+
     /// Whether the union of `bodies` fits as one rigid body: its median pose residual stays
     /// within [`SPLIT_RESIDUAL_IN_SIGMA`] noise std-devs.
     fn fits_as_one(
@@ -385,11 +442,18 @@ impl Pipeline {
         bodies: &[usize],
         sigma: f64,
     ) -> Result<bool> {
+        let points: Vec<usize> = bodies
+            .iter()
+            .flat_map(|&b| poses.bodies[b].points.iter().copied())
+            .collect();
+        self.points_fit_as_one(tracks, &points, sigma)
+    }
+
+    /// Whether `points` fit as one rigid body (as [`Pipeline::fits_as_one`]).
+    fn points_fit_as_one(&self, tracks: &Tracks, points: &[usize], sigma: f64) -> Result<bool> {
         let mut raw = vec![None; tracks.n_points()];
-        for &b in bodies {
-            for &p in &poses.bodies[b].points {
-                raw[p] = Some(0);
-            }
+        for &p in points {
+            raw[p] = Some(0);
         }
         let union = Segmentation::from_raw(&raw, 1);
         let fitted = self.pose.estimate(&PoseInput {
@@ -654,6 +718,7 @@ impl Pipeline {
         let mut pairs;
         let mut round = 0;
         let mut attach_done = false;
+        let mut regroup_done = false;
         let mut split_rounds = 0;
         let mut cannot_link: Vec<(usize, usize)> = Vec::new();
         loop {
@@ -695,6 +760,30 @@ impl Pipeline {
                 if !attached.is_empty() {
                     warnings.push(Warning::PointsAttached { points: attached });
                     seg = refined;
+                    continue;
+                }
+            }
+            if !regroup_done {
+                // Once, after the attachment: unassigned points that move as one body become one.
+                regroup_done = true;
+                let groups = self.regroup_unassigned(tracks, dmat, &seg, sigma)?;
+                if !groups.is_empty() {
+                    let mut labels = seg.labels().to_vec();
+                    for (k, g) in groups.iter().enumerate() {
+                        for &p in g {
+                            labels[p] = Some(seg.n_bodies() + k);
+                        }
+                    }
+                    let grouped: Vec<usize> = groups.iter().flatten().copied().collect();
+                    let mut out = Segmentation::from_raw(&labels, 1);
+                    out.discarded_groups = seg
+                        .discarded_groups
+                        .iter()
+                        .map(|g| g.iter().copied().filter(|i| !grouped.contains(i)).collect())
+                        .filter(|g: &Vec<usize>| !g.is_empty())
+                        .collect();
+                    warnings.push(Warning::UnassignedPointsGrouped { groups });
+                    seg = out;
                     continue;
                 }
             }
