@@ -69,6 +69,19 @@ fn base(seed: u64) -> (Tracks, Structure) {
 
 const SEEDS: [u64; 3] = [2, 3, 5];
 
+/// A fixed scramble of `n` points: reversed, then rotated by a third.
+fn fixed_scramble(n: usize) -> Vec<usize> {
+    (0..n).map(|k| (n - 1 - k + n / 3) % n).collect()
+}
+
+/// `tracks` with its points in `order` (`order[i]` is the original index of point `i`).
+fn reordered(tracks: &Tracks, order: &[usize]) -> Tracks {
+    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
+        .map(|t| order.iter().map(|&i| tracks.get(t, i)).collect())
+        .collect();
+    Tracks::from_points(&frames).expect("reordered")
+}
+
 #[test]
 fn moving_the_camera_changes_nothing() {
     for seed in SEEDS {
@@ -91,13 +104,8 @@ fn moving_the_camera_changes_nothing() {
 fn permuting_the_points_permutes_the_result() {
     for seed in SEEDS {
         let (tracks, expected) = base(seed);
-        let n = tracks.n_points();
-        // A fixed scramble: reverse, then rotate by a third.
-        let order: Vec<usize> = (0..n).map(|k| (n - 1 - k + n / 3) % n).collect();
-        let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
-            .map(|t| order.iter().map(|&i| tracks.get(t, i)).collect())
-            .collect();
-        let permuted = Tracks::from_points(&frames).expect("permuted");
+        let order = fixed_scramble(tracks.n_points());
+        let permuted = reordered(&tracks, &order);
         assert_eq!(
             structure(&discover(&permuted, Some(0.001)), &order),
             expected,
@@ -260,9 +268,6 @@ fn transformed(tracks: &Tracks, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Track
         UnitQuaternion::from_scaled_axis(draw(3.0)),
     );
     let order = shuffled(n, rng);
-    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
-        .map(|t| order.iter().map(|&i| tracks.get(t, i)).collect())
-        .collect();
     let reversed: Vec<usize> = (0..tracks.n_frames()).rev().collect();
     let halved: Vec<usize> = (0..tracks.n_frames()).step_by(2).collect();
     vec![
@@ -270,7 +275,7 @@ fn transformed(tracks: &Tracks, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Track
             tracks.map_points(|p| motion * p).expect("moved"),
             identity.clone(),
         ),
-        (Tracks::from_points(&frames).expect("permuted"), order),
+        (reordered(tracks, &order), order),
         (
             tracks
                 .map_points(|p| Point3::from(p.coords * 1000.0))
@@ -353,11 +358,8 @@ fn permuting_the_points_of_drawn_mechanisms_permutes_the_result() {
     for case in [81, 100] {
         let tracks = simulate(&specs[case].scenario()).expect("simulate").tracks;
         let n = tracks.n_points();
-        let order: Vec<usize> = (0..n).map(|k| (n - 1 - k + n / 3) % n).collect();
-        let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
-            .map(|t| order.iter().map(|&i| tracks.get(t, i)).collect())
-            .collect();
-        let permuted = Tracks::from_points(&frames).expect("permuted");
+        let order = fixed_scramble(n);
+        let permuted = reordered(&tracks, &order);
         let identity: Vec<usize> = (0..n).collect();
         assert_eq!(
             found(&permuted, &order),

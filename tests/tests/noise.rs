@@ -32,6 +32,19 @@ fn noise_estimate_within_ten_percent_from_a_tenth_to_ten_millimetres() {
     }
 }
 
+/// A drawn mechanism simulated and the model the default pipeline finds on it.
+fn discovered(
+    spec: &kinetree_synth::MechanismSpec,
+) -> (kinetree_synth::SynthData, kinetree_core::Model) {
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let m = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    (data, m)
+}
+
 #[test]
 fn noise_free_data_keeps_its_bodies() {
     use kinetree_synth::{JointDraw, MechanismSpec};
@@ -53,12 +66,7 @@ fn noise_free_data_keeps_its_bodies() {
         dropout: 0.0,
         seed: 2_353_299_102_759_370_406,
     };
-    let data = simulate(&spec.scenario()).expect("simulate");
-    let m = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, m) = discovered(&spec);
     assert!(
         m.noise.sigma_m < 1e-6,
         "noise-free data estimated at {} m",
@@ -122,12 +130,7 @@ fn noise_free_small_slides_get_their_joints() {
         dropout: 0.0,
         seed: 0,
     };
-    let data = simulate(&spec.scenario()).expect("simulate");
-    let m = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, m) = discovered(&spec);
     let e = kinetree_eval::evaluate(&m, &data.truth);
     assert!(e.joints_exact, "{:?}", e.joints);
 }

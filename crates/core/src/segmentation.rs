@@ -103,6 +103,20 @@ impl Segmentation {
         out
     }
 
+    /// `self.discarded_groups` without `points` (now assigned), empty groups removed.
+    pub fn discarded_groups_without(&self, points: &[usize]) -> Vec<Vec<usize>> {
+        self.discarded_groups
+            .iter()
+            .map(|g| {
+                g.iter()
+                    .copied()
+                    .filter(|i| !points.contains(i))
+                    .collect::<Vec<_>>()
+            })
+            .filter(|g| !g.is_empty())
+            .collect()
+    }
+
     /// Drops the listed bodies (their points become discarded) and renumbers canonically.
     pub fn without_bodies(&self, drop: &[usize]) -> Self {
         let raw: Vec<Option<usize>> = self

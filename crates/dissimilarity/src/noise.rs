@@ -25,7 +25,7 @@ fn median(v: &mut [f64]) -> f64 {
 /// of the distance: noise-free data), the estimate is a floor of `1e-6` of their typical
 /// distance instead. The floor sits above the precision of the later stages' iterations
 /// (reference shapes, fits that stop at a step tolerance): at `1e-9`, a noise-free mechanism
-/// of 2 cm slides found by the invariance property gave 3 of its 7 joints as multi-DoF, and
+/// of 2 cm slides found by the invariance tests' deep pass gave 3 of its 7 joints as multi-DoF, and
 /// which 3 depended on the order of the points; at `1e-6` all 7 are right in either order.
 ///
 /// This is a first guess; [`refine_noise_sigma`] improves it once bodies are known.

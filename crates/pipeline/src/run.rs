@@ -362,11 +362,11 @@ impl Pipeline {
     }
 
     /// Every pair's DoF test: each body against the camera frame, and each pair of bodies
-    /// with the better-posed one as the frame (see [`pose_spread`] and [`frame_first`]). The test of `b` in `a`'s
-    /// frame is not that of `a` in `b`'s (the frame's rotation noise acts at the lever arm of
-    /// the other's origin), so the direction must not follow the body numbering, which
-    /// follows the order of the points: with the lower index as the frame, permuting the
-    /// points changed the tree on 7 of 200 random mechanisms.
+    /// with the better-posed one as the frame (see [`pose_spread`] and [`frame_first`]). The
+    /// test of `b` in `a`'s frame is not that of `a` in `b`'s (the frame's rotation noise acts
+    /// at the lever arm of the other's origin), so the direction must not follow the body
+    /// numbering, which follows the order of the points: with the lower index as the frame,
+    /// permuting the points changed the tree on 7 of 200 random mechanisms.
     fn all_pairs(&self, poses: &BodyPoses, sigma: f64) -> Result<Vec<PairDof>> {
         let input = DofInput {
             poses,
@@ -549,9 +549,9 @@ impl Pipeline {
         // body at chi2/dof 4.3 against 2.9 for its old one). A model left with nothing to move
         // but with multi-DoF joints is rebuilt on pair tests of its whole-tree fit's poses when
         // that removes some (`retest_on_fitted_poses`), and the rebuilt model's fit may move
-        // points in turn (a wrong tree had hidden them). The segmentation's
-        // history (splits, merges, moves) accumulates over the passes; the model's own
-        // warnings are made anew by each.
+        // points in turn (a wrong tree had hidden them). The segmentation's history (splits,
+        // merges, moves) accumulates over the passes; the model's own warnings are made anew
+        // by each.
         let mut history = warnings;
         let mut previous: Option<Found> = None;
         let mut moved: Vec<usize> = Vec::new();
@@ -703,9 +703,10 @@ impl Pipeline {
 
     /// From a segmentation to registered bodies and their pair tests: poses; bodies with fewer
     /// than two registered frames dropped; bodies whose residuals show mixed points split;
-    /// discarded points attached where one body explains them (once); bodies that move
-    /// rigidly together merged when the union still fits as one. Returns the final
-    /// segmentation, its poses and every pair's DoF test.
+    /// discarded points attached where one body explains them (once); unassigned points that
+    /// move as one body made one (once); bodies that move rigidly together merged when the
+    /// union still fits as one. Returns the final segmentation, its poses and every pair's DoF
+    /// test.
     fn bodies(
         &self,
         tracks: &Tracks,
@@ -776,12 +777,7 @@ impl Pipeline {
                     }
                     let grouped: Vec<usize> = groups.iter().flatten().copied().collect();
                     let mut out = Segmentation::from_raw(&labels, 1);
-                    out.discarded_groups = seg
-                        .discarded_groups
-                        .iter()
-                        .map(|g| g.iter().copied().filter(|i| !grouped.contains(i)).collect())
-                        .filter(|g: &Vec<usize>| !g.is_empty())
-                        .collect();
+                    out.discarded_groups = seg.discarded_groups_without(&grouped);
                     warnings.push(Warning::UnassignedPointsGrouped { groups });
                     seg = out;
                     continue;

@@ -97,16 +97,6 @@ pub fn attach_unassigned(
     }
     // Every body keeps at least the three points it had, so no minimum size applies here.
     let mut out = Segmentation::from_raw(&labels, 1);
-    out.discarded_groups = seg
-        .discarded_groups
-        .iter()
-        .map(|g| {
-            g.iter()
-                .copied()
-                .filter(|i| !attached.contains(i))
-                .collect::<Vec<_>>()
-        })
-        .filter(|g| !g.is_empty())
-        .collect();
+    out.discarded_groups = seg.discarded_groups_without(&attached);
     (out, attached)
 }

@@ -800,11 +800,11 @@ impl Observer {
     }
 
     /// `s` moved by `step` (free poses turned about `origin`), into `out`.
-    /// Metres per "millimetre of noise": the model's noise level over 1 mm. The fit's length
-    /// tolerances ([`STEP_TOLERANCE`], [`MAX_STD_M`]) were set at 1 mm of noise and scale with
-    /// it, so a model in millimetres (noise 1, not 0.001) fits to the same relative precision
-    /// and decides the same: with fixed tolerances in metres, the invariance property found a
-    /// mechanism whose tree changed when its tracks were given in millimetres.
+    /// The model's noise level in units of 1 mm (of the tracks' length unit). The fit's length
+    /// tolerances ([`STEP_TOLERANCE`], [`MAX_STD_M`]) were set for 1 mm of noise and scale
+    /// with it, so a model in millimetres (noise 1, not 0.001) fits to the same relative
+    /// precision and decides the same: with fixed tolerances in metres, the invariance tests
+    /// found a mechanism whose tree changed when its tracks were given in millimetres.
     fn length_unit(&self) -> f64 {
         let u = self.sigma / 1e-3;
         if u.is_finite() && u > 0.0 { u } else { 1.0 }
