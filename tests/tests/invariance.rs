@@ -301,7 +301,7 @@ fn transformed(tracks: &Tracks, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Track
 /// its threshold can go either way; dropping frames halves the data. So each is a rate.
 /// Measured on 640 draws: 639 the same with the camera moved, 638 with the points permuted,
 /// in millimetres and with time reversed (the misses are two mechanisms, 228 and 411, that
-/// the rate test also fails), 592 with every other frame dropped (62 of the first 64). The
+/// the rate test also fails), 595 with every other frame dropped (62 of the first 64). The
 /// deep pass (`PROPTEST_CASES=640`) found and this session fixed:
 /// pair tests that took the lower-numbered body as the frame (the permutation changed the
 /// tree on 7 of 200), multi-DoF tree edges of equal cost ordered by numbering, a noise-free
