@@ -162,6 +162,14 @@ pub enum JointKind {
 }
 
 impl JointKind {
+    /// Whether this is a single-DoF joint (revolute or prismatic).
+    pub fn is_single_dof(&self) -> bool {
+        matches!(
+            self,
+            JointKind::Revolute { .. } | JointKind::Prismatic { .. }
+        )
+    }
+
     /// Short name: `rigid`, `revolute`, `prismatic`, `multi_dof`.
     pub fn name(&self) -> &'static str {
         match self {

@@ -93,11 +93,6 @@ fn split_mixed_bodies(
     warnings: &mut Vec<Warning>,
     cannot_link: &mut Vec<(usize, usize)>,
 ) -> Result<Option<Segmentation>> {
-    let splitter =
-        kinetree_clustering::Hierarchical::new(kinetree_clustering::HierarchicalParams {
-            n_clusters: Some(2),
-            ..kinetree_clustering::HierarchicalParams::default()
-        })?;
     let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
     let mut next_id = seg.n_bodies();
     let mut any = false;
@@ -110,20 +105,14 @@ fn split_mixed_bodies(
             continue;
         }
         let pts = &track.points;
-        let parts = splitter.cluster(&ClusteringInput {
-            dissimilarity: &sub_matrix(dmat, pts),
-            seed: 0,
-        })?;
-        if parts.n_bodies() == 0 {
+        let parts = halves(dmat, pts)?;
+        if parts.is_empty() {
             continue;
         }
-        let members = parts.members();
         // The pairwise measure keeps the two parts apart, as the merge guard would.
-        let apart = match &members[..] {
+        let apart = match &parts[..] {
             [first, second] => {
-                let global = |g: &[usize]| g.iter().map(|&x| pts[x]).collect::<Vec<_>>();
-                mean_cross(dmat, &global(first), &global(second))
-                    .is_some_and(|d| d > dmat.suggested_cut)
+                mean_cross(dmat, first, second).is_some_and(|d| d > dmat.suggested_cut)
             }
             _ => false,
         };
@@ -135,15 +124,17 @@ fn split_mixed_bodies(
             points: pts.clone(),
             residual_in_sigma: ratio,
         });
-        for (x, &i) in pts.iter().enumerate() {
-            labels[i] = match parts.body_of(x) {
-                Some(0) => Some(b),
-                Some(_) => Some(next_id),
-                None => None,
-            };
+        // A side under three points is left unassigned.
+        for &i in pts {
+            labels[i] = None;
         }
-        if let [first, second] = &members[..] {
-            cannot_link.push((pts[first[0]], pts[second[0]]));
+        for (k, part) in parts.iter().enumerate() {
+            for &i in part {
+                labels[i] = Some(if k == 0 { b } else { next_id });
+            }
+        }
+        if let [first, second] = &parts[..] {
+            cannot_link.push((first[0], second[0]));
         }
         next_id += 1;
     }
@@ -682,17 +673,13 @@ impl Pipeline {
         let pairs = self.all_pairs(&fitted, sigma)?;
         // The rebuilt model costs as much as the first (on 21-body scenes at 1 cm, 60 % of
         // the noise test's run time); build it only if its tree has fewer multi-DoF edges.
-        let single =
-            |k: &JointKind| matches!(k, JointKind::Revolute { .. } | JointKind::Prismatic { .. });
         let tree = kinetree_structure::spanning_tree(found.segmentation.n_bodies(), &pairs)
             .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
         let multi_edges = (0..tree.parent.len())
             .filter_map(|child| Some((tree.parent[child]?, child)))
             .filter(|&(p, c)| {
-                !pairs.iter().any(|q| {
-                    ((q.a == Some(p) && q.b == c) || (q.a == Some(c) && q.b == p))
-                        && single(&q.joint)
-                })
+                !kinetree_structure::find_pair(&pairs, Some(p), c)
+                    .is_some_and(|q| q.joint.is_single_dof())
             })
             .count();
         if multi_edges >= before {
@@ -916,10 +903,7 @@ impl Pipeline {
                 _ => (None, None),
             };
             let arr = |v: kinetree_core::nalgebra::Vector3<f64>| [v.x, v.y, v.z];
-            if !matches!(
-                pair.joint,
-                JointKind::Revolute { .. } | JointKind::Prismatic { .. }
-            ) {
+            if !pair.joint.is_single_dof() {
                 warnings.push(Warning::MultiDofJoint {
                     parent: new_id[parent],
                     child: new_id[child],

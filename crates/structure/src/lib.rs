@@ -41,7 +41,8 @@ pub fn dof_graph(n_bodies: usize, pairs: &[PairDof]) -> UnGraph<FrameNode, usize
     g
 }
 
-fn find_pair(pairs: &[PairDof], a: Option<usize>, b: usize) -> Option<&PairDof> {
+/// The test of the pair `(a, b)` among `pairs`, in either direction between two bodies.
+pub fn find_pair(pairs: &[PairDof], a: Option<usize>, b: usize) -> Option<&PairDof> {
     pairs
         .iter()
         .find(|p| (p.a == a && p.b == b) || (a.is_some() && p.a == Some(b) && Some(p.b) == a))
@@ -100,11 +101,7 @@ pub struct Tree {
 /// that last term, equal costs left the choice to the order of the edges, which follows the
 /// numbering of the points.
 fn edge_cost(p: &PairDof) -> f64 {
-    let single = matches!(
-        p.joint,
-        JointKind::Revolute { .. } | JointKind::Prismatic { .. }
-    );
-    if single {
+    if p.joint.is_single_dof() {
         1.0 + p.fit_ratio.min(0.999)
     } else {
         let extra: f64 = [&p.translation.whitened, &p.rotation.whitened]
