@@ -4,6 +4,18 @@ use kinetree_core::nalgebra::{Point3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
+/// The first `n` mechanisms of the rate test's deterministic draw
+/// (`kinetree_synth::strategies::any_mechanism()` under proptest's deterministic runner: the
+/// same on every run and machine).
+pub fn rate_draw(n: usize) -> Vec<kinetree_synth::MechanismSpec> {
+    use proptest::strategy::{Strategy, ValueTree};
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let strategy = kinetree_synth::strategies::any_mechanism();
+    (0..n)
+        .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
+        .collect()
+}
+
 /// Cases per property (and draws per rate test): `PROPTEST_CASES` when set, else 64.
 pub fn cases() -> u32 {
     std::env::var("PROPTEST_CASES")

@@ -6,8 +6,8 @@
 use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use kinetree_core::{Model, Tracks};
 use kinetree_pipeline::{Pipeline, PipelineConfig};
-use kinetree_synth::{RandomParams, random_scenario, simulate, strategies};
-use kinetree_tests::cases;
+use kinetree_synth::{RandomParams, random_scenario, simulate};
+use kinetree_tests::{cases, rate_draw};
 
 /// The structure as point sets: bodies, and joints as (parent points, child points, type).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -311,14 +311,10 @@ fn transformed(tracks: &Tracks, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Track
 /// per 64 (two for the dropped frames).
 #[test]
 fn invariances_hold_on_most_mechanisms() {
-    use proptest::strategy::{Strategy, ValueTree};
     use rand::SeedableRng;
     let n = cases() as usize;
-    let mut runner = proptest::test_runner::TestRunner::deterministic();
-    let strategy = strategies::any_mechanism();
     let mut differ: Vec<Vec<usize>> = vec![Vec::new(); TRANSFORMS.len()];
-    for case in 0..n {
-        let spec = strategy.new_tree(&mut runner).expect("draw").current();
+    for (case, spec) in rate_draw(n).iter().enumerate() {
         let tracks = simulate(&spec.scenario()).expect("simulate").tracks;
         let identity: Vec<usize> = (0..tracks.n_points()).collect();
         let expected = found(&tracks, &identity);
@@ -349,12 +345,7 @@ fn invariances_hold_on_most_mechanisms() {
 /// `a`'s frame is not that of `a` in `b`'s, and the numbering follows the points.
 #[test]
 fn permuting_the_points_of_drawn_mechanisms_permutes_the_result() {
-    use proptest::strategy::{Strategy, ValueTree};
-    let mut runner = proptest::test_runner::TestRunner::deterministic();
-    let strategy = strategies::any_mechanism();
-    let specs: Vec<_> = (0..101)
-        .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
-        .collect();
+    let specs = rate_draw(101);
     for case in [81, 100] {
         let tracks = simulate(&specs[case].scenario()).expect("simulate").tracks;
         let n = tracks.n_points();

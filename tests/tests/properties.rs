@@ -12,7 +12,7 @@ use kinetree_pose::kabsch;
 use kinetree_synth::{simulate, strategies};
 use proptest::prelude::*;
 
-use kinetree_tests::cases;
+use kinetree_tests::{cases, rate_draw};
 
 fn config() -> ProptestConfig {
     ProptestConfig {
@@ -317,13 +317,9 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// and `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {
-    use proptest::strategy::ValueTree;
     let n = cases() as usize;
-    let mut runner = proptest::test_runner::TestRunner::deterministic();
-    let strategy = strategies::any_mechanism();
     let mut failures = Vec::new();
-    for case in 0..n {
-        let spec = strategy.new_tree(&mut runner).expect("draw").current();
+    for (case, spec) in rate_draw(n).into_iter().enumerate() {
         if let Some(why) = recovery_failure(&spec) {
             failures.push(format!(
                 "case {case} ({} joints, tree {}, sigma {:.2} mm, dropout {:.2}): {why}",
@@ -389,14 +385,10 @@ fn tally(
 /// rates less two or three points (every miss is printed).
 #[test]
 fn issue_four_targets_at_one_millimetre() {
-    use proptest::strategy::ValueTree;
     let n = cases() as usize;
-    let mut runner = proptest::test_runner::TestRunner::deterministic();
-    let strategy = strategies::any_mechanism();
     let (mut structure, mut axes, mut pivots, mut rms) = ((0, 0), (0, 0), (0, 0), (0, 0));
     let mut misses = Vec::new();
-    for case in 0..n {
-        let mut spec = strategy.new_tree(&mut runner).expect("draw").current();
+    for (case, mut spec) in rate_draw(n).into_iter().enumerate() {
         spec.noise_sigma_m = 0.001;
         spec.dropout = 0.3;
         let data = simulate(&spec.scenario()).expect("simulate");

@@ -306,11 +306,7 @@ fn every_clusterer_cuts_to_a_given_number_of_bodies() {
 /// 2.9 from model error at that noise, is over `MAX_BODY_MEDIAN` but above the point's 1.6.
 #[test]
 fn points_near_a_joint_axis_are_moved_by_the_model_fit() {
-    let mut runner = TestRunner::deterministic();
-    let strategy = strategies::any_mechanism();
-    let specs: Vec<MechanismSpec> = (0..173)
-        .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
-        .collect();
+    let specs = kinetree_tests::rate_draw(173);
     let mut reassigned = 0;
     for case in [9, 43, 76, 88, 114, 116, 150, 172] {
         let spec = &specs[case];

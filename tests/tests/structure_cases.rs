@@ -7,6 +7,7 @@ use kinetree_synth::{
     BodySpec, BoxShape, Camera, JointSpec, JointType, Mechanism, Scenario, SynthData, Trajectory,
     simulate,
 };
+use kinetree_tests::rate_draw;
 
 fn body(centre: [f64; 3], half: [f64; 3], points: usize) -> BodySpec {
     BodySpec {
@@ -343,17 +344,6 @@ fn a_hinge_below_a_small_slider_gets_its_axis_from_the_tree_fit() {
         assert!(pivot < 0.01, "seed {seed}: pivot {pivot} m");
     }
     assert!(checked >= 14, "{checked} of 16 seeds structurally exact");
-}
-
-/// The first `n` mechanisms of the rate test's deterministic draw
-/// (`strategies::any_mechanism()`).
-fn rate_draw(n: usize) -> Vec<kinetree_synth::MechanismSpec> {
-    use proptest::strategy::{Strategy, ValueTree};
-    let mut runner = proptest::test_runner::TestRunner::deterministic();
-    let strategy = kinetree_synth::strategies::any_mechanism();
-    (0..n)
-        .map(|_| strategy.new_tree(&mut runner).expect("draw").current())
-        .collect()
 }
 
 /// The default pipeline on a drawn mechanism, its model's warnings, and the true joints it
