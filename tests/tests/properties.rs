@@ -379,10 +379,12 @@ fn tally(
 /// under 1 deg, revolute pivot under 5 mm, joint RMS under 0.01 rad (or, for a body too small
 /// for that, `2 r` with `r` its one-frame rotation noise `sigma / (size / 2 sqrt(points))`,
 /// which no per-frame estimate beats) or 1 mm; joints of a model that is not structure-exact
-/// are not scored. Measured when this was written: on the 64 default draws, 64 models
-/// structure-exact, 258 of 262 axes, all 161 pivots and 252 of 262 positions within the
-/// targets; on 100, 99 models, 439 of 447, 279 of 279 and 431 of 447. Required: about those
-/// rates less two or three points (every miss is printed).
+/// are not scored. Measured when this was written (session 5): on the 64 default draws, 64
+/// models structure-exact, 258 of 262 axes, all 161 pivots and 252 of 262 positions within
+/// the targets. With the joints bundle-adjusted (session 7): 64 models, 261 of 262 axes, 161
+/// pivots, 256 of 262 positions; on 640 draws, 635 models, 2830 of 2833 axes (2764 of 2837
+/// before), 1820 of 1820 pivots and 2764 of 2833 positions (2642 of 2837 before). Required:
+/// about those rates less a point or two (every miss is printed).
 #[test]
 fn issue_four_targets_at_one_millimetre() {
     let n = cases() as usize;
@@ -442,7 +444,7 @@ fn issue_four_targets_at_one_millimetre() {
     let rate = |(k, of): (usize, usize)| k as f64 / of.max(1) as f64;
     eprintln!("structure {structure:?}, axes {axes:?}, pivots {pivots:?}, positions {rms:?}");
     assert!(rate(structure) >= 0.95, "structure exact {structure:?}");
-    assert!(rate(axes) >= 0.96, "axes {axes:?}");
+    assert!(rate(axes) >= 0.99, "axes {axes:?}");
     assert!(rate(pivots) >= 0.99, "pivots {pivots:?}");
-    assert!(rate(rms) >= 0.93, "positions {rms:?}");
+    assert!(rate(rms) >= 0.96, "positions {rms:?}");
 }

@@ -1,6 +1,7 @@
 //! Kinematic structure: the DoF graph over bodies and the camera, the paper's chain
 //! extraction, a spanning tree rooted at the static body, joints and their positions.
 
+mod bundle;
 mod observer;
 mod reassign;
 mod refine;

@@ -9,9 +9,9 @@ use kinetree_core::nalgebra::{
 use kinetree_core::{Error, Model, Result, Tracks, Warning};
 
 #[derive(Debug, Clone)]
-struct ObservedBody {
+pub(crate) struct ObservedBody {
     /// `(point index, position in the body frame)` for every placed point.
-    shape: Vec<(usize, Point3<f64>)>,
+    pub(crate) shape: Vec<(usize, Point3<f64>)>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -78,24 +78,24 @@ const MAX_VARIANCE_INFLATION: f64 = 1e8;
 #[derive(Debug, Clone)]
 pub struct Observer {
     n_points: usize,
-    sigma: f64,
-    bodies: Vec<ObservedBody>,
-    joints: Vec<ObservedJoint>,
+    pub(crate) sigma: f64,
+    pub(crate) bodies: Vec<ObservedBody>,
+    pub(crate) joints: Vec<ObservedJoint>,
     /// Joints treated as free (see [`Observer::free_joint`]).
-    freed: Vec<bool>,
+    pub(crate) freed: Vec<bool>,
     /// The joint whose child each body is.
     parent_joint: Vec<Option<usize>>,
     /// Bodies, parents before children.
-    topo: Vec<usize>,
+    pub(crate) topo: Vec<usize>,
     /// The single-DoF joint whose child each body is; `None` for a freely posed body.
-    link: Vec<Option<usize>>,
+    pub(crate) link: Vec<Option<usize>>,
     /// First of the six pose parameters of each freely posed body.
-    free_col: Vec<Option<usize>>,
+    pub(crate) free_col: Vec<Option<usize>>,
     /// The parameter of each single-DoF joint.
-    joint_col: Vec<Option<usize>>,
+    pub(crate) joint_col: Vec<Option<usize>>,
     /// Parameters that move each body: its free ancestor's six, then the joints down to it.
-    cols: Vec<Vec<usize>>,
-    n_params: usize,
+    pub(crate) cols: Vec<Vec<usize>>,
+    pub(crate) n_params: usize,
 }
 
 fn vector(a: [f64; 3]) -> Vector3<f64> {
@@ -104,11 +104,11 @@ fn vector(a: [f64; 3]) -> Vector3<f64> {
 
 /// The parameters of one frame's fit.
 #[derive(Debug, Clone)]
-struct State {
+pub(crate) struct State {
     /// Pose of every freely posed body (`None`: not yet known).
-    free: Vec<Option<Isometry3<f64>>>,
+    pub(crate) free: Vec<Option<Isometry3<f64>>>,
     /// Position of every joint (`None`: not yet known).
-    q: Vec<Option<f64>>,
+    pub(crate) q: Vec<Option<f64>>,
 }
 
 impl Observer {
@@ -297,7 +297,7 @@ impl Observer {
 
     /// Per body, `(shape point, observation)` for its placed points visible (and finite) in
     /// `frame`.
-    fn visible(&self, frame: &[Option<Point3<f64>>]) -> Visible {
+    pub(crate) fn visible(&self, frame: &[Option<Point3<f64>>]) -> Visible {
         // One buffer for all bodies: a vector per body cost 15 % of a frame's fit in
         // allocation (measured on the observer benchmark).
         let mut pairs = Vec::with_capacity(self.bodies.iter().map(|b| b.shape.len()).sum());
@@ -343,12 +343,30 @@ impl Observer {
     /// # Errors
     /// [`Error::Shape`] when the tracks do not have the model's number of points.
     pub fn fit_sequence(&self, tracks: &Tracks) -> Result<Vec<FrameFit>> {
+        self.fit_sequence_with(tracks, |_, _| {})
+    }
+
+    /// [`Observer::fit_sequence`], handing each frame's converged descent and visible points
+    /// to `each` as well.
+    pub(crate) fn fit_sequence_with(
+        &self,
+        tracks: &Tracks,
+        mut each: impl FnMut(Descent, Visible),
+    ) -> Result<Vec<FrameFit>> {
+        if tracks.n_points() != self.n_points {
+            return Err(Error::Shape {
+                expected: format!("{} points per frame", self.n_points),
+                found: format!("{} points", tracks.n_points()),
+            });
+        }
         let mut warm: Option<FrameFit> = None;
         let mut out = Vec::with_capacity(tracks.n_frames());
         for t in 0..tracks.n_frames() {
             let frame: Vec<Option<Point3<f64>>> =
                 (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
-            let fit = self.fit(&frame, warm.as_ref())?;
+            let (descent, visible) = self.fit_descent(&frame, warm.as_ref());
+            let fit = self.finish(&descent, &visible, warm.as_ref())?;
+            each(descent, visible);
             match &mut warm {
                 None => warm = Some(fit.clone()),
                 Some(w) => {
@@ -399,6 +417,17 @@ impl Observer {
                 found: format!("{} joints and {} bodies", p.positions.len(), p.poses.len()),
             });
         }
+        let (best, visible) = self.fit_descent(frame, previous);
+        self.finish(&best, &visible, previous)
+    }
+
+    /// The converged descent of [`Observer::fit`] (inputs checked by the caller) and the
+    /// frame's visible points.
+    fn fit_descent(
+        &self,
+        frame: &[Option<Point3<f64>>],
+        previous: Option<&FrameFit>,
+    ) -> (Descent, Visible) {
         let visible = self.visible(frame);
         // From the frame's own poses, and from the previous frame's values where they differ
         // (a pose from three noisy points can start a joint far off, and a descent from there
@@ -410,7 +439,7 @@ impl Observer {
                 best = other;
             }
         }
-        self.finish(&best, &visible, previous)
+        (best, visible)
     }
 
     /// The report of a converged state, revolute positions brought within half a turn of
@@ -436,7 +465,7 @@ impl Observer {
     }
 
     /// Damped Gauss-Newton (Levenberg-Marquardt) from `state`.
-    fn descend(&self, mut state: State, visible: &Visible) -> Descent {
+    pub(crate) fn descend(&self, mut state: State, visible: &Visible) -> Descent {
         let mut poses = self.forward(&state);
         let mut cost = Self::cost(&poses, visible);
         let mut lambda = 1e-6;
@@ -493,7 +522,7 @@ impl Observer {
     }
 
     /// `parent_from_child` of joint `j` at position `q`.
-    fn joint_transform(j: &ObservedJoint, q: f64) -> Isometry3<f64> {
+    pub(crate) fn joint_transform(j: &ObservedJoint, q: f64) -> Isometry3<f64> {
         match j.measure {
             Measure::Revolute(axis, pivot) => {
                 let turn = Translation3::from(pivot.coords)
@@ -523,7 +552,7 @@ impl Observer {
     }
 
     /// Body poses from the parameters (`None` below an unknown parameter).
-    fn forward(&self, s: &State) -> Vec<Option<Isometry3<f64>>> {
+    pub(crate) fn forward(&self, s: &State) -> Vec<Option<Isometry3<f64>>> {
         let mut poses = Vec::new();
         self.forward_into(s, &mut poses);
         poses
@@ -681,7 +710,7 @@ impl Observer {
 
     /// Normal equations of the fit at the body poses `poses`, with coordinates taken about
     /// the centroid of the visible points (better conditioned than about the camera).
-    fn linearise(
+    pub(crate) fn linearise(
         &self,
         poses: &[Option<Isometry3<f64>>],
         visible: &Visible,
@@ -1058,7 +1087,7 @@ const PI_6: f64 = std::f64::consts::PI / 6.0;
 /// One frame's visible placed points, `(shape point, observation)`, body by body
 /// (`visible[b]` is body `b`'s).
 #[derive(Debug, Clone)]
-struct Visible {
+pub(crate) struct Visible {
     pairs: Vec<(Point3<f64>, Point3<f64>)>,
     /// End of each body's run in `pairs`.
     end: Vec<usize>,
@@ -1160,36 +1189,36 @@ impl std::ops::Index<usize> for Visible {
 
 /// Per-iteration buffers of [`Observer::linearise`].
 #[derive(Debug, Default)]
-struct Scratch {
+pub(crate) struct Scratch {
     /// The motion of every parameter.
-    twist: Vec<Vector6<f64>>,
+    pub(crate) twist: Vec<Vector6<f64>>,
     /// Per body, its information and gradient, then summed over its subtree.
-    info: Vec<Matrix6<f64>>,
-    grad: Vec<Vector6<f64>>,
+    pub(crate) info: Vec<Matrix6<f64>>,
+    pub(crate) grad: Vec<Vector6<f64>>,
     /// Per body, its visible points, then summed over its subtree.
-    points: Vec<usize>,
+    pub(crate) points: Vec<usize>,
 }
 
 /// The end of one descent ([`Observer::descend`]).
 #[derive(Debug, Clone)]
-struct Descent {
-    state: State,
+pub(crate) struct Descent {
+    pub(crate) state: State,
     /// Body poses of `state` ([`Observer::forward`]).
-    poses: Vec<Option<Isometry3<f64>>>,
+    pub(crate) poses: Vec<Option<Isometry3<f64>>>,
     /// The last linearisation, a converged step from `state`; `None` when no point is used.
-    lin: Option<Linear>,
+    pub(crate) lin: Option<Linear>,
     /// Sum of squared residuals of `state` ([`Observer::cost`]).
-    cost: f64,
+    pub(crate) cost: f64,
 }
 
 /// Normal equations `N x = g` of one linearisation.
 #[derive(Debug, Clone)]
-struct Linear {
-    normal: DMatrix<f64>,
-    rhs: DVector<f64>,
+pub(crate) struct Linear {
+    pub(crate) normal: DMatrix<f64>,
+    pub(crate) rhs: DVector<f64>,
     /// Parameters some visible point depends on.
-    seen: Vec<bool>,
-    origin: Vector3<f64>,
+    pub(crate) seen: Vec<bool>,
+    pub(crate) origin: Vector3<f64>,
 }
 
 impl Linear {
@@ -1261,9 +1290,10 @@ impl Linear {
 /// Replaces the joint positions of `model` (discovered on `tracks`) with the kinematic fit of
 /// every frame ([`Observer::fit_sequence`]) and returns the fit's RMS residual in units of
 /// the model's noise level (`None` with no usable frame). Joints the fit cannot follow are
-/// freed (a `joint_not_followed` warning); then every single-DoF joint's axis, pivot and
-/// reference pose are refined against its child's keypoints with the parent posed by the
-/// fit, and freed joints put back when refined well enough (see the comments inside). Each
+/// freed (a `joint_not_followed` warning); then the axes, pivots and reference poses of the
+/// single-DoF joints the fit follows are bundle-adjusted with every frame's configuration
+/// (`crate::bundle`), and each freed joint is refined against its child's keypoints with the
+/// parent posed by the fit and put back when refined well enough (see the comments inside). Each
 /// joint's reference pose is turned (or slid) to its position at the joint's reference frame,
 /// so the positions stay zero there; every joint's observed range is computed here.
 ///
@@ -1316,25 +1346,31 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             excess_in_sigma2: excess[k].unwrap_or(f64::NAN),
         });
     }
-    // The joints the fit follows are refined with their parents posed by the whole-tree fit
-    // (after the freeing, so a wrong joint does not bend the poses they are refined on), and
-    // the fit redone with them; a second round uses the better poses. Each joint is refined
-    // on its child's points alone, so a round stands only if the whole tree's residual falls
-    // too (it rose on a human walk, whose skin markers no joint follows exactly). The
-    // observer is rebuilt from the model, whose warnings keep the freed joints free.
-    let total = |fits: &[FrameFit]| fits.iter().map(|f| f.sum_sq_m2).sum::<f64>();
-    for _ in 0..REFINE_ROUNDS {
-        let before = model.joints.clone();
-        if !refine_joints(model, &observer, tracks, &fits) {
-            break;
+    // The joints the fit follows are bundle-adjusted with every frame's configuration (see
+    // `crate::bundle`), after the freeing so a wrong joint does not bend the others. It
+    // replaced rounds of one-joint refinements (`refine_joint`) against the whole-tree fit's
+    // poses, which stopped when a round raised the tree's residual: on the issue-4 draw of
+    // 640 mechanisms at 1 mm, axes under 1 deg went from 2764 to 2830 of 2837 joints and
+    // positions within their limit from 2642 to 2764, with the same results with or
+    // without those rounds before the adjustment.
+    if let Some(adjusted) = crate::bundle::adjust(&observer, tracks)? {
+        let adjusted_fits = adjusted.fit_sequence(tracks)?;
+        for (k, j) in adjusted.joints.iter().enumerate() {
+            if adjusted.joint_col[k].is_none() {
+                continue;
+            }
+            let (Some(params), Some(cam_parent)) = (
+                crate::refine::JointParams::of(j),
+                adjusted_fits
+                    .get(model.joints[k].reference_frame)
+                    .and_then(|f| f.poses.get(j.parent).copied().flatten()),
+            ) else {
+                continue;
+            };
+            store_joint(&mut model.joints[k], &params, &cam_parent);
         }
-        let refined = Observer::new(model)?;
-        let refined_fits = refined.fit_sequence(tracks)?;
-        if total(&refined_fits).partial_cmp(&total(&fits)) != Some(std::cmp::Ordering::Less) {
-            model.joints = before;
-            break;
-        }
-        (observer, fits) = (refined, refined_fits);
+        observer = Observer::new(model)?;
+        fits = observer.fit_sequence(tracks)?;
     }
     // A freed joint may only have had poor parameters (a small parent's noisy poses misled
     // the tester): each is refined with its parent posed by the fit, in which its child moves
@@ -1403,26 +1439,6 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
 /// rose from 2.3 to 2.8 sigma (a freed joint describes a joint that is no hinge better).
 const READMIT_EXCESS: f64 = 10.0;
 
-/// Rounds of joint refinement in [`fit_model_positions`].
-const REFINE_ROUNDS: usize = 2;
-
-/// Refines every single-DoF joint of `model` the fit follows ([`refine_joint`]). Returns
-/// whether any joint changed.
-fn refine_joints(
-    model: &mut Model,
-    observer: &Observer,
-    tracks: &Tracks,
-    fits: &[FrameFit],
-) -> bool {
-    let mut changed = false;
-    for k in 0..observer.joints.len() {
-        if !observer.freed[k] {
-            changed |= refine_joint(model, k, observer, tracks, fits);
-        }
-    }
-    changed
-}
-
 /// Refines joint `k` of `model` against its child's keypoints over all frames, the parent
 /// posed by `fits` (the whole-tree fit of `observer`, built from `model`): see
 /// [`crate::refine`]. The joint's axis, pivot and reference pose are replaced when the fit
@@ -1469,8 +1485,19 @@ fn refine_joint(
     if after.partial_cmp(&before) != Some(std::cmp::Ordering::Less) {
         return false;
     }
+    store_joint(&mut model.joints[k], &refined, &cam_parent);
+    true
+}
+
+/// Writes refined parameters into a model joint: its axis, pivot and reference pose in the
+/// parent's frame, and its camera-frame axis and point through `cam_parent` (the parent's
+/// `camera_from_body` at the joint's reference frame).
+pub(crate) fn store_joint(
+    joint: &mut kinetree_core::model::Joint,
+    refined: &crate::refine::JointParams,
+    cam_parent: &Isometry3<f64>,
+) {
     let arr = |v: Vector3<f64>| [v.x, v.y, v.z];
-    let joint = &mut model.joints[k];
     joint.axis_in_parent = Some(arr(refined.axis));
     joint.axis = Some(arr(cam_parent.rotation * refined.axis));
     if refined.revolute {
@@ -1483,7 +1510,6 @@ fn refine_joint(
         rotation_xyzw: [r.i, r.j, r.k, r.w],
         translation: [t.x, t.y, t.z],
     });
-    true
 }
 
 /// A joint whose [`Observer::joint_excess`] is above this is freed by

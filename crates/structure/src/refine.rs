@@ -52,12 +52,12 @@ impl JointParams {
 
     /// Number of free parameters: axis tilt (2), pivot across the axis (2, revolute only),
     /// reference pose (6).
-    fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         if self.revolute { 10 } else { 8 }
     }
 
     /// `parent_from_child` at position `q`.
-    fn transform(&self, q: f64) -> Isometry3<f64> {
+    pub(crate) fn transform(&self, q: f64) -> Isometry3<f64> {
         if self.revolute {
             let turn = UnitQuaternion::from_axis_angle(&Unit::new_unchecked(self.axis), q);
             Translation3::from(self.pivot.coords)
@@ -87,7 +87,7 @@ impl JointParams {
     /// The parameters moved by `delta` ([`JointParams::len`] entries): the axis tilted along
     /// its two perpendiculars, the pivot moved across the axis, the reference pose turned
     /// and shifted in the parent's frame.
-    fn moved(&self, delta: &[f64]) -> Self {
+    pub(crate) fn moved(&self, delta: &[f64]) -> Self {
         let (e1, e2) = perpendicular_basis(&self.axis);
         let axis = (self.axis + e1 * delta[0] + e2 * delta[1]).normalize();
         let (pivot, rest) = if self.revolute {
@@ -105,17 +105,32 @@ impl JointParams {
         }
     }
 
+    /// The same joint with its pivot moved along the axis to the point level with the
+    /// child's origin at position zero (a revolute joint's canonical pivot).
+    pub(crate) fn canonical(mut self) -> Self {
+        if self.revolute {
+            let t = self.reference.translation.vector - self.pivot.coords;
+            self.pivot += self.axis * self.axis.dot(&t);
+        }
+        self
+    }
+
+    /// The measure an observer's joint takes from these parameters.
+    pub(crate) fn measure(&self) -> Measure {
+        if self.revolute {
+            Measure::Revolute(self.axis, self.pivot)
+        } else {
+            Measure::Prismatic(self.axis)
+        }
+    }
+
     /// The closed-form best position of one frame (see [`crate::observer::best_position`]):
     /// the observations are already in the parent's frame.
     fn best_position(&self, points: &[(Point3<f64>, Point3<f64>)]) -> Option<f64> {
         let j = ObservedJoint {
             parent: 0,
             child: 0,
-            measure: if self.revolute {
-                Measure::Revolute(self.axis, self.pivot)
-            } else {
-                Measure::Prismatic(self.axis)
-            },
+            measure: self.measure(),
             reference: self.reference,
         };
         crate::observer::best_position(&j, &Isometry3::identity(), points, 0.0)
@@ -263,12 +278,7 @@ pub(crate) fn refine(
             break;
         }
     }
-    // Canonical pivot: the point of the axis level with the child's origin at position zero.
-    if params.revolute {
-        let t = params.reference.translation.vector - params.pivot.coords;
-        params.pivot += params.axis * params.axis.dot(&t);
-    }
-    Some((params, initial, current))
+    Some((params.canonical(), initial, current))
 }
 
 #[cfg(test)]
