@@ -99,13 +99,14 @@ pub enum Warning {
         /// The miss beyond the child's own pose, per point, in units of sigma^2.
         excess_in_sigma2: f64,
     },
-    /// The model had multi-DoF joints, so every pair was tested again on the poses of its
-    /// whole-tree fit and the model rebuilt on them; the rebuilt model, with fewer multi-DoF
-    /// joints, was kept. Pair tests, joints and positions are the rebuilt model's.
+    /// The model had multi-DoF joints or joints its whole-tree fit did not follow, so every
+    /// pair was tested again on the poses of its whole-tree fit and the model rebuilt on
+    /// them; the rebuilt model, with fewer such joints, was kept. Pair tests, joints and
+    /// positions are the rebuilt model's.
     PairsRetested {
-        /// Multi-DoF joints of the first model.
+        /// Multi-DoF joints plus joints not followed by the fit, in the first model.
         multi_dof_before: usize,
-        /// Multi-DoF joints of the rebuilt one.
+        /// The same count in the rebuilt one.
         multi_dof_after: usize,
     },
     /// The noise level was estimated from the data.
@@ -189,7 +190,7 @@ impl std::fmt::Display for Warning {
                 multi_dof_after,
             } => write!(
                 f,
-                "pairs tested again on the whole-tree fit's poses: {multi_dof_before} multi-DoF joint(s) became {multi_dof_after}"
+                "pairs tested again on the whole-tree fit's poses: {multi_dof_before} multi-DoF or unfollowed joint(s) became {multi_dof_after}"
             ),
             Warning::NoiseEstimated { sigma_m } => write!(
                 f,

@@ -6,7 +6,7 @@ use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Quaternion, Translation3, Unit,
     UnitQuaternion, Vector3, Vector6,
 };
-use kinetree_core::{Error, Model, Result, Tracks, Warning};
+use kinetree_core::{Error, Model, PoseQuality, Result, Tracks, Warning};
 
 #[derive(Debug, Clone)]
 pub(crate) struct ObservedBody {
@@ -937,6 +937,81 @@ impl Observer {
             n_points,
             sum_sq_m2: d.cost,
         }
+    }
+
+    /// Per body, the precision of its pose in a converged frame fit (`None` where the body has
+    /// no pose or the frame's normal equations are singular), in the per-body pose
+    /// estimator's terms ([`PoseQuality`]): the covariance of the body's pose error from the
+    /// inverse normal matrix of every parameter that moves it, per unit noise variance; its
+    /// own visible points and their RMS residual.
+    ///
+    /// A body posed through its joint needs no three visible points of its own, and its pose
+    /// is as precise as its parent's, its position and their points make it: a body hidden
+    /// by its neighbours in most frames gets poses, with their precision, where the
+    /// per-body estimator has none.
+    pub(crate) fn pose_qualities(
+        &self,
+        descent: &Descent,
+        visible: &Visible,
+        scratch: &mut Scratch,
+    ) -> Vec<Option<PoseQuality>> {
+        let nb = self.bodies.len();
+        let Some(lin) = self.linearise(&descent.poses, visible, scratch) else {
+            return vec![None; nb];
+        };
+        let n = self.n_params;
+        let mut normal = lin.normal.clone();
+        for i in 0..n {
+            if !lin.seen[i] || normal[(i, i)] <= 0.0 {
+                normal[(i, i)] = 1.0;
+            }
+        }
+        let Some(inverse) = normal.cholesky().map(|c| c.inverse()) else {
+            return vec![None; nb];
+        };
+        (0..nb)
+            .map(|b| {
+                let pose = descent.poses[b]?;
+                let cols = &self.cols[b];
+                if cols.iter().any(|&c| !lin.seen[c]) {
+                    return None;
+                }
+                // The body's motion (v, w) about the origin is the sum of its parameters'.
+                let mut cov = Matrix6::<f64>::zeros();
+                for &c in cols {
+                    for &d in cols {
+                        cov += scratch.twist[c] * scratch.twist[d].transpose() * inverse[(c, d)];
+                    }
+                }
+                let r = pose.rotation.to_rotation_matrix();
+                let w = cov.fixed_view::<3, 3>(3, 3).into_owned();
+                let lever = (pose.translation.vector - lin.origin).cross_matrix();
+                // The origin moves by v + w x (t - origin) = v - [t - origin]x w.
+                let mut jacobian = kinetree_core::nalgebra::Matrix3x6::<f64>::zeros();
+                jacobian
+                    .fixed_view_mut::<3, 3>(0, 0)
+                    .copy_from(&Matrix3::identity());
+                jacobian.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-lever));
+                let origin = jacobian * cov * jacobian.transpose();
+                let rot_cov = r.transpose() * w * r;
+                let origin_cov = r.transpose() * origin * r;
+                let own = &visible[b];
+                let rms = if own.is_empty() {
+                    0.0
+                } else {
+                    (miss(&pose, own) / own.len() as f64).sqrt()
+                };
+                let worst = |m: &Matrix3<f64>| m.symmetric_eigenvalues().max().max(0.0).sqrt();
+                Some(PoseQuality {
+                    n_visible: own.len(),
+                    rms_residual_m: rms,
+                    rot_std_per_sigma: worst(&rot_cov),
+                    trans_std_per_sigma: worst(&origin_cov),
+                    rot_cov_per_sigma2: rot_cov,
+                    origin_cov_per_sigma2: origin_cov,
+                })
+            })
+            .collect()
     }
 
     /// How far the fit misses each joint's child, beyond what the child's own pose misses:

@@ -6,10 +6,10 @@
 //! whole-tree fit poses every body through the joints and all keypoints, far more precisely;
 //! against those poses the point's own track tells the two bodies apart.
 
-use crate::observer::Observer;
+use crate::observer::{Observer, Scratch};
 use kinetree_core::nalgebra::{Isometry3, Vector3};
 use kinetree_core::stats::chi2_per_dof_quantile;
-use kinetree_core::{BodyPoses, Error, MIN_BODY_POINTS, Model, Result, Tracks};
+use kinetree_core::{BodyPoses, Error, MIN_BODY_POINTS, Model, PoseQuality, Result, Tracks};
 
 /// Fewest frames in which a point must be seen with a body's fitted pose to be judged
 /// against it.
@@ -69,6 +69,8 @@ fn misfit(
 pub struct FittedMotions {
     /// `[body][frame]`, `None` where the fit leaves the body's pose undetermined.
     body_poses: Vec<Vec<Option<Isometry3<f64>>>>,
+    /// `[body][frame]`, the precision of each fitted pose ([`Observer::pose_qualities`]).
+    body_qualities: Vec<Vec<Option<PoseQuality>>>,
 }
 
 /// `point`'s `chi^2 / k` on its own body `own`, and the other body whose fitted poses explain
@@ -103,12 +105,29 @@ impl FittedMotions {
     /// # Errors
     /// As [`Observer::new`] and [`Observer::fit_sequence`].
     pub fn new(model: &Model, tracks: &Tracks) -> Result<Self> {
-        let fits = Observer::new(model)?.fit_sequence(tracks)?;
+        let observer = Observer::new(model)?;
+        let mut scratch = Scratch::default();
+        let mut qualities = Vec::with_capacity(tracks.n_frames());
+        let fits = observer.fit_sequence_with(tracks, |descent, visible| {
+            qualities.push(observer.pose_qualities(&descent, &visible, &mut scratch));
+        })?;
+        let nb = model.bodies.len();
         Ok(Self {
-            body_poses: (0..model.bodies.len())
+            body_poses: (0..nb)
                 .map(|b| {
                     fits.iter()
                         .map(|f| f.poses.get(b).copied().flatten())
+                        .collect()
+                })
+                .collect(),
+            body_qualities: (0..nb)
+                .map(|b| {
+                    fits.iter()
+                        .zip(&qualities)
+                        .map(|(f, q)| {
+                            f.poses.get(b).copied().flatten()?;
+                            q.get(b).copied().flatten()
+                        })
                         .collect()
                 })
                 .collect(),
@@ -117,9 +136,10 @@ impl FittedMotions {
 
     /// The per-body poses `per_body` (segmentation numbering; `body_order[model body]` is its
     /// segmentation body) with every registered pose replaced by the fitted one, in the same
-    /// body frame. Frames the per-body fit left unposed stay unposed, and every pose keeps its
-    /// per-body quality: the fitted pose is at least as precise, so tests on these poses are
-    /// calibrated conservatively.
+    /// body frame; a registered pose keeps its per-body quality (the fitted pose is at least
+    /// as precise, so tests on these poses are calibrated conservatively). Frames the per-body
+    /// estimator left unposed get the fitted pose with the fit's own precision
+    /// ([`Observer::pose_qualities`]).
     ///
     /// # Errors
     /// [`Error::Shape`] when `per_body` or `body_order` do not match these motions.
@@ -146,9 +166,17 @@ impl FittedMotions {
         let mut out = per_body.clone();
         for (model_body, fitted) in self.body_poses.iter().enumerate() {
             let track = &mut out.bodies[body_order[model_body]];
-            for (pose, f) in track.cam_from_body.iter_mut().zip(fitted) {
-                if pose.is_some() && f.is_some() {
-                    *pose = *f;
+            let qualities = &self.body_qualities[model_body];
+            for ((pose, quality), (f, fq)) in track
+                .cam_from_body
+                .iter_mut()
+                .zip(track.quality.iter_mut())
+                .zip(fitted.iter().zip(qualities))
+            {
+                match (pose.is_some(), f, fq) {
+                    (true, Some(_), _) => *pose = *f,
+                    (false, Some(_), Some(_)) => (*pose, *quality) = (*f, *fq),
+                    _ => {}
                 }
             }
         }
