@@ -428,7 +428,8 @@ fn bundle_adjusted_axes_are_within_a_degree() {
     eprintln!("largest axis error {worst:.2} deg");
 }
 
-/// Seven-joint revolute trees of the mechanisms sweep (seeds 1, 5 and 7): siblings turn about
+/// Seven-joint revolute trees of the mechanisms sweep (seeds 5 and 7; seed 1 was one too
+/// until the tree weighed its edges by the frames they were tested over): siblings turn about
 /// one anchor on the base and hide each other, so one link is registered in 21 of 200 frames.
 /// Over the ten frames it shared with each sibling, their relative motion passed for a hinge
 /// with a better fit ratio than the siblings' true joints with the base over a hundred, and
@@ -437,7 +438,7 @@ fn bundle_adjusted_axes_are_within_a_degree() {
 /// frames (with their precision), every joint is found.
 #[test]
 fn siblings_hidden_by_each_other_get_their_parent_back() {
-    for seed in [1, 5, 7] {
+    for seed in [5, 7] {
         let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
             n_joints: 7,
             prismatic_fraction: 0.0,
@@ -460,4 +461,28 @@ fn siblings_hidden_by_each_other_get_their_parent_back() {
             "seed {seed}: no retest"
         );
     }
+}
+
+/// Seed 0 of the same sweep row: a link posed in 110 of 200 frames has a revolute test with
+/// the base over all 110 (fit ratio 0.26) and one with a sibling over the 23 frames both are
+/// posed in (0.13, with the same residual per degree of freedom: the bound of a short test is
+/// wider). Weighed by the share of frames each test missed, the tree takes the base.
+#[test]
+fn a_joint_tested_over_more_frames_wins_over_a_brief_one() {
+    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+        n_joints: 7,
+        prismatic_fraction: 0.0,
+        tree: true,
+        seed: 0,
+        ..Default::default()
+    });
+    let data = simulate(&scenario).expect("simulate");
+    let (_, e) = discover_data(&data);
+    let wrong: Vec<usize> = e
+        .joints
+        .iter()
+        .filter(|j| !(j.found && j.type_ok))
+        .map(|j| j.joint)
+        .collect();
+    assert!(wrong.is_empty(), "wrong joints {wrong:?}");
 }
