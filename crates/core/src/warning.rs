@@ -41,7 +41,8 @@ pub enum Warning {
         groups: Vec<Vec<usize>>,
     },
     /// Points that a model's whole-tree fit placed on another body (its fitted motion
-    /// explained their tracks better than their own body's); they were moved there and the
+    /// explained their tracks better than their own body's), or on a body when they had none
+    /// (it explained them clearly better than any other); they were moved there and the
     /// bodies, joints and positions redone.
     PointsReassigned {
         /// The points.
@@ -147,7 +148,7 @@ impl std::fmt::Display for Warning {
             ),
             Warning::PointsReassigned { points } => write!(
                 f,
-                "point(s) {points:?} fitted another body's motion better than their own and were moved to it"
+                "point(s) {points:?} fitted another body's motion better than their own (or, unassigned, one body's clearly best) and were moved to it"
             ),
             Warning::BodySplit {
                 points,
