@@ -305,15 +305,18 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// End-to-end recovery on `cases()` mechanisms drawn from the strategies by proptest's
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
-/// per 64 for platform rounding: 63 of the first 64 were recovered when this was written
-/// (196 of 200, 614 of 640; the deep pass needs 610). Before: 167 of 200 before joint
-/// positions came from the whole-tree fit, 182 before a rotation hidden by the chi-square
-/// slack could make a joint revolute, 185 before points near a joint axis were moved by the
-/// model's fit, 193 (605 of 640) before session 6 (models with multi-DoF joints retested on
-/// their fitted poses, the hidden-rotation rule asking for a residual over the noise, pair
-/// tests with the better-posed body as the frame and a time-symmetric reference frame,
-/// unassigned points regrouped by their poses). The 4 failures in 200 are all joints not
-/// exact (types, a wrong tree, a 4 cm body merged with its child). The failures are printed,
+/// per 64 for platform rounding: 64 of the first 64 are recovered (196 of 200, 628 of 640;
+/// the deep pass needs 620). Before: 167 of 200 before joint positions came from the
+/// whole-tree fit, 182 before a rotation hidden by the chi-square slack could make a joint
+/// revolute, 185 before points near a joint axis were moved by the model's fit, 193 (605 of
+/// 640) before session 6 (models with multi-DoF joints retested on their fitted poses, the
+/// hidden-rotation rule asking for a residual over the noise, pair tests with the
+/// better-posed body as the frame and a time-symmetric reference frame, unassigned points
+/// regrouped by their poses), 614 of 640 before session 7 (joints bundle-adjusted, retests
+/// of joints the fit does not follow, tree edges weighed by the frames their tests saw,
+/// unassigned points given to the body whose fitted motion explains them). The 12 failures
+/// in 640 are all joints not exact (types, wrong trees, a small body merged with a
+/// neighbour). The failures are printed,
 /// and `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {
@@ -334,7 +337,7 @@ fn most_mechanisms_are_recovered() {
         eprintln!("{f}");
     }
     let recovered = n - failures.len();
-    let required = n * 61 / 64;
+    let required = n * 62 / 64;
     assert!(
         recovered >= required,
         "{recovered} of {n} recovered, {required} required"
@@ -345,7 +348,7 @@ proptest! {
     #![proptest_config(config())]
 
     /// The strict form: *every* mechanism recovered ([`recovery_failure`]). Ignored in CI
-    /// because it holds for about 95 % of these mechanisms (see `most_mechanisms_are_recovered`):
+    /// because it holds for about 98 % of these mechanisms (see `most_mechanisms_are_recovered`):
     /// run it with `cargo test --release -p kinetree-tests --test properties -- --ignored` to
     /// get a minimal failing mechanism.
     #[test]
