@@ -352,7 +352,7 @@ proptest! {
     /// run it with `cargo test --release -p kinetree-tests --test properties -- --ignored` to
     /// get a minimal failing mechanism.
     #[test]
-    #[ignore = "holds for about 95 % of mechanisms; see most_mechanisms_are_recovered"]
+    #[ignore = "holds for about 98 % of mechanisms; see most_mechanisms_are_recovered"]
     fn any_mechanism_is_recovered(spec in strategies::any_mechanism()) {
         if let Some(why) = recovery_failure(&spec) {
             prop_assert!(false, "{}", why);
