@@ -90,3 +90,33 @@ pub fn real_c3d(folder: &str) -> std::path::PathBuf {
         .find(|p| p.extension().is_some_and(|e| e == "c3d"))
         .expect("a .c3d file")
 }
+
+/// The mechanisms sweep's random all-revolute tree of `n_joints` joints drawn from `seed`
+/// (`kinetree_synth::random_scenario`, defaults otherwise: 200 frames at 1 mm), simulated.
+pub fn revolute_tree(n_joints: usize, seed: u64) -> kinetree_synth::SynthData {
+    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+        n_joints,
+        prismatic_fraction: 0.0,
+        tree: true,
+        seed,
+        ..Default::default()
+    });
+    kinetree_synth::simulate(&scenario).expect("simulate")
+}
+
+/// The default pipeline's model of `tracks`.
+pub fn discover_default(tracks: &kinetree_core::Tracks) -> kinetree_core::Model {
+    kinetree_pipeline::Pipeline::from_config(&kinetree_pipeline::PipelineConfig::default())
+        .expect("pipeline")
+        .run(tracks)
+        .expect("discover")
+        .model
+}
+
+/// Whether `model` carries a warning `matches` accepts.
+pub fn warned(
+    model: &kinetree_core::Model,
+    matches: impl Fn(&kinetree_core::Warning) -> bool,
+) -> bool {
+    model.warnings.iter().any(matches)
+}

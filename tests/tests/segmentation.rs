@@ -368,6 +368,15 @@ fn a_small_body_the_clustering_breaks_apart_is_regrouped() {
     );
 }
 
+/// The default pipeline's model of a drawn mechanism and its identifiable ARI.
+fn drawn_model(spec: &MechanismSpec) -> (kinetree_core::Model, f64) {
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let model = kinetree_tests::discover_default(&data.tracks);
+    let amb = ambiguous_points(&data.tracks, &data.truth, spec.effective_noise_sigma_m());
+    let ari = identifiable_ari(&model, &data.truth, &amb);
+    (model, ari)
+}
+
 /// Three mechanisms of the rate test's draw (cases 218, 486, 622: 1.3-1.9 mm of noise,
 /// 14-34 % occlusion) where one point seen in 76-125 frames was left unassigned: the
 /// attachment takes a point only when exactly one body's per-body poses fit it within a wide
@@ -377,21 +386,13 @@ fn a_small_body_the_clustering_breaks_apart_is_regrouped() {
 fn an_unassigned_point_goes_to_the_body_whose_fitted_motion_explains_it() {
     let specs = kinetree_tests::rate_draw(623);
     for case in [218, 486, 622] {
-        let scenario = specs[case].scenario();
-        let data = simulate(&scenario).expect("simulate");
-        let d = Pipeline::from_config(&PipelineConfig::default())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover");
-        let sigma = specs[case].effective_noise_sigma_m();
-        let amb = ambiguous_points(&data.tracks, &data.truth, sigma);
-        let ari = identifiable_ari(&d.model, &data.truth, &amb);
+        let (model, ari) = drawn_model(&specs[case]);
         assert!(ari > 1.0 - 1e-12, "case {case}: identifiable ARI {ari}");
         assert!(
-            d.model
-                .warnings
-                .iter()
-                .any(|w| matches!(w, kinetree_core::Warning::PointsReassigned { .. })),
+            kinetree_tests::warned(&model, |w| matches!(
+                w,
+                kinetree_core::Warning::PointsReassigned { .. }
+            )),
             "case {case}: no point given to a body"
         );
     }
@@ -404,21 +405,14 @@ fn an_unassigned_point_goes_to_the_body_whose_fitted_motion_explains_it() {
 /// what two poses per frame buy, and the body is split: three bodies, identifiable ARI 1.
 #[test]
 fn a_small_slider_merged_with_its_link_is_split_by_the_fit_of_its_halves() {
-    let spec = &kinetree_tests::rate_draw(179)[178];
-    let data = simulate(&spec.scenario()).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
-    let amb = ambiguous_points(&data.tracks, &data.truth, spec.effective_noise_sigma_m());
-    let ari = identifiable_ari(&d.model, &data.truth, &amb);
-    assert_eq!(d.model.bodies.len(), 3, "bodies");
+    let (model, ari) = drawn_model(&kinetree_tests::rate_draw(179)[178]);
+    assert_eq!(model.bodies.len(), 3, "bodies");
     assert!(ari > 1.0 - 1e-12, "identifiable ARI {ari}");
     assert!(
-        d.model
-            .warnings
-            .iter()
-            .any(|w| matches!(w, kinetree_core::Warning::BodySplit { .. })),
+        kinetree_tests::warned(&model, |w| matches!(
+            w,
+            kinetree_core::Warning::BodySplit { .. }
+        )),
         "no split"
     );
 }
@@ -430,19 +424,9 @@ fn a_small_slider_merged_with_its_link_is_split_by_the_fit_of_its_halves() {
 /// not split, and the fitted motions move the point home (ARI 1, four bodies).
 #[test]
 fn a_point_seen_in_a_few_frames_does_not_split_its_body() {
-    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
-        n_joints: 3,
-        prismatic_fraction: 0.0,
-        tree: true,
-        seed: 10,
-        ..Default::default()
-    });
-    let data = simulate(&scenario).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
-    let e = evaluate(&d.model, &data.truth);
-    assert_eq!(d.model.bodies.len(), 4, "bodies");
+    let data = kinetree_tests::revolute_tree(3, 10);
+    let model = kinetree_tests::discover_default(&data.tracks);
+    let e = evaluate(&model, &data.truth);
+    assert_eq!(model.bodies.len(), 4, "bodies");
     assert!(e.ari > 1.0 - 1e-12, "ARI {}", e.ari);
 }

@@ -439,25 +439,15 @@ fn bundle_adjusted_axes_are_within_a_degree() {
 #[test]
 fn siblings_hidden_by_each_other_get_their_parent_back() {
     for seed in [5, 7] {
-        let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
-            n_joints: 7,
-            prismatic_fraction: 0.0,
-            tree: true,
-            seed,
-            ..Default::default()
-        });
-        let data = simulate(&scenario).expect("simulate");
-        let d = Pipeline::from_config(&PipelineConfig::default())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover");
-        let e = evaluate(&d.model, &data.truth);
+        let data = kinetree_tests::revolute_tree(7, seed);
+        let model = kinetree_tests::discover_default(&data.tracks);
+        let e = evaluate(&model, &data.truth);
         assert!(e.joints_exact, "seed {seed}: joints not exact");
         assert!(
-            d.model
-                .warnings
-                .iter()
-                .any(|w| matches!(w, kinetree_core::Warning::PairsRetested { .. })),
+            kinetree_tests::warned(&model, |w| matches!(
+                w,
+                kinetree_core::Warning::PairsRetested { .. }
+            )),
             "seed {seed}: no retest"
         );
     }
@@ -469,14 +459,7 @@ fn siblings_hidden_by_each_other_get_their_parent_back() {
 /// wider). Weighed by the share of frames each test missed, the tree takes the base.
 #[test]
 fn a_joint_tested_over_more_frames_wins_over_a_brief_one() {
-    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
-        n_joints: 7,
-        prismatic_fraction: 0.0,
-        tree: true,
-        seed: 0,
-        ..Default::default()
-    });
-    let data = simulate(&scenario).expect("simulate");
+    let data = kinetree_tests::revolute_tree(7, 0);
     let (_, e) = discover_data(&data);
     let wrong: Vec<usize> = e
         .joints

@@ -25,6 +25,28 @@ pub struct PoseQuality {
     pub origin_cov_per_sigma2: Matrix3<f64>,
 }
 
+impl PoseQuality {
+    /// From the fit's visible points, their RMS residual (metres) and the covariances of the
+    /// rotation and origin errors (body frame, per unit noise variance); the worst-direction
+    /// standard deviations are the square roots of their largest eigenvalues.
+    pub fn from_covariances(
+        n_visible: usize,
+        rms_residual_m: f64,
+        rot_cov_per_sigma2: Matrix3<f64>,
+        origin_cov_per_sigma2: Matrix3<f64>,
+    ) -> Self {
+        let worst = |m: &Matrix3<f64>| m.symmetric_eigenvalues().max().max(0.0).sqrt();
+        Self {
+            n_visible,
+            rms_residual_m,
+            rot_std_per_sigma: worst(&rot_cov_per_sigma2),
+            trans_std_per_sigma: worst(&origin_cov_per_sigma2),
+            rot_cov_per_sigma2,
+            origin_cov_per_sigma2,
+        }
+    }
+}
+
 /// One body's reference shape and its pose in every frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BodyTrack {

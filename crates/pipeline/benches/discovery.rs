@@ -3,36 +3,14 @@
 //! fit of every frame, the freeing of joints it cannot follow and the bundle adjustment of
 //! the joints). Fixed seed. Run with `cargo bench -p kinetree-pipeline --bench discovery`.
 
+mod common;
+
+use common::arm_tracks;
 use kinetree_core::{Model, Tracks};
 use kinetree_pipeline::{Pipeline, PipelineConfig};
-use kinetree_synth::{JointDraw, MechanismSpec, simulate};
 
 fn main() {
     divan::main();
-}
-
-fn arm_tracks() -> Tracks {
-    let joints = (0..9)
-        .map(|k| JointDraw {
-            parent_pick: 0.0,
-            revolute: k % 3 != 2,
-            axis: [(k as f64).cos(), (k as f64).sin(), 0.7],
-            size_m: 0.25,
-            n_points: 8,
-            amplitude: 0.5,
-            phase: k as f64,
-        })
-        .collect();
-    let spec = MechanismSpec {
-        joints,
-        tree: false,
-        noise_sigma_m: 0.001,
-        dropout: 0.1,
-        seed: 9,
-    };
-    let tracks = simulate(&spec.scenario()).expect("simulate").tracks;
-    assert_eq!((tracks.n_points(), tracks.n_frames()), (80, 150));
-    tracks
 }
 
 fn discover(tracks: &Tracks) -> Model {

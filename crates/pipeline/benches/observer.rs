@@ -2,44 +2,27 @@
 //! of 9 links), discovered once from a fixed seed. Run with `cargo bench -p
 //! kinetree-pipeline`; divan runs on one thread by default.
 
+mod common;
+
 use kinetree_core::nalgebra::Point3;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
 use kinetree_structure::Observer;
-use kinetree_synth::{JointDraw, MechanismSpec, simulate};
 
 fn main() {
     divan::main();
 }
 
 fn arm() -> (Observer, Vec<Vec<Option<Point3<f64>>>>) {
-    let joints = (0..9)
-        .map(|k| JointDraw {
-            parent_pick: 0.0,
-            revolute: k % 3 != 2,
-            axis: [(k as f64).cos(), (k as f64).sin(), 0.7],
-            size_m: 0.25,
-            n_points: 8,
-            amplitude: 0.5,
-            phase: k as f64,
-        })
-        .collect();
-    let spec = MechanismSpec {
-        joints,
-        tree: false,
-        noise_sigma_m: 0.001,
-        dropout: 0.1,
-        seed: 9,
-    };
-    let data = simulate(&spec.scenario()).expect("simulate");
+    let tracks = common::arm_tracks();
     let model = Pipeline::from_config(&PipelineConfig::default())
         .expect("pipeline")
-        .run(&data.tracks)
+        .run(&tracks)
         .expect("discover")
         .model;
     assert_eq!(model.n_points, 80);
     let observer = Observer::new(&model).expect("observer");
-    let frames = (0..data.tracks.n_frames())
-        .map(|t| (0..80).map(|i| data.tracks.get(t, i)).collect())
+    let frames = (0..tracks.n_frames())
+        .map(|t| (0..80).map(|i| tracks.get(t, i)).collect())
         .collect();
     (observer, frames)
 }

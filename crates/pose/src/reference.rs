@@ -235,15 +235,12 @@ impl KabschPoses {
                 rotation_cov_per_sigma2(&src).unwrap_or_else(|| Matrix3::identity() * 1e12);
             let c = centroid(&src).coords.cross_matrix();
             let origin_cov = Matrix3::identity() / n + c * rot_cov * c.transpose();
-            let worst = |m: &Matrix3<f64>| m.symmetric_eigenvalues().max().max(0.0).sqrt();
-            quality[t] = Some(PoseQuality {
-                n_visible: vis.len(),
-                rms_residual_m: rms,
-                rot_std_per_sigma: worst(&rot_cov),
-                trans_std_per_sigma: worst(&origin_cov),
-                rot_cov_per_sigma2: rot_cov,
-                origin_cov_per_sigma2: origin_cov,
-            });
+            quality[t] = Some(PoseQuality::from_covariances(
+                vis.len(),
+                rms,
+                rot_cov,
+                origin_cov,
+            ));
         }
         BodyTrack {
             points: points.to_vec(),

@@ -1001,15 +1001,12 @@ impl Observer {
                 } else {
                     (miss(&pose, own) / own.len() as f64).sqrt()
                 };
-                let worst = |m: &Matrix3<f64>| m.symmetric_eigenvalues().max().max(0.0).sqrt();
-                Some(PoseQuality {
-                    n_visible: own.len(),
-                    rms_residual_m: rms,
-                    rot_std_per_sigma: worst(&rot_cov),
-                    trans_std_per_sigma: worst(&origin_cov),
-                    rot_cov_per_sigma2: rot_cov,
-                    origin_cov_per_sigma2: origin_cov,
-                })
+                Some(PoseQuality::from_covariances(
+                    own.len(),
+                    rms,
+                    rot_cov,
+                    origin_cov,
+                ))
             })
             .collect()
     }
