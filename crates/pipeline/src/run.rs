@@ -80,8 +80,11 @@ const SPLIT_RESIDUAL_IN_SIGMA: f64 = 3.0;
 /// Rounds of splitting before giving up (a non-rigid body would otherwise be split forever).
 const MAX_SPLIT_ROUNDS: usize = 8;
 
-/// Splits every body whose fit residual shows it mixes bodies: average linkage on the body's
-/// own sub-matrix, cut into two clusters (a side of fewer than three points is discarded).
+/// Splits every body that mixes bodies: its median fit residual is over
+/// [`SPLIT_RESIDUAL_IN_SIGMA`], its two halves (average linkage on the body's own sub-matrix,
+/// cut into two clusters; a side of fewer than three points is discarded) are apart on
+/// average in the pairwise measure, or the halves, posed as bodies of their own
+/// (`pose_halves`), fit its points far better than the body does ([`halves_fit_better`]).
 /// The two parts, by one point each, go into `cannot_link` so the rigid merge does not
 /// rejoin them (a part with poor poses can "test rigid" against a body it moves against).
 /// Returns `None` when no body needs splitting.
