@@ -247,6 +247,27 @@ const MIN_SPLIT_FRAME_SHARE: f64 = 0.25;
 /// (reference shapes estimated from the same frames, an estimated noise level).
 const SPLIT_LR_SLACK: f64 = 1.6;
 
+/// The bodies of `model` a split made: all their points were in one body a `body_split`
+/// warning names.
+fn split_born(model: &Model) -> Vec<usize> {
+    let splits: Vec<&Vec<usize>> = model
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            Warning::BodySplit { points, .. } => Some(points),
+            _ => None,
+        })
+        .collect();
+    (0..model.bodies.len())
+        .filter(|&b| {
+            let points = &model.bodies[b].points;
+            splits
+                .iter()
+                .any(|s| points.iter().all(|p| s.binary_search(p).is_ok()))
+        })
+        .collect()
+}
+
 /// The joints of `model` its whole-tree fit does not follow (named by a `joint_not_followed`
 /// warning), as `(parent, child)` model body ids.
 fn not_followed(model: &Model) -> Vec<(usize, usize)> {
@@ -680,7 +701,14 @@ impl Pipeline {
                 break before;
             }
             let mut moves = if pass < MODEL_PASSES {
-                motions.points_fitting_another_body(&found.model, tracks)?
+                let mut m = motions.points_fitting_another_body(&found.model, tracks)?;
+                let split = split_born(&found.model);
+                for mv in motions.points_leaving_mixed_bodies(&found.model, tracks, &split)? {
+                    if !m.iter().any(|&(i, _)| i == mv.0) {
+                        m.push(mv);
+                    }
+                }
+                m
             } else {
                 Vec::new()
             };
