@@ -232,22 +232,7 @@ impl FittedMotions {
         let body_poses = &self.body_poses;
         let sigma = model.noise.sigma_m;
         let mut left: Vec<usize> = model.bodies.iter().map(|b| b.points.len()).collect();
-        // Per body, the median of its points' own misfits (see MAX_BODY_MEDIAN).
-        let body_median: Vec<Option<f64>> = model
-            .bodies
-            .iter()
-            .enumerate()
-            .map(|(b, body)| {
-                let mut m: Vec<f64> = body
-                    .points
-                    .iter()
-                    .filter(|&&i| i < tracks.n_points())
-                    .filter_map(|&i| misfit(&body_poses[b], tracks, i, sigma).map(|m| m.0))
-                    .collect();
-                m.sort_by(f64::total_cmp);
-                m.get(m.len() / 2).copied()
-            })
-            .collect();
+        let body_median = self.body_medians(model, tracks);
         let mut moves = Vec::new();
         let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
         for i in 0..model.point_body.len() {
@@ -300,17 +285,8 @@ impl FittedMotions {
     ) -> Result<Vec<(usize, usize)>> {
         self.check(model, tracks)?;
         let sigma = model.noise.sigma_m;
-        let median = |b: usize| {
-            let mut m: Vec<f64> = model.bodies[b]
-                .points
-                .iter()
-                .filter(|&&i| i < tracks.n_points())
-                .filter_map(|&i| misfit(&self.body_poses[b], tracks, i, sigma).map(|m| m.0))
-                .collect();
-            m.sort_by(f64::total_cmp);
-            m.get(m.len() / 2).copied()
-        };
-        let fitted = |b: usize| median(b).is_some_and(|m| m <= MAX_BODY_MEDIAN);
+        let body_median = self.body_medians(model, tracks);
+        let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
         let mut moves = Vec::new();
         for &b in bodies {
             if b >= model.bodies.len() || fitted(b) {
@@ -331,6 +307,27 @@ impl FittedMotions {
             }
         }
         Ok(moves)
+    }
+
+    /// Per body of `model`, the median of its points' own `chi^2 / k` against these motions
+    /// (see [`MAX_BODY_MEDIAN`]); `None` for a body with no point to score.
+    fn body_medians(&self, model: &Model, tracks: &Tracks) -> Vec<Option<f64>> {
+        let sigma = model.noise.sigma_m;
+        model
+            .bodies
+            .iter()
+            .enumerate()
+            .map(|(b, body)| {
+                let mut m: Vec<f64> = body
+                    .points
+                    .iter()
+                    .filter(|&&i| i < tracks.n_points())
+                    .filter_map(|&i| misfit(&self.body_poses[b], tracks, i, sigma).map(|m| m.0))
+                    .collect();
+                m.sort_by(f64::total_cmp);
+                m.get(m.len() / 2).copied()
+            })
+            .collect()
     }
 
     /// The body an unassigned `point` belongs to by the fitted motions: the one explaining it
