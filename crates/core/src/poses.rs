@@ -79,17 +79,15 @@ impl BodyTrack {
 
     /// Median over registered frames of the fit's RMS residual, metres.
     pub fn median_residual_m(&self) -> Option<f64> {
-        let mut r: Vec<f64> = self
-            .quality
-            .iter()
-            .flatten()
-            .map(|q| q.rms_residual_m)
-            .collect();
-        if r.is_empty() {
-            return None;
-        }
-        r.sort_by(f64::total_cmp);
-        Some(r[r.len() / 2])
+        self.median_quality(|q| q.rms_residual_m)
+    }
+
+    /// Median over registered frames of `value` of the fit's quality (the upper middle one
+    /// for an even count); `None` without a registered frame.
+    pub fn median_quality(&self, value: impl Fn(&PoseQuality) -> f64) -> Option<f64> {
+        let mut v: Vec<f64> = self.quality.iter().flatten().map(value).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied()
     }
 }
 

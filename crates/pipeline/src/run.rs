@@ -323,16 +323,9 @@ fn halves(dmat: &DissimilarityMatrix, points: &[usize]) -> Result<Vec<Vec<usize>
 /// keypoints, their visibility and motion, not on how the bodies or points are numbered, where
 /// the camera is, or which way time runs.
 fn pose_spread(track: &BodyTrack) -> (f64, f64) {
-    let mut s: Vec<f64> = track
-        .quality
-        .iter()
-        .flatten()
-        .map(|q| q.rot_std_per_sigma)
-        .collect();
-    if s.is_empty() {
+    let Some(spread) = track.median_quality(|q| q.rot_std_per_sigma) else {
         return (f64::INFINITY, 0.0);
-    }
-    s.sort_by(f64::total_cmp);
+    };
     let origins: Vec<_> = track
         .cam_from_body
         .iter()
@@ -340,7 +333,7 @@ fn pose_spread(track: &BodyTrack) -> (f64, f64) {
         .map(|p| p.translation.vector)
         .collect();
     let travel = origins.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
-    (s[s.len() / 2], travel)
+    (spread, travel)
 }
 
 /// Whether body `j` should be the frame of the pair `(i, j)`: it is better posed, or equally
@@ -701,13 +694,11 @@ impl Pipeline {
                 break before;
             }
             let mut moves = if pass < MODEL_PASSES {
+                // The two sets are disjoint: the first moves points of well fitted bodies (and
+                // unassigned ones), the second of poorly fitted ones.
                 let mut m = motions.points_fitting_another_body(&found.model, tracks)?;
                 let split = split_born(&found.model);
-                for mv in motions.points_leaving_mixed_bodies(&found.model, tracks, &split)? {
-                    if !m.iter().any(|&(i, _)| i == mv.0) {
-                        m.push(mv);
-                    }
-                }
+                m.extend(motions.points_leaving_mixed_bodies(&found.model, tracks, &split)?);
                 m
             } else {
                 Vec::new()

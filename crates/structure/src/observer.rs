@@ -9,9 +9,9 @@ use kinetree_core::nalgebra::{
 use kinetree_core::{Error, Model, PoseQuality, Result, Tracks, Warning};
 
 #[derive(Debug, Clone)]
-pub(crate) struct ObservedBody {
+struct ObservedBody {
     /// `(point index, position in the body frame)` for every placed point.
-    pub(crate) shape: Vec<(usize, Point3<f64>)>,
+    shape: Vec<(usize, Point3<f64>)>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -79,16 +79,16 @@ const MAX_VARIANCE_INFLATION: f64 = 1e8;
 pub struct Observer {
     n_points: usize,
     pub(crate) sigma: f64,
-    pub(crate) bodies: Vec<ObservedBody>,
+    bodies: Vec<ObservedBody>,
     pub(crate) joints: Vec<ObservedJoint>,
     /// Joints treated as free (see [`Observer::free_joint`]).
-    pub(crate) freed: Vec<bool>,
+    freed: Vec<bool>,
     /// The joint whose child each body is.
     parent_joint: Vec<Option<usize>>,
     /// Bodies, parents before children.
-    pub(crate) topo: Vec<usize>,
+    topo: Vec<usize>,
     /// The single-DoF joint whose child each body is; `None` for a freely posed body.
-    pub(crate) link: Vec<Option<usize>>,
+    link: Vec<Option<usize>>,
     /// First of the six pose parameters of each freely posed body.
     pub(crate) free_col: Vec<Option<usize>>,
     /// The parameter of each single-DoF joint.
@@ -106,7 +106,7 @@ fn vector(a: [f64; 3]) -> Vector3<f64> {
 #[derive(Debug, Clone)]
 pub(crate) struct State {
     /// Pose of every freely posed body (`None`: not yet known).
-    pub(crate) free: Vec<Option<Isometry3<f64>>>,
+    free: Vec<Option<Isometry3<f64>>>,
     /// Position of every joint (`None`: not yet known).
     pub(crate) q: Vec<Option<f64>>,
 }
@@ -297,7 +297,7 @@ impl Observer {
 
     /// Per body, `(shape point, observation)` for its placed points visible (and finite) in
     /// `frame`.
-    pub(crate) fn visible(&self, frame: &[Option<Point3<f64>>]) -> Visible {
+    fn visible(&self, frame: &[Option<Point3<f64>>]) -> Visible {
         // One buffer for all bodies: a vector per body cost 15 % of a frame's fit in
         // allocation (measured on the observer benchmark).
         let mut pairs = Vec::with_capacity(self.bodies.iter().map(|b| b.shape.len()).sum());
@@ -522,7 +522,7 @@ impl Observer {
     }
 
     /// `parent_from_child` of joint `j` at position `q`.
-    pub(crate) fn joint_transform(j: &ObservedJoint, q: f64) -> Isometry3<f64> {
+    fn joint_transform(j: &ObservedJoint, q: f64) -> Isometry3<f64> {
         match j.measure {
             Measure::Revolute(axis, pivot) => {
                 let turn = Translation3::from(pivot.coords)
@@ -552,7 +552,7 @@ impl Observer {
     }
 
     /// Body poses from the parameters (`None` below an unknown parameter).
-    pub(crate) fn forward(&self, s: &State) -> Vec<Option<Isometry3<f64>>> {
+    fn forward(&self, s: &State) -> Vec<Option<Isometry3<f64>>> {
         let mut poses = Vec::new();
         self.forward_into(s, &mut poses);
         poses
@@ -1268,7 +1268,7 @@ pub(crate) struct Scratch {
     pub(crate) info: Vec<Matrix6<f64>>,
     pub(crate) grad: Vec<Vector6<f64>>,
     /// Per body, its visible points, then summed over its subtree.
-    pub(crate) points: Vec<usize>,
+    points: Vec<usize>,
 }
 
 /// The end of one descent ([`Observer::descend`]).
@@ -1278,7 +1278,7 @@ pub(crate) struct Descent {
     /// Body poses of `state` ([`Observer::forward`]).
     pub(crate) poses: Vec<Option<Isometry3<f64>>>,
     /// The last linearisation, a converged step from `state`; `None` when no point is used.
-    pub(crate) lin: Option<Linear>,
+    lin: Option<Linear>,
     /// Sum of squared residuals of `state` ([`Observer::cost`]).
     pub(crate) cost: f64,
 }
