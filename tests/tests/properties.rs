@@ -380,19 +380,28 @@ fn tally(
 /// mixing revolute and prismatic joints with 3D axes, at 1 mm noise and 30 % occlusion
 /// (`cases()` draws of the deterministic runner, noise and occlusion overridden). Per model:
 /// structure exact (joints, and identifiable ARI 1). Per joint: axis in the parent's frame
-/// under 1 deg, revolute pivot under 5 mm, joint RMS under 0.01 rad (or, for a body too small
-/// for that, `2 r` with `r` its one-frame rotation noise `sigma / (size / 2 sqrt(points))`,
-/// which no per-frame estimate beats) or 1 mm; joints of a model that is not structure-exact
-/// are not scored. Measured when this was written (session 5): on the 64 default draws, 64
+/// under 1 deg, revolute pivot under 5 mm, and joint positions: RMS under 0.01 rad or 1 mm
+/// (the issue's figure, `flat`), or, where the data do not allow that, under 1.5 times the
+/// RMS of the model's own per-frame standard deviations (`position_std`: a 4-point body of
+/// 3 cm, or one point of a body visible near its axis, is known to a few hundredths of a
+/// radian at best, whatever the method). That allowance only holds with honest standard
+/// deviations, so they are checked against the truth too: the errors in their units have
+/// an RMS near 1 over all joints, and under 2 for nearly every joint (a higher one means
+/// the joint's parameters are off). Joints of a model that is not structure-exact are not
+/// scored. Measured when this was written (session 5): on the 64 default draws, 64
 /// models structure-exact, 258 of 262 axes, all 161 pivots and 252 of 262 positions within
 /// the targets. With the joints bundle-adjusted (session 7): 64 models, 261 of 262 axes, 161
-/// pivots, 256 of 262 positions; on 640 draws, 635 models, 2830 of 2833 axes (2764 of 2837
-/// before), 1820 of 1820 pivots and 2764 of 2833 positions (2642 of 2837 before). Required:
-/// about those rates less a point or two (every miss is printed).
+/// pivots; on 640 draws, 638 models, 2847 of 2850 axes, 1830 of 1830 pivots. Positions,
+/// session 8 (limits as now): on 64 draws 261 of 262 within their limit (246 under the flat
+/// figure), 260 of 262 with honest deviations, errors 1.02 deviations; on 640 draws 2846 of
+/// 2850 (2650 under the flat figure), 2846 of 2850 honest, 1.02. Required: about the
+/// measured rates less a point or two (every miss is printed).
 #[test]
 fn issue_four_targets_at_one_millimetre() {
     let n = cases() as usize;
     let (mut structure, mut axes, mut pivots, mut rms) = ((0, 0), (0, 0), (0, 0), (0, 0));
+    let (mut flat_rms, mut calibrated) = ((0, 0), (0, 0));
+    let mut z_squares = Vec::new();
     let mut misses = Vec::new();
     for (case, mut spec) in rate_draw(n).into_iter().enumerate() {
         spec.noise_sigma_m = 0.001;
@@ -422,33 +431,45 @@ fn issue_four_targets_at_one_millimetre() {
             tally(&mut axes, axis < 1.0, &mut misses, || {
                 format!("case {case} joint {}: axis {axis:.2} deg", j.joint)
             });
-            let position = j.position_rms.unwrap_or(f64::INFINITY);
-            let limit = if draw.revolute {
+            if draw.revolute {
                 let pivot = j.pivot_error_in_parent_m.unwrap_or(f64::INFINITY);
                 tally(&mut pivots, pivot < 0.005, &mut misses, || {
                     format!("case {case} joint {}: pivot {pivot:.4} m", j.joint)
                 });
-                let size = draw.size_m.clamp(0.02, 0.5);
-                let r = sigma / (0.5 * size * (draw.n_points.clamp(4, 12) as f64).sqrt());
-                0.01f64.max(2.0 * r)
-            } else {
-                0.001
-            };
-            tally(&mut rms, position < limit, &mut misses, || {
+            }
+            let position = j.position_rms.unwrap_or(f64::INFINITY);
+            let flat = if draw.revolute { 0.01 } else { 0.001 };
+            let stated = j.position_std_rms.unwrap_or(f64::INFINITY);
+            let z = j.position_z_rms.unwrap_or(f64::INFINITY);
+            flat_rms.1 += 1;
+            flat_rms.0 += usize::from(position < flat);
+            tally(&mut rms, position < flat.max(1.5 * stated), &mut misses, || {
                 format!(
-                    "case {case} joint {}: RMS {position:.4} (limit {limit:.4})",
+                    "case {case} joint {}: RMS {position:.4} (flat {flat}, stated {stated:.4})",
                     j.joint
                 )
             });
+            tally(&mut calibrated, z < 2.0, &mut misses, || {
+                format!("case {case} joint {}: errors {z:.2} stated deviations", j.joint)
+            });
+            z_squares.push(z * z);
         }
     }
     for m in &misses {
         eprintln!("{m}");
     }
     let rate = |(k, of): (usize, usize)| k as f64 / of.max(1) as f64;
-    eprintln!("structure {structure:?}, axes {axes:?}, pivots {pivots:?}, positions {rms:?}");
+    let pooled_z = (z_squares.iter().sum::<f64>() / z_squares.len().max(1) as f64).sqrt();
+    eprintln!(
+        "structure {structure:?}, axes {axes:?}, pivots {pivots:?}, positions {rms:?} \
+         (under the flat figure {flat_rms:?}), stated deviations honest {calibrated:?}, \
+         errors {pooled_z:.3} stated deviations"
+    );
     assert!(rate(structure) >= 0.95, "structure exact {structure:?}");
     assert!(rate(axes) >= 0.99, "axes {axes:?}");
     assert!(rate(pivots) >= 0.99, "pivots {pivots:?}");
-    assert!(rate(rms) >= 0.96, "positions {rms:?}");
+    assert!(rate(rms) >= 0.99, "positions {rms:?}");
+    assert!(rate(flat_rms) >= 0.9, "positions under 0.01 rad or 1 mm {flat_rms:?}");
+    assert!(rate(calibrated) >= 0.97, "honest deviations {calibrated:?}");
+    assert!((0.8..1.25).contains(&pooled_z), "errors in stated deviations {pooled_z}");
 }

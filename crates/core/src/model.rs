@@ -124,6 +124,12 @@ pub struct Joint {
     /// `reference_frame`; null where the frame does not determine it (no visible point below
     /// the joint, or a standard deviation above 0.5 rad or 0.1 m).
     pub positions: Vec<Option<f64>>,
+    /// Standard deviation of each position from the whole-tree fit at the model's noise
+    /// level (same units as `positions`); null where the position is null or does not come
+    /// from that fit (a joint the fit does not follow, measured from two fitted poses, or a
+    /// multi-DoF joint). Weights for anyone averaging or smoothing the positions.
+    #[serde(default)]
+    pub position_std: Vec<Option<f64>>,
     /// Observed range `[min, max]` of the positions.
     pub range: Option<[f64; 2]>,
     /// Estimated relative DoF.

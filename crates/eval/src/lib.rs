@@ -120,6 +120,31 @@ pub fn aligned_rms(estimate: &[Option<f64>], truth: &[f64]) -> Option<f64> {
     alignment(estimate, truth).map(|a| a.rms)
 }
 
+/// How well an estimated joint trajectory's stated precision matches its errors: the RMS of
+/// the reported standard deviations (the precision the data allowed, by the model's own
+/// account) and the RMS of the errors in those units (about 1 when the estimate is as good
+/// as its precision says; above 1 when the model's parameters are off), over the frames
+/// with both a position and a standard deviation, after the [`alignment`] of all known
+/// frames. `None` when no frame has both.
+pub fn precision_check(
+    estimate: &[Option<f64>],
+    std: &[Option<f64>],
+    truth: &[f64],
+) -> Option<(f64, f64)> {
+    let a = alignment(estimate, truth)?;
+    let (mut n, mut s2, mut z2) = (0.0, 0.0, 0.0);
+    for ((e, s), t) in estimate.iter().zip(std).zip(truth) {
+        if let (Some(e), Some(s)) = (e, s)
+            && *s > 0.0
+        {
+            n += 1.0;
+            s2 += s * s;
+            z2 += ((t - a.sign * e - a.offset) / s).powi(2);
+        }
+    }
+    (n > 0.0).then(|| ((s2 / n).sqrt(), (z2 / n).sqrt()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -141,6 +166,21 @@ mod tests {
         assert!(aligned_rms(&est, &truth).is_some_and(|r| r < 1e-12));
         let bad: Vec<Option<f64>> = truth.iter().map(|t| Some(t * t)).collect();
         assert!(aligned_rms(&bad, &truth).is_some_and(|r| r > 0.01));
+    }
+
+    #[test]
+    fn precision_check_measures_errors_in_their_stated_units() {
+        let truth: Vec<f64> = (0..40).map(|k| k as f64 * 0.05).collect();
+        // Errors of +-0.02 against a stated 0.01 (two deviations each), sign flipped.
+        let est: Vec<Option<f64>> = truth
+            .iter()
+            .enumerate()
+            .map(|(k, t)| Some(-(t + if k % 2 == 0 { 0.02 } else { -0.02 })))
+            .collect();
+        let std = vec![Some(0.01); truth.len()];
+        let (s, z) = precision_check(&est, &std, &truth).expect("known");
+        assert!((s - 0.01).abs() < 1e-12 && (z - 2.0).abs() < 1e-9, "{s} {z}");
+        assert!(precision_check(&est, &vec![None; truth.len()], &truth).is_none());
     }
 
     #[test]

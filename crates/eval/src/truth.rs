@@ -1,6 +1,8 @@
 //! Comparing a discovered model with the simulator's truth.
 
-use crate::{adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance};
+use crate::{
+    adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance, precision_check,
+};
 use kinetree_core::{Model, Tracks};
 use kinetree_synth::{GroundTruth, JointType};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -31,6 +33,14 @@ pub struct JointEval {
     pub pivot_error_in_parent_m: Option<f64>,
     /// RMS joint-position error after sign and offset alignment (radians or metres).
     pub position_rms: Option<f64>,
+    /// RMS of the model's per-frame position standard deviations (`Joint::position_std`),
+    /// the precision its data allowed; see [`crate::precision_check`].
+    #[serde(default)]
+    pub position_std_rms: Option<f64>,
+    /// RMS of the position errors in units of their stated standard deviations (about 1 for
+    /// an estimate as good as it says).
+    #[serde(default)]
+    pub position_z_rms: Option<f64>,
 }
 
 /// The comparison of a model with the truth.
@@ -125,6 +135,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             axis_error_in_parent_deg: None,
             pivot_error_in_parent_m: None,
             position_rms: None,
+            position_std_rms: None,
+            position_z_rms: None,
         };
         if let Some(j) = found {
             let expected = match spec.joint_type {
@@ -160,6 +172,9 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                 }
             }
             e.position_rms = aligned_rms(&j.positions, &truth.joint_positions[k]);
+            (e.position_std_rms, e.position_z_rms) =
+                precision_check(&j.positions, &j.position_std, &truth.joint_positions[k])
+                    .unzip();
         }
         all_ok &= e.found && e.type_ok;
         joints.push(e);

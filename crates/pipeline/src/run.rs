@@ -1086,6 +1086,7 @@ impl Pipeline {
                 reference_pose,
                 positions,
                 // Set with the positions by `kinetree_structure::fit_model_positions`.
+                position_std: Vec::new(),
                 range: None,
                 dof: pair.dof,
                 ranks: Ranks {

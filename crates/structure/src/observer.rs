@@ -1493,6 +1493,11 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             }
             joint.positions = column;
         }
+        joint.position_std = fits
+            .iter()
+            .zip(&joint.positions)
+            .map(|(f, q)| q.and(f.std[k]))
+            .collect();
         let known: Vec<f64> = joint.positions.iter().flatten().copied().collect();
         joint.range = (!known.is_empty()).then(|| {
             [
