@@ -150,34 +150,23 @@ fn reversing_time_gives_the_same_structure() {
     }
 }
 
-fn check_halved(seed: u64) {
-    let (tracks, expected) = base(seed);
-    let identity: Vec<usize> = (0..tracks.n_points()).collect();
-    let halved: Vec<usize> = (0..tracks.n_frames()).step_by(2).collect();
-    let h = tracks.select_frames(&halved).expect("halved");
-    assert_eq!(
-        structure(&discover(&h, Some(0.001)), &identity),
-        expected,
-        "seed {seed}"
-    );
-}
-
+/// Seed 3 failed here from session 1 to session 8: at T = 100 a point of the last link seen
+/// in 16 frames was clustered with the first link, whose fitted poses it spoiled so that no
+/// move was allowed (see `kinetree_structure::OUTLIER_RATIO`), and three points seen in 6-7
+/// frames were never placed (`MIN_FRAMES_UNASSIGNED`).
 #[test]
 fn dropping_every_other_frame_gives_the_same_structure() {
-    for seed in [2, 5] {
-        check_halved(seed);
+    for seed in SEEDS {
+        let (tracks, expected) = base(seed);
+        let identity: Vec<usize> = (0..tracks.n_points()).collect();
+        let halved: Vec<usize> = (0..tracks.n_frames()).step_by(2).collect();
+        let h = tracks.select_frames(&halved).expect("halved");
+        assert_eq!(
+            structure(&discover(&h, Some(0.001)), &identity),
+            expected,
+            "seed {seed}"
+        );
     }
-}
-
-/// Known failure found by this suite (session 1): with every other frame dropped
-/// (T = 100), seed 3's clustering merges true bodies 2 and 3 (17 points, 49 pairs inferred
-/// through third points). The residual split then cuts it three times along inferred pairs
-/// into fragments registered in 6 and 12 frames, and their weak DoF tests link them as
-/// "rigid". Un-ignore when segmentation (issue 3) handles it.
-#[test]
-#[ignore = "known failure: segmentation at T = 100 on seed 3, see the doc comment"]
-fn dropping_every_other_frame_seed_3_known_failure() {
-    check_halved(3);
 }
 
 #[test]

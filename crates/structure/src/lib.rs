@@ -9,7 +9,9 @@ mod refine;
 pub use observer::{
     FrameFit, MAX_JOINT_EXCESS, MAX_STD_M, MAX_STD_RAD, Observer, fit_model_positions,
 };
-pub use reassign::{FittedMotions, MAX_BODY_MEDIAN, MIN_FRAMES, MIN_MARGIN};
+pub use reassign::{
+    FittedMotions, MAX_BODY_MEDIAN, MIN_FRAMES, MIN_FRAMES_UNASSIGNED, MIN_MARGIN, OUTLIER_RATIO,
+};
 
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{
