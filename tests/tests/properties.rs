@@ -443,14 +443,22 @@ fn issue_four_targets_at_one_millimetre() {
             let z = j.position_z_rms.unwrap_or(f64::INFINITY);
             flat_rms.1 += 1;
             flat_rms.0 += usize::from(position < flat);
-            tally(&mut rms, position < flat.max(1.5 * stated), &mut misses, || {
+            tally(
+                &mut rms,
+                position < flat.max(1.5 * stated),
+                &mut misses,
+                || {
+                    format!(
+                        "case {case} joint {}: RMS {position:.4} (flat {flat}, stated {stated:.4})",
+                        j.joint
+                    )
+                },
+            );
+            tally(&mut calibrated, z < 2.0, &mut misses, || {
                 format!(
-                    "case {case} joint {}: RMS {position:.4} (flat {flat}, stated {stated:.4})",
+                    "case {case} joint {}: errors {z:.2} stated deviations",
                     j.joint
                 )
-            });
-            tally(&mut calibrated, z < 2.0, &mut misses, || {
-                format!("case {case} joint {}: errors {z:.2} stated deviations", j.joint)
             });
             z_squares.push(z * z);
         }
@@ -469,7 +477,13 @@ fn issue_four_targets_at_one_millimetre() {
     assert!(rate(axes) >= 0.99, "axes {axes:?}");
     assert!(rate(pivots) >= 0.99, "pivots {pivots:?}");
     assert!(rate(rms) >= 0.99, "positions {rms:?}");
-    assert!(rate(flat_rms) >= 0.9, "positions under 0.01 rad or 1 mm {flat_rms:?}");
+    assert!(
+        rate(flat_rms) >= 0.9,
+        "positions under 0.01 rad or 1 mm {flat_rms:?}"
+    );
     assert!(rate(calibrated) >= 0.97, "honest deviations {calibrated:?}");
-    assert!((0.8..1.25).contains(&pooled_z), "errors in stated deviations {pooled_z}");
+    assert!(
+        (0.8..1.25).contains(&pooled_z),
+        "errors in stated deviations {pooled_z}"
+    );
 }

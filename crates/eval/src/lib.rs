@@ -179,7 +179,10 @@ mod tests {
             .collect();
         let std = vec![Some(0.01); truth.len()];
         let (s, z) = precision_check(&est, &std, &truth).expect("known");
-        assert!((s - 0.01).abs() < 1e-12 && (z - 2.0).abs() < 1e-9, "{s} {z}");
+        assert!(
+            (s - 0.01).abs() < 1e-12 && (z - 2.0).abs() < 1e-9,
+            "{s} {z}"
+        );
         assert!(precision_check(&est, &vec![None; truth.len()], &truth).is_none());
     }
 

@@ -173,8 +173,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             }
             e.position_rms = aligned_rms(&j.positions, &truth.joint_positions[k]);
             (e.position_std_rms, e.position_z_rms) =
-                precision_check(&j.positions, &j.position_std, &truth.joint_positions[k])
-                    .unzip();
+                precision_check(&j.positions, &j.position_std, &truth.joint_positions[k]).unzip();
         }
         all_ok &= e.found && e.type_ok;
         joints.push(e);
