@@ -387,6 +387,27 @@ fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
     }
 }
 
+/// Case 536 of the rate test's draw (4 mm of noise, 29 % occlusion): a 31 cm, 6-point link
+/// turning +-0.24 rad about a hinge on the base. Its pair test found one rotation direction
+/// but centres of rotation off a point by 4.45 per degree of freedom against a bound of 3.33
+/// (rank 1), so the joint was multi-DoF. In the whole-tree fit the child moves as a hinge: a
+/// hinge fitted from the fitted relative poses and refined misses the child's points by 1.0
+/// sigma^2 per point beyond its own pose (a slide, 36), so the fit types it revolute
+/// (`joint_typed_by_fit`).
+#[test]
+fn a_hinge_whose_centres_scatter_is_typed_by_the_fit() {
+    let specs = rate_draw(537);
+    let (warnings, wrong) = wrong_joints(&specs[536]);
+    assert!(wrong.is_empty(), "wrong joints {wrong:?}");
+    assert!(
+        warnings.iter().any(|w| matches!(
+            w,
+            kinetree_core::Warning::JointTypedByFit { joint_type, .. } if joint_type == "revolute"
+        )),
+        "no joint typed by the fit: {warnings:?}"
+    );
+}
+
 /// Case 397 of the rate test's draw: a slide whose parent is a 2 cm body of 4 points. Its
 /// rotation residuals were 0.12 at rank 0 and 0.003 at rank 1 (whitened columns of nearly one
 /// direction), and the hidden-rotation rule read the ratio as a rotation, typing the slide

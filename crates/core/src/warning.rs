@@ -100,6 +100,19 @@ pub enum Warning {
         /// The miss beyond the child's own pose, per point, in units of sigma^2.
         excess_in_sigma2: f64,
     },
+    /// A joint the pair test called multi-DoF moves as a single-DoF joint in the whole-tree
+    /// fit: fitted with each single-DoF type, the fit followed this one, and it replaced the
+    /// multi-DoF joint (its ranks are still the pair test's).
+    JointTypedByFit {
+        /// Parent body (output numbering).
+        parent: usize,
+        /// Child body (output numbering).
+        child: usize,
+        /// `revolute` or `prismatic`.
+        joint_type: String,
+        /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
+        excess_in_sigma2: f64,
+    },
     /// The model had multi-DoF joints or joints its whole-tree fit did not follow, so every
     /// pair was tested again on the poses of its whole-tree fit and the model rebuilt on
     /// them; the rebuilt model, with fewer such joints, was kept. Pair tests, joints and
@@ -185,6 +198,15 @@ impl std::fmt::Display for Warning {
             } => write!(
                 f,
                 "joint {parent} -> {child}: its child misses the whole-tree fit by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose; its positions come from the two bodies' poses"
+            ),
+            Warning::JointTypedByFit {
+                parent,
+                child,
+                joint_type,
+                excess_in_sigma2,
+            } => write!(
+                f,
+                "joint {parent} -> {child}: multi-DoF in its pair test, but the whole-tree fit follows it as {joint_type} (its child misses by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose)"
             ),
             Warning::PairsRetested {
                 multi_dof_before,
