@@ -100,9 +100,10 @@ pub enum Warning {
         /// The miss beyond the child's own pose, per point, in units of sigma^2.
         excess_in_sigma2: f64,
     },
-    /// A joint the pair test called multi-DoF moves as a single-DoF joint in the whole-tree
-    /// fit: fitted with each single-DoF type, the fit followed this one, and it replaced the
-    /// multi-DoF joint (its ranks are still the pair test's).
+    /// A joint the pair test called multi-DoF, or a single-DoF joint the whole-tree fit did
+    /// not follow, moves as a joint of this type in the fit: fitted anew from the fitted
+    /// poses, the fit followed it, and it replaced the pair test's joint (its ranks are still
+    /// the pair test's).
     JointTypedByFit {
         /// Parent body (output numbering).
         parent: usize,
@@ -206,7 +207,7 @@ impl std::fmt::Display for Warning {
                 excess_in_sigma2,
             } => write!(
                 f,
-                "joint {parent} -> {child}: multi-DoF in its pair test, but the whole-tree fit follows it as {joint_type} (its child misses by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose)"
+                "joint {parent} -> {child}: typed otherwise by its pair test, but the whole-tree fit follows it as {joint_type} (its child misses by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose)"
             ),
             Warning::PairsRetested {
                 multi_dof_before,
