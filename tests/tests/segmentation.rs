@@ -451,7 +451,7 @@ fn a_split_body_mixing_two_links_gives_its_points_back() {
 /// seen in 91 and 116 frames, was put on the link across the hinge. Against the fitted
 /// motions its true body explained it better by 35 and 41 in `chi^2` (0.13 and 0.12 per
 /// degree of freedom), short of the two standard deviations of `chi^2` (46 and 53) that
-/// moving it asked; now a gain of `MIN_CHI2_GAIN` (25) moves it whatever its number of
+/// moving it asked; now a gain of `MIN_CHI2_GAIN` (16) moves it whatever its number of
 /// frames, and both reach identifiable ARI 1 (0.969 and 0.978 before).
 #[test]
 fn a_point_near_a_hinge_goes_to_the_body_it_fits_better() {
@@ -467,4 +467,40 @@ fn a_point_near_a_hinge_goes_to_the_body_it_fits_better() {
             "case {case}: no point moved"
         );
     }
+}
+
+/// Seed 7 of the mechanisms sweep's 1-joint revolute chains (200 frames, 1 mm): point 17 of
+/// the link, seen in 48 frames near the hinge, was clustered with the base. Against the
+/// fitted motions the link explains it better by 24 in `chi^2` (0.94 against 1.11 per
+/// degree of freedom over 141), under the 34 of two standard deviations and the 25 asked
+/// before session 8; with `MIN_CHI2_GAIN` at 16 it moves to the link. (Point 10, seen in 15
+/// frames, fits both within 0.12 and stays where it is.)
+#[test]
+fn a_link_point_seen_near_its_hinge_leaves_the_base() {
+    let data = simulate(&kinetree_synth::random_scenario(
+        &kinetree_synth::RandomParams {
+            n_joints: 1,
+            prismatic_fraction: 0.0,
+            seed: 7,
+            ..Default::default()
+        },
+    ))
+    .expect("simulate");
+    let model = kinetree_tests::discover_default(&data.tracks);
+    let link = model.point_body[17];
+    let truth = &data.truth.point_body;
+    let link_points: Vec<usize> = (0..truth.len())
+        .filter(|&i| truth[i] == truth[17] && data.truth.visible_frames[i] >= 48)
+        .collect();
+    assert!(link_points.len() >= 4, "link points {link_points:?}");
+    for i in link_points {
+        assert_eq!(model.point_body[i], link, "point {i} apart from point 17");
+    }
+    let base = (0..truth.len())
+        .find(|&i| truth[i] != truth[17] && data.truth.visible_frames[i] >= 100)
+        .expect("a base point");
+    assert_ne!(
+        model.point_body[base], link,
+        "the link merged with the base"
+    );
 }
