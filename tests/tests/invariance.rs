@@ -153,7 +153,7 @@ fn reversing_time_gives_the_same_structure() {
 /// Seed 3 failed here from session 1 to session 8: at T = 100 a point of the last link seen
 /// in 16 frames was clustered with the first link, whose fitted poses it spoiled so that no
 /// move was allowed (see `kinetree_structure::OUTLIER_RATIO`), and three points seen in 6-7
-/// frames were never placed (`MIN_FRAMES_UNASSIGNED`).
+/// frames were never placed (`MIN_FRAMES_TO_PLACE`).
 #[test]
 fn dropping_every_other_frame_gives_the_same_structure() {
     for seed in SEEDS {

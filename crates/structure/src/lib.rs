@@ -10,7 +10,7 @@ pub use observer::{
     FrameFit, MAX_JOINT_EXCESS, MAX_STD_M, MAX_STD_RAD, Observer, fit_model_positions,
 };
 pub use reassign::{
-    FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_UNASSIGNED, MIN_MARGIN,
+    FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
     OUTLIER_RATIO,
 };
 
