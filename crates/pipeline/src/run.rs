@@ -804,9 +804,9 @@ impl Pipeline {
                 .filter(|j| j.joint_type == "multi_dof")
                 .count()
         };
-        // A joint typed by the fit was multi-DoF in its pair test: a hinge and a slide in
-        // series on a wrong tree edge can pass for one slide (rate-test case 411), so it
-        // counts as doubtful here too.
+        // A joint typed by the fit was multi-DoF or not followed as its pair test typed it: a
+        // hinge and a slide in series on a wrong tree edge can pass for one slide (rate-test
+        // case 411), so it counts as doubtful here too.
         let typed = |m: &Model| {
             m.warnings
                 .iter()

@@ -1465,6 +1465,7 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
     // two translation ones is tried: tried on every multi-DoF joint, the human joints of the
     // tennis serve (rotation rank 2-3) were typed, one as a slide, and the keypoints'
     // re-prediction rose from 2.3 to 3.4 sigma.
+    //
     // A joint the fit still does not follow gets the other single-DoF type tried the same
     // way: a 3.9 cm link turning +-0.19 rad on the base (rate-test case 548, 2 mm of noise)
     // showed no rotation in its pair test and a straight path, so it was typed prismatic; its
@@ -1565,8 +1566,10 @@ fn adjust_model(
 /// Case 83: a 3.1 cm, 4-point slider at 1.5 mm of noise had rotation residuals of 4.5 per
 /// degree of freedom against a bound of 3.3 at rank 0 in its pair test (its poses from three
 /// or four points are noisier than their propagated precision says), so the joint was
-/// multi-DoF. Case 536: a 31 cm hinge at 4 mm of noise, multi-DoF in its pair test, has an
-/// excess of 36 as a slide and 1.0 as a hinge.
+/// multi-DoF; it stays so, its slide missing the child's points by 7.3 sigma^2 per point
+/// (6.8 with the joints below it freed, so not the pull of the seven joints below), though
+/// its fitted axis is 0.05 deg off. Case 536: a 31 cm hinge at 4 mm of noise, multi-DoF in
+/// its pair test, has an excess of 36 as a slide and 1.0 as a hinge.
 fn type_by_fit(
     model: &mut Model,
     k: usize,
