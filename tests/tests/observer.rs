@@ -218,7 +218,9 @@ fn a_joint_is_followed_from_two_child_points_and_unknown_from_none() {
 
 /// A joint the model gets wrong (a hinge typed as a slide, which no refinement of its axis
 /// can make follow a rotation) is freed with a warning, and the joint above it keeps its
-/// accuracy; its own positions then come from the body poses.
+/// accuracy; its own positions then come from the body poses. Its ranks here say the pair
+/// test saw two rotation directions, so the fit does not try it as a hinge (see
+/// `a_hinge_typed_as_a_slide_is_typed_back_by_the_fit`).
 #[test]
 fn a_joint_the_model_gets_wrong_is_freed() {
     let (data, model) = discovered_arm(3);
@@ -232,6 +234,7 @@ fn a_joint_the_model_gets_wrong_is_freed() {
     assert!(before.iter().all(|&r| r < 0.01), "{before:?}");
     let mut wrong = model.clone();
     wrong.joints[1].joint_type = "prismatic".into();
+    wrong.joints[1].ranks.rotation = 2;
     wrong.warnings.clear();
     kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
     let freed: Vec<(usize, usize)> = wrong
@@ -267,6 +270,46 @@ fn a_joint_the_model_gets_wrong_is_freed() {
             "joint {k}: {offsets:?}"
         );
     }
+}
+
+/// The hinge typed as a slide again, with the pair test's own ranks (one rotation
+/// direction): the fit does not follow the slide, tries a hinge fitted from the fitted
+/// poses, follows it, and types the joint back (`joint_typed_by_fit`, no joint freed), its
+/// positions as accurate as the discovered model's.
+#[test]
+fn a_hinge_typed_as_a_slide_is_typed_back_by_the_fit() {
+    let (data, model) = discovered_arm(3);
+    let child = model.joints[1].child;
+    let truth =
+        &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1];
+    assert!(
+        model.joints[1].ranks.rotation <= 1,
+        "{:?}",
+        model.joints[1].ranks
+    );
+    let mut wrong = model.clone();
+    wrong.joints[1].joint_type = "prismatic".into();
+    wrong.warnings.clear();
+    kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
+    assert_eq!(wrong.joints[1].joint_type, "revolute");
+    assert!(
+        wrong.warnings.iter().any(|w| matches!(
+            w,
+            Warning::JointTypedByFit { joint_type, .. } if joint_type == "revolute"
+        )),
+        "{:?}",
+        wrong.warnings
+    );
+    assert!(
+        !wrong
+            .warnings
+            .iter()
+            .any(|w| matches!(w, Warning::JointNotFollowed { .. })),
+        "{:?}",
+        wrong.warnings
+    );
+    let rms = aligned_rms(&wrong.joints[1].positions, truth).expect("rms");
+    assert!(rms < 0.01, "positions {rms} rad RMS");
 }
 
 /// A joint whose pivot is 8 cm off is not followed by the fit at first; refined against its
