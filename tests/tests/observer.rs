@@ -26,6 +26,22 @@ fn discovered_arm(seed: u64) -> (kinetree_synth::SynthData, kinetree_core::Model
     (data, model)
 }
 
+/// The true trajectory of `model`'s joint `k` on the paper arm (its child's first point's
+/// true body, less the base, is the true joint).
+fn true_positions<'a>(
+    data: &'a kinetree_synth::SynthData,
+    model: &kinetree_core::Model,
+    k: usize,
+) -> &'a [f64] {
+    let child = model.joints[k].child;
+    &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1]
+}
+
+/// Whether the fit freed any joint of `model` (a `joint_not_followed` warning).
+fn any_joint_freed(model: &kinetree_core::Model) -> bool {
+    kinetree_tests::warned(model, |w| matches!(w, Warning::JointNotFollowed { .. }))
+}
+
 fn observe_all(
     observer: &Observer,
     tracks: &kinetree_core::Tracks,
@@ -224,10 +240,7 @@ fn a_joint_is_followed_from_two_child_points_and_unknown_from_none() {
 #[test]
 fn a_joint_the_model_gets_wrong_is_freed() {
     let (data, model) = discovered_arm(3);
-    let truth_of = |k: usize| {
-        let child = model.joints[k].child;
-        &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1]
-    };
+    let truth_of = |k: usize| true_positions(&data, &model, k);
     let before: Vec<f64> = (0..2)
         .map(|k| aligned_rms(&model.joints[k].positions, truth_of(k)).expect("rms"))
         .collect();
@@ -279,9 +292,7 @@ fn a_joint_the_model_gets_wrong_is_freed() {
 #[test]
 fn a_hinge_typed_as_a_slide_is_typed_back_by_the_fit() {
     let (data, model) = discovered_arm(3);
-    let child = model.joints[1].child;
-    let truth =
-        &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1];
+    let truth = true_positions(&data, &model, 1);
     assert!(
         model.joints[1].ranks.rotation <= 1,
         "{:?}",
@@ -300,14 +311,7 @@ fn a_hinge_typed_as_a_slide_is_typed_back_by_the_fit() {
         "{:?}",
         wrong.warnings
     );
-    assert!(
-        !wrong
-            .warnings
-            .iter()
-            .any(|w| matches!(w, Warning::JointNotFollowed { .. })),
-        "{:?}",
-        wrong.warnings
-    );
+    assert!(!any_joint_freed(&wrong), "{:?}", wrong.warnings);
     let rms = aligned_rms(&wrong.joints[1].positions, truth).expect("rms");
     assert!(rms < 0.01, "positions {rms} rad RMS");
 }
@@ -318,22 +322,13 @@ fn a_hinge_typed_as_a_slide_is_typed_back_by_the_fit() {
 #[test]
 fn a_joint_with_a_wrong_pivot_is_refined_back() {
     let (data, model) = discovered_arm(3);
-    let child = model.joints[1].child;
-    let truth =
-        &data.truth.joint_positions[data.truth.point_body[model.bodies[child].points[0]] - 1];
+    let truth = true_positions(&data, &model, 1);
     let mut wrong = model.clone();
     let p = wrong.joints[1].point_in_parent.expect("pivot");
     wrong.joints[1].point_in_parent = Some([p[0] + 0.08, p[1], p[2]]);
     wrong.warnings.clear();
     kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
-    assert!(
-        !wrong
-            .warnings
-            .iter()
-            .any(|w| matches!(w, Warning::JointNotFollowed { .. })),
-        "{:?}",
-        wrong.warnings
-    );
+    assert!(!any_joint_freed(&wrong), "{:?}", wrong.warnings);
     let axis =
         kinetree_core::nalgebra::Vector3::from(model.joints[1].axis_in_parent.expect("axis"));
     let offset =
