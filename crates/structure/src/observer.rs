@@ -1589,7 +1589,12 @@ fn type_by_fit(
         .collect();
     let reference = model.joints[k].reference_frame;
     let original = (model.joints.clone(), model.warnings.clone());
-    let mut best: Option<(f64, Model, Observer, Vec<FrameFit>)> = None;
+    let Some(cam_parent) = fits
+        .get(reference)
+        .and_then(|f| f.poses.get(parent).copied().flatten())
+    else {
+        return Ok(None);
+    };
     for &revolute in revolute {
         let Some(start) = candidate_joint(&relative, reference, revolute) else {
             continue;
@@ -1599,12 +1604,6 @@ fn type_by_fit(
         model.warnings.retain(
             |w| !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if this(p, c)),
         );
-        let Some(cam_parent) = fits
-            .get(reference)
-            .and_then(|f| f.poses.get(parent).copied().flatten())
-        else {
-            return Ok(None);
-        };
         model.joints[k].joint_type = if revolute { "revolute" } else { "prismatic" }.into();
         model.joints[k].dof = 1;
         store_joint(&mut model.joints[k], &start, &cam_parent);
@@ -1628,24 +1627,19 @@ fn type_by_fit(
         {
             continue;
         }
-        best = Some((own, model.clone(), trial, trial_fits));
-        break;
+        model.warnings.retain(
+            |w| !matches!(w, Warning::MultiDofJoint { parent: p, child: c, .. } if this(p, c)),
+        );
+        model.warnings.push(Warning::JointTypedByFit {
+            parent,
+            child,
+            joint_type: model.joints[k].joint_type.clone(),
+            excess_in_sigma2: own,
+        });
+        return Ok(Some((trial, trial_fits)));
     }
-    let Some((excess, typed, trial, trial_fits)) = best else {
-        (model.joints, model.warnings) = original;
-        return Ok(None);
-    };
-    *model = typed;
-    model
-        .warnings
-        .retain(|w| !matches!(w, Warning::MultiDofJoint { parent: p, child: c, .. } if this(p, c)));
-    model.warnings.push(Warning::JointTypedByFit {
-        parent,
-        child,
-        joint_type: model.joints[k].joint_type.clone(),
-        excess_in_sigma2: excess,
-    });
-    Ok(Some((trial, trial_fits)))
+    (model.joints, model.warnings) = original;
+    Ok(None)
 }
 
 /// A single-DoF joint's parameters (in the parent's frame) fitted to relative poses
