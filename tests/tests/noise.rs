@@ -21,7 +21,9 @@ fn noise_estimate_within_ten_percent_from_a_tenth_to_ten_millimetres() {
                     ..RandomParams::default()
                 };
                 let data = simulate(&random_scenario(&p)).expect("simulate");
-                let sigma = pipeline.run(&data.tracks).expect("run").model.noise.sigma_m;
+                // Stage 1 alone: `Pipeline::run` takes its noise level from `group` unchanged
+                // (the poses, tests and fits of 21-body trees would cost minutes here).
+                let sigma = pipeline.group(&data.tracks).expect("group").noise_sigma_m;
                 let err = sigma / noise - 1.0;
                 assert!(
                     err.abs() < 0.1,
@@ -29,6 +31,28 @@ fn noise_estimate_within_ten_percent_from_a_tenth_to_ten_millimetres() {
                 );
             }
         }
+    }
+}
+
+/// The estimate test above reads stage 1 alone (`Pipeline::group`); the whole run must report
+/// the same noise level and start from the same bodies.
+#[test]
+fn the_whole_run_reports_stage_ones_noise_level() {
+    let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+    for noise in [0.0005, 0.003] {
+        let p = RandomParams {
+            n_joints: 3,
+            noise_sigma_m: noise,
+            dropout: 0.1,
+            seed: 5,
+            ..RandomParams::default()
+        };
+        let data = simulate(&random_scenario(&p)).expect("simulate");
+        let g = pipeline.group(&data.tracks).expect("group");
+        let d = pipeline.run(&data.tracks).expect("run");
+        assert_eq!(g.noise_sigma_m, d.model.noise.sigma_m, "{noise} m");
+        assert!((g.noise_sigma_m / noise - 1.0).abs() < 0.1, "{noise} m");
+        assert_eq!(g.stats.count(0, 1), d.stats.count(0, 1));
     }
 }
 

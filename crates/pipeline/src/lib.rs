@@ -12,4 +12,4 @@ pub mod sweep;
 
 pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};
 pub use experiment::{ExperimentOutcome, load_data, run_experiment, write_results};
-pub use run::{Discovery, Pipeline};
+pub use run::{Discovery, Grouping, Pipeline};

@@ -51,6 +51,24 @@ pub struct Discovery {
     pub body_order: Vec<usize>,
 }
 
+/// Stage 1's results ([`Pipeline::group`]): what [`Pipeline::run`] builds the bodies from.
+#[derive(Debug, Clone)]
+pub struct Grouping {
+    /// Pair statistics.
+    pub stats: PairStats,
+    /// Per-coordinate noise, metres (given, or estimated and refined).
+    pub noise_sigma_m: f64,
+    /// Whether the noise level was given or estimated.
+    pub noise_source: NoiseSource,
+    /// The dissimilarity matrix at that noise level.
+    pub dissimilarity: DissimilarityMatrix,
+    /// The clustering's bodies (before any pose, split or point move).
+    pub segmentation: Segmentation,
+    /// Warnings so far: points never visible or never paired, inferred pairs, the noise
+    /// estimate, discarded clusters.
+    pub warnings: Vec<Warning>,
+}
+
 /// A discovery's own parts, before the pair statistics and the matrix join them.
 #[derive(Debug)]
 struct Found {
@@ -586,11 +604,14 @@ impl Pipeline {
             .is_some_and(|r| r <= SPLIT_RESIDUAL_IN_SIGMA * sigma))
     }
 
-    /// Runs the whole pipeline.
+    /// Stage 1 alone: the pair statistics, the noise level (given, or estimated and then
+    /// refined on the pairs inside the bodies it yields), the dissimilarity matrix and the
+    /// clustering. [`Pipeline::run`] starts from exactly this; a caller who only needs the
+    /// bodies or the noise level is spared the poses, tests and whole-tree fits.
     ///
     /// # Errors
-    /// [`Error::Degenerate`] when no body can be found or registered, and any stage's error.
-    pub fn run(&self, tracks: &Tracks) -> Result<Discovery> {
+    /// As [`Pipeline::run`]'s first stage: bad tracks, a failing stage, no noise estimate.
+    pub fn group(&self, tracks: &Tracks) -> Result<Grouping> {
         let mut warnings = Vec::new();
         let n = tracks.n_points();
         let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
@@ -623,7 +644,7 @@ impl Pipeline {
                 count: unknown_among_paired,
             });
         }
-        let (mut sigma, source) = match (self.noise_sigma_m, self.noise_estimator) {
+        let (mut sigma, noise_source) = match (self.noise_sigma_m, self.noise_estimator) {
             (Some(s), _) => (s, NoiseSource::Given),
             (None, NoiseEstimator::Mode) => (estimate_noise_sigma(&stats)?, NoiseSource::Estimated),
             (None, NoiseEstimator::NearestRigid) => (
@@ -632,7 +653,7 @@ impl Pipeline {
             ),
         };
         let (mut dmat, mut seg) = self.segment(tracks, &stats, sigma)?;
-        if source == NoiseSource::Estimated && self.noise_estimator == NoiseEstimator::Mode {
+        if noise_source == NoiseSource::Estimated && self.noise_estimator == NoiseEstimator::Mode {
             let first_guess = sigma;
             for _ in 0..NOISE_ROUNDS {
                 let Some(s) = refine_noise_sigma(&stats, &seg) else {
@@ -654,12 +675,36 @@ impl Pipeline {
                 (dmat, seg) = self.segment(tracks, &stats, sigma)?;
             }
         }
-        if source == NoiseSource::Estimated {
+        if noise_source == NoiseSource::Estimated {
             warnings.push(Warning::NoiseEstimated { sigma_m: sigma });
         }
         for g in &seg.discarded_groups {
             warnings.push(Warning::ClusterDiscarded { points: g.clone() });
         }
+        Ok(Grouping {
+            stats,
+            noise_sigma_m: sigma,
+            noise_source,
+            dissimilarity: dmat,
+            segmentation: seg,
+            warnings,
+        })
+    }
+
+    /// Discovers the model of `tracks`: [`Pipeline::group`], then the bodies' poses, the pair
+    /// tests, the tree and the whole-tree fit, with points moved between bodies over passes.
+    ///
+    /// # Errors
+    /// [`Error::Degenerate`] when no body can be found or registered, and any stage's error.
+    pub fn run(&self, tracks: &Tracks) -> Result<Discovery> {
+        let Grouping {
+            stats,
+            noise_sigma_m: sigma,
+            noise_source: source,
+            dissimilarity: dmat,
+            segmentation: mut seg,
+            warnings,
+        } = self.group(tracks)?;
         // Bodies, their poses and pair tests, then the model. Once a model exists, points that
         // another body's fitted motion explains better are moved there and the bodies redone,
         // at most MODEL_PASSES times; a pass stands only if the moved points then fit their
