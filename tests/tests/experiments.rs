@@ -100,6 +100,12 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
     let runs = run_sweep(&sweep, Path::new("."), &dir, &|_, _| {}).expect("runs");
     assert_eq!(runs.len(), 8);
     assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
+    // The identifiable ARI leaves out points without an identifiable owner: never below 1
+    // where every point is on its body.
+    for r in &runs {
+        let (plain, identifiable) = (r.ari.expect("ari"), r.identifiable_ari.expect("id ari"));
+        assert!(plain < 1.0 - 1e-12 || identifiable > 1.0 - 1e-12, "{r:?}");
+    }
     let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
     assert_eq!(csv, runs_csv(&sweep, &runs));
     assert_eq!(csv.lines().count(), 9, "{csv}");
@@ -176,6 +182,12 @@ fn list_valued_fields_expand_to_a_grid() {
     let runs = sweep.run(Path::new("."), &|_, _| {});
     assert_eq!(runs.len(), 4);
     assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
+    // The identifiable ARI leaves out points without an identifiable owner: never below 1
+    // where every point is on its body.
+    for r in &runs {
+        let (plain, identifiable) = (r.ari.expect("ari"), r.identifiable_ari.expect("id ari"));
+        assert!(plain < 1.0 - 1e-12 || identifiable > 1.0 - 1e-12, "{r:?}");
+    }
     // Lists also combine with [sweep.grid] and seeds.
     let both = INLINE.replace(
         "[data]",

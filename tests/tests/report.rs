@@ -68,7 +68,10 @@ constant threshold (the paper's SVD test is kept as `svd_rank` and used in this 
 Random box mechanisms (`kinetree_synth::random_scenario`), 20 seeds per row. "Joints exact":
 every joint found between the right bodies with its type; "structure exact": that and every
 keypoint on its body. Box corners hidden from the camera in every frame cannot be placed by
-any method, which keeps structure-exact rates below joints-exact ones.
+any method, which keeps structure-exact rates below joints-exact ones; nor can keypoints
+near a joint axis, which fit both bodies' motions within noise. "Identifiable ARI 1": every
+keypoint whose track fits no other body's true motion within noise
+(`kinetree_eval::ambiguous_points`) is on its body.
 
 ### Noise and clusterers (experiments/sweeps/noise-and-clusterers.toml)
 
