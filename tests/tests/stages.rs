@@ -345,3 +345,76 @@ fn robust_poses_survive_a_mistracked_keypoint() {
         "robust fit off by {robust_worst} deg (noise {noise}, plain {tilted})"
     );
 }
+
+/// Largest distance (metres) between each body's reference shape and its true keypoints
+/// after the best rigid alignment, per true body, for poses estimated on the true bodies.
+fn shape_errors(data: &kinetree_synth::SynthData, params: kinetree_pose::KabschParams) -> Vec<f64> {
+    use kinetree_core::{PoseEstimator, PoseInput, Segmentation};
+    let labels: Vec<Option<usize>> = data.truth.point_body.iter().map(|&b| Some(b)).collect();
+    let seg = Segmentation::from_raw(&labels, 3);
+    let poses = kinetree_pose::KabschPoses::new(params)
+        .expect("params")
+        .estimate(&PoseInput {
+            tracks: &data.tracks,
+            segmentation: &seg,
+            noise_sigma_m: 0.001,
+        })
+        .expect("poses");
+    poses
+        .bodies
+        .iter()
+        .map(|track| {
+            let (est, truth): (Vec<Point3<f64>>, Vec<Point3<f64>>) = track
+                .points
+                .iter()
+                .zip(&track.shape)
+                .zip(&track.placed)
+                .filter(|(_, placed)| **placed)
+                .map(|((&i, s), _)| (*s, data.truth.body_points[i]))
+                .unzip();
+            let fit = kabsch(&est, &truth).expect("three placed points");
+            est.iter()
+                .zip(&truth)
+                .map(|(e, t)| (fit * e - t).norm())
+                .fold(0.0, f64::max)
+        })
+        .collect()
+}
+
+/// A 7-joint tree of box links (mechanisms sweep, revolute trees, seed 13) at 1 mm: links hide
+/// each other, and a 6-point link is seen 3-5 points at a time. Its shape, averaged over the
+/// frames registered to it (the alternation alone), stays 1.6-7.2 mm off, and its poses miss
+/// their stated precision by 9-16 in chi^2 per degree of freedom: the pair tests called its
+/// two revolute joints multi-DoF. The Gauss-Newton steps bring every shape within 1 mm, and
+/// the pipeline finds every joint.
+#[test]
+fn shapes_seen_a_few_points_at_a_time_converge() {
+    use kinetree_pose::KabschParams;
+    let data = simulate(&kinetree_synth::random_scenario(
+        &kinetree_synth::RandomParams {
+            n_joints: 7,
+            tree: true,
+            prismatic_fraction: 0.0,
+            seed: 13,
+            ..Default::default()
+        },
+    ))
+    .expect("simulate");
+    let alternation = shape_errors(
+        &data,
+        KabschParams {
+            shape_steps: 0,
+            ..KabschParams::default()
+        },
+    );
+    let refined = shape_errors(&data, KabschParams::default());
+    let worst = |e: &[f64]| e.iter().copied().fold(0.0, f64::max);
+    assert!(worst(&alternation) > 3e-3, "alternation {alternation:?}");
+    assert!(worst(&refined) < 1e-3, "refined {refined:?}");
+    let d = kinetree_pipeline::Pipeline::from_config(&Default::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    let e = kinetree_eval::evaluate(&d.model, &data.truth);
+    assert!(e.joints_exact, "{:?}", e.joints);
+}

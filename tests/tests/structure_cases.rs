@@ -371,19 +371,19 @@ fn wrong_joints(spec: &kinetree_synth::MechanismSpec) -> (Vec<kinetree_core::War
 /// child's translation missed a line at chi2/dof 5.4 against a bound of 4.0 on case 287; off
 /// the line by 14 mm RMS with per-body poses, 1.6 mm with the whole-tree fit's). Tested again
 /// on the fitted poses, every joint comes out with its type (a `pairs_retested` warning).
-/// Before the retest, all three had a joint typed multi-DoF.
+/// Before the retest, all three had a joint typed multi-DoF. Since the reference shapes are
+/// refined by Gauss-Newton steps (session 9), case 287's parent is posed well enough for the
+/// first pair tests (no retest needed); cases 159 and 457 still need the retest.
 #[test]
 fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
     let specs = rate_draw(458);
-    for case in [159, 287, 457] {
+    for (case, needs_retest) in [(159, true), (287, false), (457, true)] {
         let (warnings, wrong) = wrong_joints(&specs[case]);
         assert!(wrong.is_empty(), "case {case}: wrong joints {wrong:?}");
-        assert!(
-            warnings
-                .iter()
-                .any(|w| matches!(w, kinetree_core::Warning::PairsRetested { .. })),
-            "case {case}: no retest"
-        );
+        let retested = warnings
+            .iter()
+            .any(|w| matches!(w, kinetree_core::Warning::PairsRetested { .. }));
+        assert!(retested || !needs_retest, "case {case}: no retest");
     }
 }
 

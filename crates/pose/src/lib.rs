@@ -3,6 +3,7 @@
 mod attach;
 mod kabsch;
 mod reference;
+mod shape;
 
 pub use attach::{MIN_SHARED_FRAMES, attach_unassigned, misfit_bound, point_misfit};
 pub use kabsch::{centroid, kabsch, rotation_cov_per_sigma2, rotation_std_per_sigma, spread};

@@ -14,6 +14,10 @@ pub struct KabschParams {
     /// Rounds of shape re-estimation (generalised Procrustes); each round can also place
     /// points first seen together with already placed ones.
     pub shape_passes: usize,
+    /// Gauss-Newton steps of the shape after the passes, the poses eliminated (see
+    /// `crate::shape`), stopped early once no point moves by a thousandth of the noise.
+    /// 0 keeps the plain alternation.
+    pub shape_steps: usize,
     /// A frame's visible points must spread at least this many noise std-devs along their
     /// second principal axis, else they count as collinear and the frame gets no pose.
     pub min_spread_in_sigma: f64,
@@ -32,6 +36,7 @@ impl Default for KabschParams {
     fn default() -> Self {
         Self {
             shape_passes: 4,
+            shape_steps: 10,
             min_spread_in_sigma: 1.0,
             outlier_in_sigma: None,
         }
@@ -73,14 +78,17 @@ impl KabschParams {
 /// The shape starts from the frame where the body shows the most points and is refined over
 /// `shape_passes` rounds: each frame with three or more placed, non-collinear visible points is
 /// registered to the current shape and its points, mapped back, are averaged. Any frame with
-/// three such points then gets a pose, even if it shares none with frame 0.
+/// three such points then gets a pose, even if it shares none with frame 0. Up to
+/// `shape_steps` Gauss-Newton steps of the shape, with the poses eliminated, then finish what
+/// the alternation leaves where occlusion changes the visible subset from frame to frame.
 ///
 /// Reference-pose rule: the body frame has its origin at the shape's centroid and the camera's
 /// axes at the body's reference frame, which is frame 0 when the body can be registered there
 /// and otherwise the first frame where it can (so `cam_from_body` there is a pure translation,
 /// as the paper's `P_0 = P_1` choice).
 ///
-/// Complexity: O(passes * T * n_b) per body.
+/// Complexity: O(passes * T * n_b) per body, plus per Gauss-Newton step O(T * v^2) with v
+/// points visible per frame and O(n_b^3) for its solve.
 #[derive(Debug, Clone)]
 pub struct KabschPoses {
     params: KabschParams,
@@ -176,6 +184,60 @@ impl KabschPoses {
                 if counts[k] > 0 {
                     shape[k] = Some(Point3::from(sums[k] / counts[k] as f64));
                 }
+            }
+        }
+        // The alternation crawls where frames see different subsets of the points (see
+        // `crate::shape`); Gauss-Newton steps with the poses eliminated finish the job.
+        // A step is kept when no frame loses its pose and the residual (poses refitted) does
+        // not rise, else halved up to three times (far from the optimum a full step can
+        // overshoot, and a frame of nearly collinear points can make it large).
+        let register = |shape: &[Option<Point3<f64>>]| {
+            let mut cost = 0.0;
+            let frames: Vec<crate::shape::FrameObs> = (0..t_len)
+                .filter_map(|t| {
+                    let (pose, used) = fit_with(shape, t)?;
+                    let kept: Vec<(usize, Point3<f64>)> = obs[t]
+                        .iter()
+                        .zip(&used)
+                        .filter(|(o, u)| **u && shape[o.0].is_some())
+                        .map(|(o, _)| *o)
+                        .collect();
+                    cost += kept
+                        .iter()
+                        .filter_map(|&(k, q)| shape[k].map(|s| (pose * s - q).norm_squared()))
+                        .sum::<f64>();
+                    Some((pose, kept))
+                })
+                .collect();
+            (frames, cost)
+        };
+        let tolerance = 1e-3 * sigma.max(1e-9);
+        let mut current = register(&shape);
+        for _ in 0..self.params.shape_steps {
+            let Some(step) = crate::shape::gauss_newton_step(&shape, &current.0) else {
+                break;
+            };
+            let largest = step.iter().map(|d| d.norm()).fold(0.0, f64::max);
+            if !largest.is_finite() {
+                break;
+            }
+            let mut scale = 1.0;
+            let mut kept = false;
+            for _ in 0..4 {
+                let trial: Vec<Option<Point3<f64>>> = shape
+                    .iter()
+                    .zip(&step)
+                    .map(|(s, d)| s.map(|s| s + d * scale))
+                    .collect();
+                let next = register(&trial);
+                if next.0.len() >= current.0.len() && next.1 <= current.1 {
+                    (shape, current, kept) = (trial, next, true);
+                    break;
+                }
+                scale *= 0.5;
+            }
+            if !kept || largest * scale < tolerance {
+                break;
             }
         }
         let placed: Vec<Point3<f64>> = shape.iter().flatten().copied().collect();
