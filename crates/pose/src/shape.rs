@@ -115,8 +115,14 @@ mod tests {
     use super::*;
     use kinetree_core::nalgebra::{Translation3, UnitQuaternion};
 
-    /// Frames of a 6-point shape seen 3-4 points at a time, and the frames' observations.
-    fn scene() -> (Vec<Point3<f64>>, Vec<Isometry3<f64>>, Vec<Vec<usize>>) {
+    /// A 6-point shape, 40 poses of it, and which points each frame sees (3 or 4).
+    struct Scene {
+        truth: Vec<Point3<f64>>,
+        poses: Vec<Isometry3<f64>>,
+        visible: Vec<Vec<usize>>,
+    }
+
+    fn scene() -> Scene {
         let truth = vec![
             Point3::new(0.0, 0.0, 0.0),
             Point3::new(0.2, 0.0, 0.0),
@@ -137,12 +143,20 @@ mod tests {
         let visible: Vec<Vec<usize>> = (0..40)
             .map(|t| (0..6).filter(|k| (t + k) % 5 < 3).collect())
             .collect();
-        (truth, poses, visible)
+        Scene {
+            truth,
+            poses,
+            visible,
+        }
     }
 
     #[test]
     fn a_few_steps_recover_a_shape_seen_a_few_points_at_a_time() {
-        let (truth, poses, visible) = scene();
+        let Scene {
+            truth,
+            poses,
+            visible,
+        } = scene();
         // A start 5 mm off per point, in a pattern no rigid motion undoes.
         let mut shape: Vec<Option<Point3<f64>>> = truth
             .iter()
