@@ -13,18 +13,37 @@ fn main() {
     divan::main();
 }
 
-fn discover(tracks: &Tracks) -> Model {
-    Pipeline::from_config(&PipelineConfig::default())
+fn discover_with(config: &PipelineConfig, tracks: &Tracks) -> Model {
+    Pipeline::from_config(config)
         .expect("pipeline")
         .run(tracks)
         .expect("discover")
         .model
 }
 
+fn discover(tracks: &Tracks) -> Model {
+    discover_with(&PipelineConfig::default(), tracks)
+}
+
 #[divan::bench(sample_count = 10)]
 fn discover_9_joints_80_points_150_frames(bencher: divan::Bencher) {
     let tracks = arm_tracks();
     bencher.bench_local(|| discover(divan::black_box(&tracks)));
+}
+
+/// The same without the Gauss-Newton steps of the reference shapes (`shape_steps = 0`), for
+/// their cost.
+#[divan::bench(sample_count = 10)]
+fn discover_without_shape_steps_9_joints_80_points_150_frames(bencher: divan::Bencher) {
+    let tracks = arm_tracks();
+    let config = PipelineConfig {
+        pose: kinetree_pipeline::config::PoseConfig::Kabsch(kinetree_pose::KabschParams {
+            shape_steps: 0,
+            ..Default::default()
+        }),
+        ..PipelineConfig::default()
+    };
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 
 #[divan::bench(sample_count = 20)]
