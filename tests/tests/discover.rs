@@ -80,6 +80,16 @@ fn branching_tree() {
     });
 }
 
+/// A random box mechanism simulated, and the default pipeline's discovery on it.
+fn discovered(params: &RandomParams) -> (kinetree_synth::SynthData, kinetree_pipeline::Discovery) {
+    let data = simulate(&random_scenario(params)).expect("simulate");
+    let d = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    (data, d)
+}
+
 #[test]
 fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
     use kinetree_core::Warning;
@@ -92,11 +102,7 @@ fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
         seed: 3,
         ..RandomParams::default()
     };
-    let data = simulate(&random_scenario(&params)).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
+    let (data, d) = discovered(&params);
     let m = &d.model;
     assert!(
         m.warnings
@@ -133,11 +139,7 @@ fn a_mixed_body_fitting_under_three_sigma_is_split() {
         seed: 0,
         ..RandomParams::default()
     };
-    let data = simulate(&random_scenario(&params)).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
+    let (data, d) = discovered(&params);
     let m = &d.model;
     let split: Vec<f64> = m
         .warnings

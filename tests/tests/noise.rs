@@ -35,7 +35,7 @@ fn noise_estimate_within_ten_percent_from_a_tenth_to_ten_millimetres() {
 }
 
 /// The estimate test above reads stage 1 alone (`Pipeline::group`); the whole run must report
-/// the same noise level and start from the same bodies.
+/// the same noise level and pair statistics.
 #[test]
 fn the_whole_run_reports_stage_ones_noise_level() {
     let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");

@@ -88,7 +88,8 @@ impl KabschParams {
 /// as the paper's `P_0 = P_1` choice).
 ///
 /// Complexity: O(passes * T * n_b) per body, plus per Gauss-Newton step O(T * v^2) with v
-/// points visible per frame and O(n_b^3) for its solve.
+/// points visible per frame and O(n_b^3) for its solve (bodies of up to 200 placed points;
+/// larger ones keep the alternation's shape).
 #[derive(Debug, Clone)]
 pub struct KabschPoses {
     params: KabschParams,
