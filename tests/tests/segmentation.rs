@@ -69,8 +69,9 @@ fn random_mechanisms(n: usize) -> Vec<MechanismSpec> {
 /// session 8 (an outlier point may leave its body, points judged from 5 frames, a point moved
 /// on a chi^2 gain of 16): 598 / 599 / 597 of 600 (misses: 350 with every clusterer, a 2 cm
 /// body turning 0.3 deg on its parent, merged with it; 513 hierarchical, a 17.7 cm link
-/// turning 2 deg merged with its 2.5 cm parent; DBSCAN 261 and 511, a few points). On the 30
-/// used here: 30 each (DBSCAN 28 before it
+/// turning 2 deg merged with its 2.5 cm parent; DBSCAN 261 and 511, a few points); session 9
+/// (reference shapes refined by Gauss-Newton, bodies split above 2.5 sigma): 599 / 599 / 598
+/// (513 and 511 fixed). On the 30 used here: 30 each (DBSCAN 28 before it
 /// regrouped its leftovers, which recovers cases 2 and 20: a 4-6 point body DBSCAN broke into
 /// fragments of 1-2 points). The bound leaves room for one miss each; the worst case must
 /// still be close (identifiable ARI above 0.85: a few points, not a body).
