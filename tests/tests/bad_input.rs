@@ -254,4 +254,26 @@ fn constant_and_sparse_data_give_typed_errors() {
     let sparse = Tracks::new(3, 3, xyz).expect("valid");
     assert!(matches!(given.run(&sparse), Err(Error::Degenerate(_))));
     assert!(matches!(estimate.run(&sparse), Err(Error::Degenerate(_))));
+    // Stage 1 alone says the same.
+    let e = estimate.group(&constant).expect_err("no noise to estimate");
+    assert!(
+        matches!(&e, Error::Degenerate(m) if m.contains("constant")),
+        "{e}"
+    );
+    let g = given.group(&constant).expect("one group");
+    assert_eq!(g.segmentation.n_bodies(), 1);
+    // Nothing paired: no body, and a warning per point (the whole run then has no body to
+    // pose and says so).
+    let g = given.group(&sparse).expect("stage 1 runs");
+    assert_eq!(g.segmentation.n_bodies(), 0);
+    for point in 0..3 {
+        assert!(
+            g.warnings.iter().any(
+                |w| matches!(w, kinetree_core::Warning::PointUnpaired { point: p } if *p == point)
+            ),
+            "{:?}",
+            g.warnings
+        );
+    }
+    assert!(matches!(estimate.group(&sparse), Err(Error::Degenerate(_))));
 }
