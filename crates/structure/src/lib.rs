@@ -139,6 +139,16 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 /// Prefers single-DoF edges with the best fit (minimum spanning tree on [`edge_cost`]-style
 /// costs, computed by petgraph's Kruskal).
 pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
+    spanning_tree_without(n_bodies, pairs, &[])
+}
+
+/// [`spanning_tree`] with the edges between the body pairs in `excluded` (either order) left
+/// out of the graph.
+pub fn spanning_tree_without(
+    n_bodies: usize,
+    pairs: &[PairDof],
+    excluded: &[(usize, usize)],
+) -> Option<Tree> {
     if n_bodies == 0 {
         return None;
     }
@@ -159,18 +169,20 @@ pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
             (r, false)
         }
     };
-    // Frames each body is posed in (its test against the camera's columns).
-    let posed: Vec<usize> = (0..n_bodies)
-        .map(|b| find_pair(pairs, None, b).map_or(0, |p| p.translation.n_columns))
-        .collect();
+    let costs = edge_costs(n_bodies, pairs);
     let mut g: UnGraph<usize, f64> = UnGraph::with_capacity(n_bodies, pairs.len());
     for b in 0..n_bodies {
         g.add_node(b);
     }
-    for p in pairs {
-        if let Some(a) = p.a {
-            let cost = edge_cost(p, missed_share(p, posed[a].min(posed[p.b])));
-            g.add_edge(NodeIndex::new(a), NodeIndex::new(p.b), cost);
+    for (p, cost) in pairs.iter().zip(&costs) {
+        if let (Some(a), Some(cost)) = (p.a, cost) {
+            if excluded
+                .iter()
+                .any(|&(x, y)| (x, y) == (a, p.b) || (y, x) == (a, p.b))
+            {
+                continue;
+            }
+            g.add_edge(NodeIndex::new(a), NodeIndex::new(p.b), *cost);
         }
     }
     let mst = petgraph::algo::min_spanning_tree(&g);
@@ -207,6 +219,62 @@ pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
         parent,
         order,
     })
+}
+
+/// The spanning tree's cost of every pair between two bodies ([`edge_cost`] with its
+/// [`missed_share`]); `None` for pairs with the camera.
+fn edge_costs(n_bodies: usize, pairs: &[PairDof]) -> Vec<Option<f64>> {
+    // Frames each body is posed in (its test against the camera's columns).
+    let posed: Vec<usize> = (0..n_bodies)
+        .map(|b| find_pair(pairs, None, b).map_or(0, |p| p.translation.n_columns))
+        .collect();
+    pairs
+        .iter()
+        .map(|p| {
+            let a = p.a?;
+            Some(edge_cost(p, missed_share(p, posed[a].min(posed[p.b]))))
+        })
+        .collect()
+}
+
+/// The single-DoF edges of `tree` (as `(parent, child)`) whose child another body outside its
+/// subtree reaches by a single-DoF pair costing at most `margin` more: near ties the edge
+/// costs cannot settle, which a whole-tree fit can. In order of the children.
+pub fn near_tied_edges(
+    n_bodies: usize,
+    pairs: &[PairDof],
+    tree: &Tree,
+    margin: f64,
+) -> Vec<(usize, usize)> {
+    let costs = edge_costs(n_bodies, pairs);
+    let cost_of = |a: usize, b: usize| {
+        pairs
+            .iter()
+            .zip(&costs)
+            .find(|(p, _)| (p.a == Some(a) && p.b == b) || (p.a == Some(b) && p.b == a))
+            .and_then(|(p, c)| p.joint.is_single_dof().then_some(*c).flatten())
+    };
+    let below = |c: usize, x: usize| {
+        // Whether `x` is `c` or one of its descendants.
+        let mut at = Some(x);
+        while let Some(b) = at {
+            if b == c {
+                return true;
+            }
+            at = tree.parent.get(b).copied().flatten();
+        }
+        false
+    };
+    (0..n_bodies)
+        .filter_map(|c| {
+            let p = tree.parent.get(c).copied().flatten()?;
+            let own = cost_of(p, c)?;
+            (0..n_bodies)
+                .filter(|&a| a != p && !below(c, a))
+                .any(|a| cost_of(a, c).is_some_and(|alt| alt <= own + margin))
+                .then_some((p, c))
+        })
+        .collect()
 }
 
 /// Joint positions of `pair.b` relative to `pair.a` at every frame, zero at the joint's
