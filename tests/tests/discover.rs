@@ -80,14 +80,11 @@ fn branching_tree() {
     });
 }
 
-/// A random box mechanism simulated, and the default pipeline's discovery on it.
-fn discovered(params: &RandomParams) -> (kinetree_synth::SynthData, kinetree_pipeline::Discovery) {
+/// A random box mechanism simulated, and the default pipeline's model of it.
+fn discovered(params: &RandomParams) -> (kinetree_synth::SynthData, kinetree_core::Model) {
     let data = simulate(&random_scenario(params)).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
-    (data, d)
+    let model = kinetree_tests::discover_default(&data.tracks);
+    (data, model)
 }
 
 #[test]
@@ -102,8 +99,8 @@ fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
         seed: 3,
         ..RandomParams::default()
     };
-    let (data, d) = discovered(&params);
-    let m = &d.model;
+    let (data, model) = discovered(&params);
+    let m = &model;
     assert!(
         m.warnings
             .iter()
@@ -139,8 +136,8 @@ fn a_mixed_body_fitting_under_three_sigma_is_split() {
         seed: 0,
         ..RandomParams::default()
     };
-    let (data, d) = discovered(&params);
-    let m = &d.model;
+    let (data, model) = discovered(&params);
+    let m = &model;
     let split: Vec<f64> = m
         .warnings
         .iter()

@@ -390,16 +390,7 @@ fn shape_errors(data: &kinetree_synth::SynthData, params: kinetree_pose::KabschP
 #[test]
 fn shapes_seen_a_few_points_at_a_time_converge() {
     use kinetree_pose::KabschParams;
-    let data = simulate(&kinetree_synth::random_scenario(
-        &kinetree_synth::RandomParams {
-            n_joints: 7,
-            tree: true,
-            prismatic_fraction: 0.0,
-            seed: 13,
-            ..Default::default()
-        },
-    ))
-    .expect("simulate");
+    let data = kinetree_tests::revolute_tree(7, 13);
     let alternation = shape_errors(
         &data,
         KabschParams {
@@ -411,10 +402,7 @@ fn shapes_seen_a_few_points_at_a_time_converge() {
     let worst = |e: &[f64]| e.iter().copied().fold(0.0, f64::max);
     assert!(worst(&alternation) > 3e-3, "alternation {alternation:?}");
     assert!(worst(&refined) < 1e-3, "refined {refined:?}");
-    let d = kinetree_pipeline::Pipeline::from_config(&Default::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
-    let e = kinetree_eval::evaluate(&d.model, &data.truth);
+    let model = kinetree_tests::discover_default(&data.tracks);
+    let e = kinetree_eval::evaluate(&model, &data.truth);
     assert!(e.joints_exact, "{:?}", e.joints);
 }

@@ -506,18 +506,8 @@ fn a_joint_tested_over_more_frames_wins_over_a_brief_one() {
 /// 1.78, so it replaces the model and every joint is found.
 #[test]
 fn a_near_tied_parent_is_chosen_by_the_whole_tree_fit() {
-    let params = kinetree_synth::RandomParams {
-        n_joints: 3,
-        tree: true,
-        prismatic_fraction: 0.0,
-        seed: 0,
-        ..Default::default()
-    };
-    let data = simulate(&kinetree_synth::random_scenario(&params)).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover");
-    let e = evaluate(&d.model, &data.truth);
+    let data = kinetree_tests::revolute_tree(3, 0);
+    let model = kinetree_tests::discover_default(&data.tracks);
+    let e = evaluate(&model, &data.truth);
     assert!(e.joints_exact, "{:?}", e.joints);
 }
