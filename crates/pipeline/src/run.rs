@@ -99,6 +99,7 @@ fn doubtful_joints(m: &Model) -> usize {
     multi_dof_joints(m) + not_followed(m).len() + typed_by_fit(m)
 }
 
+/// Joints of `m` typed multi-DoF.
 fn multi_dof_joints(m: &Model) -> usize {
     m.joints
         .iter()
@@ -106,6 +107,7 @@ fn multi_dof_joints(m: &Model) -> usize {
         .count()
 }
 
+/// Joints of `m` its whole-tree fit typed (a `joint_typed_by_fit` warning).
 fn typed_by_fit(m: &Model) -> usize {
     m.warnings
         .iter()
@@ -931,19 +933,17 @@ impl Pipeline {
         sigma: f64,
         source: NoiseSource,
     ) -> Result<Option<Found>> {
-        let (multi, typed) = (multi_dof_joints, typed_by_fit);
         // A joint typed by the fit was multi-DoF or not followed as its pair test typed it: a
         // hinge and a slide in series on a wrong tree edge can pass for one slide (rate-test
-        // case 411), so it counts as doubtful here too.
-        let bad = doubtful_joints;
-        let before = bad(&found.model);
+        // case 411), so it counts as doubtful here too (`doubtful_joints`).
+        let before = doubtful_joints(&found.model);
         if before == 0 {
             return Ok(None);
         }
         // Joints typed by the fit are left free for these poses: posed through such a joint, a
         // child would test as exactly that joint.
         let freed;
-        let motions = if typed(&found.model) > 0 {
+        let motions = if typed_by_fit(&found.model) > 0 {
             let mut model = found.model.clone();
             for w in &found.model.warnings {
                 if let Warning::JointTypedByFit { parent, child, .. } = w {
@@ -977,7 +977,8 @@ impl Pipeline {
         let reattached = not_followed(&found.model)
             .iter()
             .any(|&(p, c)| tree.parent.get(order[c]) != Some(&Some(order[p])));
-        if multi_edges >= multi(&found.model) + typed(&found.model) && !reattached {
+        if multi_edges >= multi_dof_joints(&found.model) + typed_by_fit(&found.model) && !reattached
+        {
             return Ok(None);
         }
         let mut again = self.model(
@@ -990,7 +991,7 @@ impl Pipeline {
             source,
             found.history.clone(),
         )?;
-        let after = bad(&again.model);
+        let after = doubtful_joints(&again.model);
         if after >= before {
             return Ok(None);
         }

@@ -221,19 +221,25 @@ pub fn spanning_tree_without(
     })
 }
 
-/// The spanning tree's cost of every pair between two bodies ([`edge_cost`] with its
-/// [`missed_share`]); `None` for pairs with the camera.
-fn edge_costs(n_bodies: usize, pairs: &[PairDof]) -> Vec<Option<f64>> {
-    // Frames each body is posed in (its test against the camera's columns).
-    let posed: Vec<usize> = (0..n_bodies)
+/// Frames each body is posed in (its test against the camera's columns).
+fn posed_frames(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
+    (0..n_bodies)
         .map(|b| find_pair(pairs, None, b).map_or(0, |p| p.translation.n_columns))
-        .collect();
+        .collect()
+}
+
+/// The spanning tree's cost of a pair between bodies `a` and `p.b` ([`edge_cost`] with its
+/// [`missed_share`]), `posed` from [`posed_frames`].
+fn pair_cost(p: &PairDof, a: usize, posed: &[usize]) -> f64 {
+    edge_cost(p, missed_share(p, posed[a].min(posed[p.b])))
+}
+
+/// [`pair_cost`] of every pair between two bodies; `None` for pairs with the camera.
+fn edge_costs(n_bodies: usize, pairs: &[PairDof]) -> Vec<Option<f64>> {
+    let posed = posed_frames(n_bodies, pairs);
     pairs
         .iter()
-        .map(|p| {
-            let a = p.a?;
-            Some(edge_cost(p, missed_share(p, posed[a].min(posed[p.b]))))
-        })
+        .map(|p| Some(pair_cost(p, p.a?, &posed)))
         .collect()
 }
 
@@ -246,13 +252,10 @@ pub fn near_tied_edges(
     tree: &Tree,
     margin: f64,
 ) -> Vec<(usize, usize)> {
-    let costs = edge_costs(n_bodies, pairs);
+    let posed = posed_frames(n_bodies, pairs);
     let cost_of = |a: usize, b: usize| {
-        pairs
-            .iter()
-            .zip(&costs)
-            .find(|(p, _)| (p.a == Some(a) && p.b == b) || (p.a == Some(b) && p.b == a))
-            .and_then(|(p, c)| p.joint.is_single_dof().then_some(*c).flatten())
+        let p = find_pair(pairs, Some(a), b).filter(|p| p.joint.is_single_dof())?;
+        Some(pair_cost(p, p.a?, &posed))
     };
     let below = |c: usize, x: usize| {
         // Whether `x` is `c` or one of its descendants.
