@@ -165,7 +165,6 @@ impl KabschPoses {
             }
             pose.map(|p| (p, used))
         };
-        let fit = |shape: &[Option<Point3<f64>>], t: usize| fit_with(shape, t).map(|f| f.0);
         for _ in 0..self.params.shape_passes {
             let mut sums = vec![kinetree_core::nalgebra::Vector3::zeros(); nb];
             let mut counts = vec![0usize; nb];
@@ -192,14 +191,20 @@ impl KabschPoses {
         // A step is kept when no frame loses its pose and the residual (poses refitted) does
         // not rise, else halved up to three times (far from the optimum a full step can
         // overshoot, and a frame of nearly collinear points can make it large).
+        // Every frame registered to `shape`: its pose (`None` where it cannot be registered),
+        // the registered frames' observations for the step, and their squared residual.
         let register = |shape: &[Option<Point3<f64>>]| {
+            let poses: Vec<Option<(Isometry3<f64>, Vec<bool>)>> =
+                (0..t_len).map(|t| fit_with(shape, t)).collect();
             let mut cost = 0.0;
-            let frames: Vec<crate::shape::FrameObs> = (0..t_len)
-                .filter_map(|t| {
-                    let (pose, used) = fit_with(shape, t)?;
+            let frames: Vec<crate::shape::FrameObs> = poses
+                .iter()
+                .enumerate()
+                .filter_map(|(t, fitted)| {
+                    let (pose, used) = fitted.as_ref()?;
                     let kept: Vec<(usize, Point3<f64>)> = obs[t]
                         .iter()
-                        .zip(&used)
+                        .zip(used)
                         .filter(|(o, u)| **u && shape[o.0].is_some())
                         .map(|(o, _)| *o)
                         .collect();
@@ -207,10 +212,12 @@ impl KabschPoses {
                         .iter()
                         .filter_map(|&(k, q)| shape[k].map(|s| (pose * s - q).norm_squared()))
                         .sum::<f64>();
-                    Some((pose, kept))
+                    Some((*pose, kept))
                 })
                 .collect();
-            (frames, cost)
+            let poses: Vec<Option<Isometry3<f64>>> =
+                poses.into_iter().map(|p| p.map(|p| p.0)).collect();
+            (frames, cost, poses)
         };
         let tolerance = 1e-3 * sigma.max(1e-9);
         let mut current = register(&shape);
@@ -242,7 +249,8 @@ impl KabschPoses {
             }
         }
         let placed: Vec<Point3<f64>> = shape.iter().flatten().copied().collect();
-        let mut poses: Vec<Option<Isometry3<f64>>> = (0..t_len).map(|t| fit(&shape, t)).collect();
+        // The poses of the last registration, which was to this shape.
+        let mut poses = current.2;
         let reference_frame = poses.iter().position(Option::is_some).unwrap_or(0);
         // Re-express the shape in the body frame: camera axes at the reference frame, origin at
         // the centroid of the placed points.
