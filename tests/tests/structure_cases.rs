@@ -511,3 +511,34 @@ fn a_near_tied_parent_is_chosen_by_the_whole_tree_fit() {
     let e = evaluate(&model, &data.truth);
     assert!(e.joints_exact, "{:?}", e.joints);
 }
+
+/// Mechanisms sweep, 5-joint revolute tree, seed 14: the hub link carrying three children
+/// never shows three keypoints at once (two, keypoints 11 and 15), so it has no pose and
+/// its children looked multi-DoF on the base. Posed through its hinge on the base, it takes
+/// its place in the tree and every joint is found; without the hinge step they are not.
+#[test]
+fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
+    let data = kinetree_tests::revolute_tree(5, 14);
+    let run = |hinged_bodies: bool| {
+        let cfg = PipelineConfig {
+            hinged_bodies,
+            ..PipelineConfig::default()
+        };
+        let model = Pipeline::from_config(&cfg)
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover")
+            .model;
+        let e = evaluate(&model, &data.truth);
+        (model, e)
+    };
+    let (model, e) = run(true);
+    assert!(e.joints_exact && e.ari > 1.0 - 1e-9, "{:?}", e.joints);
+    assert!(kinetree_tests::warned(&model, |w| matches!(
+        w,
+        kinetree_core::Warning::BodyPosedThroughHinge { points, parent: Some(_), .. }
+            if points == &[11, 15]
+    )));
+    let (_, without) = run(false);
+    assert!(!without.joints_exact, "found without the hinge step");
+}

@@ -40,6 +40,18 @@ pub enum Warning {
         /// The groups of points.
         groups: Vec<Vec<usize>>,
     },
+    /// Points on no body (seen too few at a time for a pose of their own, typically one or
+    /// two per frame) that turn together about one axis of a posed body or of the camera
+    /// frame; each group became a body posed through that hinge in the frames where one of
+    /// its points off the axis is visible.
+    BodyPosedThroughHinge {
+        /// The group's points.
+        points: Vec<usize>,
+        /// The points of the body it turns on when it was posed (`None`: the camera frame).
+        parent: Option<Vec<usize>>,
+        /// Frames it was posed in.
+        frames: usize,
+    },
     /// Points that a model's whole-tree fit placed on another body (its fitted motion
     /// explained their tracks better than their own body's), or on a body when they had none
     /// (it explained them clearly better than any other); they were moved there and the
@@ -160,6 +172,20 @@ impl std::fmt::Display for Warning {
                 f,
                 "point groups {groups:?} left unassigned by the clustering move as rigid bodies and became bodies"
             ),
+            Warning::BodyPosedThroughHinge {
+                points,
+                parent,
+                frames,
+            } => match parent {
+                Some(b) => write!(
+                    f,
+                    "point(s) {points:?}, on no body, turn together about one axis of the body of points {b:?} and became a body posed through that hinge in {frames} frame(s)"
+                ),
+                None => write!(
+                    f,
+                    "point(s) {points:?}, on no body, turn together about one axis fixed in the camera frame and became a body posed through that hinge in {frames} frame(s)"
+                ),
+            },
             Warning::PointsReassigned { points } => write!(
                 f,
                 "point(s) {points:?} fitted another body's motion better than their own (or, unassigned, one body's clearly best) and were moved to it"

@@ -160,7 +160,7 @@ pub enum NoiseEstimator {
 }
 
 /// The whole pipeline's configuration.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PipelineConfig {
     /// Per-coordinate noise std-dev in metres; estimated from the data when absent.
@@ -177,6 +177,25 @@ pub struct PipelineConfig {
     pub pose: PoseConfig,
     /// DoF tester.
     pub dof: DofConfig,
+    /// Pose keypoints that no body takes and that are seen too few at a time for a pose of
+    /// their own (one or two per frame) through a hinge on a posed body, when they turn
+    /// together about one of its axes (`kinetree_pose::hinged_body`). Default on.
+    pub hinged_bodies: bool,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            noise_sigma_m: None,
+            noise_estimator: NoiseEstimator::default(),
+            seed: 0,
+            dissimilarity: DissimilarityConfig::default(),
+            clustering: ClusteringConfig::default(),
+            pose: PoseConfig::default(),
+            dof: DofConfig::default(),
+            hinged_bodies: true,
+        }
+    }
 }
 
 /// Where an experiment's data come from.

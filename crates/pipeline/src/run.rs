@@ -32,6 +32,9 @@ pub struct Pipeline {
     pub noise_estimator: NoiseEstimator,
     /// Seed for the stages.
     pub seed: u64,
+    /// Whether keypoints on no body may become bodies posed through a hinge (see
+    /// [`PipelineConfig::hinged_bodies`]).
+    pub hinged_bodies: bool,
 }
 
 /// Everything a run produces: the model and the intermediate results behind it.
@@ -93,6 +96,14 @@ const MAX_TIE_BODIES: usize = 12;
 /// An alternative tree replaces the model when its keypoints' re-prediction RMS is lower by
 /// this fraction (first in a plain whole-tree fit, then finished).
 const TREE_TIE_GAIN: f64 = 0.02;
+
+/// A group of keypoints is posed through a hinge when it fits it within this bound on
+/// `chi^2 / dof` (Wilson-Hilferty at 4 std-devs, times this slack for the approximations of
+/// the predicted variance; the same rule as `kinetree_pose::attach_unassigned`'s).
+const HINGE_SLACK: f64 = 2.0;
+/// ... and its angle sweeps at least this many std-devs of one frame's angle: below, the
+/// group hardly turns and the hinge's axis is a guess.
+const MIN_HINGE_ARC_IN_STD: f64 = 20.0;
 
 /// Joints of `m` that are multi-DoF, not followed by its whole-tree fit, or typed by it.
 fn doubtful_joints(m: &Model) -> usize {
@@ -515,6 +526,7 @@ impl Pipeline {
             noise_sigma_m: c.noise_sigma_m,
             noise_estimator: c.noise_estimator,
             seed: c.seed,
+            hinged_bodies: c.hinged_bodies,
         })
     }
 
@@ -1144,7 +1156,116 @@ impl Pipeline {
             seg = seg.merged(&group);
             round += 1;
         }
+        let hinged = if self.hinged_bodies {
+            self.hinged_groups(tracks, dmat, &seg, &poses, sigma)?
+        } else {
+            Vec::new()
+        };
+        if !hinged.is_empty() {
+            let mut labels = seg.labels().to_vec();
+            let nb = seg.n_bodies();
+            for (k, h) in hinged.iter().enumerate() {
+                for &p in &h.track.points {
+                    labels[p] = Some(nb + k);
+                }
+                warnings.push(Warning::BodyPosedThroughHinge {
+                    points: h.track.points.clone(),
+                    parent: h.parent.map(|b| poses.bodies[b].points.clone()),
+                    frames: h.track.n_registered(),
+                });
+            }
+            let grouped: Vec<usize> = hinged.iter().flat_map(|h| h.track.points.clone()).collect();
+            let mut out = Segmentation::from_raw(&labels, 1);
+            out.discarded_groups = seg.discarded_groups_without(&grouped);
+            // `from_raw` numbers bodies by their first point: put the tracks in that order.
+            let mut tracks_by_first: Vec<BodyTrack> = std::mem::take(&mut poses.bodies);
+            tracks_by_first.extend(hinged.into_iter().map(|h| h.track));
+            poses.bodies = out
+                .members()
+                .iter()
+                .map(|pts| {
+                    tracks_by_first
+                        .iter()
+                        .find(|tr| tr.points == *pts)
+                        .cloned()
+                        .ok_or_else(|| Error::Numerical("a body lost its track".into()))
+                })
+                .collect::<Result<_>>()?;
+            seg = out;
+            pairs = self.all_pairs(&poses, sigma)?;
+        }
         Ok((seg, poses, pairs))
+    }
+
+    /// Groups of unassigned keypoints, each seen in [`kinetree_pose::MIN_HINGE_FRAMES`]
+    /// frames or more and explained by no body's poses, that turn together about one axis of
+    /// a posed body or of the camera frame (`kinetree_pose::hinged_body`: within
+    /// [`HINGE_SLACK`] of the noise, sweeping [`MIN_HINGE_ARC_IN_STD`]). A group that does
+    /// not is split in two by the dissimilarity, as in `regroup_unassigned`, down to two
+    /// keypoints. Of the hinges a group fits, the one posing it in the most frames is taken
+    /// (then the lowest `chi^2`): whichever body it turns on, its poses are the same.
+    ///
+    /// A link hidden by its neighbours so that at most two of its keypoints show at once
+    /// (mechanisms sweep, 7-joint revolute tree seed 14: its keypoints 11 and 15 in 174 and
+    /// 152 of 200 frames, never three) gets no pose of its own; its children then look
+    /// multi-DoF on the base.
+    fn hinged_groups(
+        &self,
+        tracks: &Tracks,
+        dmat: &DissimilarityMatrix,
+        seg: &Segmentation,
+        poses: &BodyPoses,
+        sigma: f64,
+    ) -> Result<Vec<kinetree_pose::Hinge>> {
+        let nb = poses.bodies.len();
+        let left: Vec<usize> = (0..tracks.n_points())
+            .filter(|&i| {
+                seg.body_of(i).is_none()
+                    && tracks.visible_count(i) >= kinetree_pose::MIN_HINGE_FRAMES
+                    && !(0..nb).any(|b| {
+                        kinetree_pose::point_misfit(tracks, poses, b, i, sigma)
+                            .is_some_and(|(m, k)| m <= kinetree_pose::misfit_bound(k, 4.0, 2.0))
+                    })
+            })
+            .collect();
+        let best_hinge = |group: &[usize]| {
+            std::iter::once(None)
+                .chain((0..nb).map(Some))
+                .filter_map(|parent| {
+                    kinetree_pose::hinged_body(tracks, poses, parent, group, sigma)
+                })
+                .filter(|h| {
+                    h.chi2_per_dof <= kinetree_pose::misfit_bound(h.dof, 4.0, HINGE_SLACK)
+                        && h.rigidity_chi2_per_dof
+                            <= kinetree_pose::misfit_bound(h.rigidity_dof, 4.0, HINGE_SLACK)
+                        && h.arc_in_std >= MIN_HINGE_ARC_IN_STD
+                })
+                .max_by(|x, y| {
+                    x.track
+                        .n_registered()
+                        .cmp(&y.track.n_registered())
+                        .then(y.chi2_per_dof.total_cmp(&x.chi2_per_dof))
+                })
+        };
+        let mut stack = vec![left];
+        let mut out = Vec::new();
+        while let Some(mut group) = stack.pop() {
+            if group.len() < 2 {
+                continue;
+            }
+            group.sort_unstable();
+            if let Some(h) = best_hinge(&group) {
+                out.push(h);
+                continue;
+            }
+            let parts = halves(dmat, &group)?;
+            if parts.len() == 1 && parts[0].len() == group.len() {
+                continue;
+            }
+            stack.extend(parts);
+        }
+        out.sort_by(|x, y| x.track.points.cmp(&y.track.points));
+        Ok(out)
     }
 
     #[allow(clippy::too_many_arguments)]

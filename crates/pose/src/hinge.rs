@@ -1,0 +1,412 @@
+//! Bodies seen too few points at a time to be registered on their own, posed through a hinge
+//! on a body that is (or on the camera frame).
+//!
+//! A link hidden by its neighbours may show one or two keypoints per frame and never three,
+//! so Kabsch-Umeyama cannot pose it, and every joint below it looks multi-DoF. If it turns on
+//! a posed body about one axis, each of its keypoints moves on a circle about that axis in
+//! the posed body's frame, and one visible keypoint off the axis fixes the angle. This module
+//! fits that hypothesis to a group of keypoints and, when it holds, poses the group in every
+//! frame where one of them is visible; the pair tests then treat the group like any body.
+
+use kinetree_core::nalgebra::{
+    DMatrix, DVector, Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector2,
+    Vector3,
+};
+use kinetree_core::{BodyPoses, BodyTrack, PoseQuality, Tracks};
+
+/// Fewest frames in which the parent is posed and a keypoint of the group is visible.
+pub const MIN_HINGE_FRAMES: usize = 10;
+
+/// The keypoint tracks must spread at least this many noise std-devs (RMS about their
+/// means) across the axis in the weaker in-plane direction, else the plane of the circles,
+/// hence the axis, is not determined.
+pub const MIN_HINGE_SPREAD_IN_SIGMA: f64 = 5.0;
+
+/// A keypoint nearer the axis than this many noise std-devs does not tell the angle.
+pub const MIN_LEVER_IN_SIGMA: f64 = 3.0;
+
+/// Rounds of alternation between the angles and the shape after the first estimate.
+const REFINE_ROUNDS: usize = 10;
+
+/// A group of keypoints posed through a hinge on `parent`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Hinge {
+    /// The body it turns on (`None`: the camera frame).
+    pub parent: Option<usize>,
+    /// Unit axis in the parent's body frame.
+    pub axis: Vector3<f64>,
+    /// A point of the axis in the parent's body frame.
+    pub pivot: Point3<f64>,
+    /// Residual of the keypoints about the fitted hinge: `chi^2 / dof` against the noise
+    /// (each keypoint's own noise plus the parent's pose noise at its lever arm).
+    pub chi2_per_dof: f64,
+    /// Degrees of freedom of that `chi^2`.
+    pub dof: f64,
+    /// Rigidity of the group itself, whatever it turns on: the distances of its keypoints
+    /// seen together, about their means, as `chi^2 / dof` against their noise (`2 sigma^2`).
+    /// 0 with no pair seen together twice.
+    pub rigidity_chi2_per_dof: f64,
+    /// Degrees of freedom of that `chi^2` (0: no pair seen together twice).
+    pub rigidity_dof: f64,
+    /// Angle swept (unwrapped, radians) over the median std-dev of a frame's angle.
+    pub arc_in_std: f64,
+    /// The group's poses: frames where the parent is posed and a keypoint off the axis is
+    /// visible, with the precision propagated from the parent's pose and the angle.
+    pub track: BodyTrack,
+}
+
+/// Rotation by `angle` about the line through `pivot` along unit `axis`.
+fn turn(axis: &Unit<Vector3<f64>>, pivot: &Point3<f64>, angle: f64) -> Isometry3<f64> {
+    let r = UnitQuaternion::from_axis_angle(axis, angle);
+    Isometry3::from_parts(Translation3::from(pivot.coords - r * pivot.coords), r)
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+/// Fits a hinge between `parent`'s poses (`None`: the camera frame) and the keypoints
+/// `points`, and poses them through it. Returns `None` when the data cannot support the
+/// hypothesis at all: fewer than two keypoints, a keypoint with under 3 frames or the group
+/// in under [`MIN_HINGE_FRAMES`] frames with the parent, tracks that do not spread across the
+/// axis ([`MIN_HINGE_SPREAD_IN_SIGMA`]), keypoints never seen together with the others, or no
+/// keypoint off the axis. Whether the hinge *holds* is the caller's decision, from
+/// [`Hinge::chi2_per_dof`] and [`Hinge::arc_in_std`].
+///
+/// Method: in the parent's frame every keypoint's samples lie in a plane normal to the axis,
+/// so the axis is the least principal direction of the scatter summed over the keypoints
+/// (each about its own mean); the pivot is the common centre of their circles (an algebraic
+/// circle fit, Kasa 1976, with one centre and a radius per keypoint); the angles follow from
+/// the keypoints' phases, their offsets from frames where two are seen together. Then the
+/// shape (keypoints at angle 0) and the angles are refined in turn, each exactly for the
+/// other (the angle of a frame by a 2D Procrustes fit). Axis and pivot stay at their first
+/// estimate, which is exact on noise-free data; the model's bundle adjustment refines them
+/// once the joint is in a model.
+///
+/// Complexity: O(T m) for m keypoints, plus an O(m^3) solve.
+pub fn hinged_body(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    parent: Option<usize>,
+    points: &[usize],
+    sigma: f64,
+) -> Option<Hinge> {
+    let m = points.len();
+    let nt = poses.n_frames;
+    if m < 2 || !(sigma.is_finite() && sigma > 0.0) || tracks.n_frames() != nt {
+        return None;
+    }
+    let parent_pose = |t: usize| -> Option<(Isometry3<f64>, Option<PoseQuality>)> {
+        match parent {
+            None => Some((Isometry3::identity(), None)),
+            Some(b) => poses.bodies[b].cam_from_body[t].map(|p| (p, poses.bodies[b].quality[t])),
+        }
+    };
+    // Samples in the parent's frame.
+    let mut z: Vec<Vec<Option<Point3<f64>>>> = vec![vec![None; nt]; m];
+    let mut frames = Vec::new();
+    for t in 0..nt {
+        let Some((pose, _)) = parent_pose(t) else {
+            continue;
+        };
+        let mut any = false;
+        for (zk, &i) in z.iter_mut().zip(points) {
+            if let Some(x) = tracks.get(t, i) {
+                zk[t] = Some(pose.inverse_transform_point(&x));
+                any = true;
+            }
+        }
+        if any {
+            frames.push(t);
+        }
+    }
+    let counts: Vec<usize> = z.iter().map(|zk| zk.iter().flatten().count()).collect();
+    if frames.len() < MIN_HINGE_FRAMES || counts.iter().any(|&c| c < 3) {
+        return None;
+    }
+    let n_samples: usize = counts.iter().sum();
+    let means: Vec<Vector3<f64>> = z
+        .iter()
+        .zip(&counts)
+        .map(|(zk, &c)| zk.iter().flatten().map(|p| p.coords).sum::<Vector3<f64>>() / c as f64)
+        .collect();
+    let mut scatter = Matrix3::zeros();
+    for (zk, mean) in z.iter().zip(&means) {
+        for p in zk.iter().flatten() {
+            let d = p.coords - mean;
+            scatter += d * d.transpose();
+        }
+    }
+    let eig = scatter.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&x, &y| eig.eigenvalues[x].total_cmp(&eig.eigenvalues[y]));
+    if eig.eigenvalues[order[1]] / (n_samples as f64) < (MIN_HINGE_SPREAD_IN_SIGMA * sigma).powi(2)
+    {
+        return None;
+    }
+    let mut a = eig.eigenvectors.column(order[0]).into_owned();
+    // Sign: a deterministic choice (largest component positive), so the angles' sign is too.
+    let big = a.iamax();
+    if a[big] < 0.0 {
+        a = -a;
+    }
+    let axis = Unit::new_normalize(a);
+    let u = eig.eigenvectors.column(order[2]).into_owned();
+    let v = a.cross(&u);
+    let plane = |p: &Point3<f64>| Vector2::new(p.coords.dot(&u), p.coords.dot(&v));
+    // Shared centre, one radius per keypoint: x^2 + y^2 + D x + E y + F_k = 0, in plane
+    // coordinates about the first keypoint's mean (for conditioning).
+    let cols = 2 + m;
+    let mut row = DVector::<f64>::zeros(cols);
+    let origin = plane(&Point3::from(means[0]));
+    let mut ata = DMatrix::<f64>::zeros(cols, cols);
+    let mut atb = DVector::<f64>::zeros(cols);
+    for (k, zk) in z.iter().enumerate() {
+        for p in zk.iter().flatten() {
+            let q = plane(p) - origin;
+            row.fill(0.0);
+            row[0] = q.x;
+            row[1] = q.y;
+            row[2 + k] = 1.0;
+            ata += &row * row.transpose();
+            atb += &row * -(q.x * q.x + q.y * q.y);
+        }
+    }
+    let sol = ata.cholesky()?.solve(&atb);
+    let centre2 = origin + Vector2::new(-sol[0] / 2.0, -sol[1] / 2.0);
+    let height = means.iter().map(|mu| mu.dot(&a)).sum::<f64>() / m as f64;
+    let pivot = Point3::from(u * centre2.x + v * centre2.y + a * height);
+    if !pivot.coords.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let phase = |p: &Point3<f64>| {
+        let d = p - pivot;
+        d.dot(&v).atan2(d.dot(&u))
+    };
+    let lever = |p: &Point3<f64>| {
+        let d = p - pivot;
+        (d - a * d.dot(&a)).norm()
+    };
+    let radius: Vec<f64> = z
+        .iter()
+        .zip(&counts)
+        .map(|(zk, &c)| zk.iter().flatten().map(lever).sum::<f64>() / c as f64)
+        .collect();
+    let tells = |k: usize| radius[k] >= MIN_LEVER_IN_SIGMA * sigma;
+    // Phase offsets of the keypoints, linked through frames where two are seen together,
+    // starting from the best seen keypoint off the axis.
+    let first = (0..m).filter(|&k| tells(k)).max_by(|&x, &y| {
+        (counts[x] as f64 * radius[x] * radius[x])
+            .total_cmp(&(counts[y] as f64 * radius[y] * radius[y]))
+            .then(y.cmp(&x))
+    })?;
+    let mut offset: Vec<Option<f64>> = vec![None; m];
+    offset[first] = Some(0.0);
+    loop {
+        let mut grown = false;
+        for j in (0..m).filter(|&j| tells(j)) {
+            if offset[j].is_some() {
+                continue;
+            }
+            // The linked keypoint sharing the most frames with j.
+            let best = (0..m)
+                .filter_map(|i| {
+                    let oi = offset[i]?;
+                    let (mut s, mut c, mut n) = (0.0, 0.0, 0usize);
+                    for (pj, pi) in z[j].iter().zip(&z[i]) {
+                        if let (Some(pj), Some(pi)) = (pj, pi) {
+                            let d = phase(pj) - phase(pi);
+                            s += d.sin();
+                            c += d.cos();
+                            n += 1;
+                        }
+                    }
+                    (n > 0).then(|| (n, oi + s.atan2(c)))
+                })
+                .max_by(|x, y| x.0.cmp(&y.0));
+            if let Some((_, o)) = best {
+                offset[j] = Some(o);
+                grown = true;
+            }
+        }
+        if !grown {
+            break;
+        }
+    }
+    if (0..m).any(|k| tells(k) && offset[k].is_none()) {
+        return None;
+    }
+    let mut angle: Vec<Option<f64>> = vec![None; nt];
+    for &t in &frames {
+        let (mut s, mut c) = (0.0, 0.0);
+        for k in (0..m).filter(|&k| tells(k)) {
+            if let (Some(p), Some(o)) = (z[k][t], offset[k]) {
+                let w = radius[k] * radius[k];
+                let d = phase(&p) - o;
+                s += w * d.sin();
+                c += w * d.cos();
+            }
+        }
+        if s != 0.0 || c != 0.0 {
+            angle[t] = Some(s.atan2(c));
+        }
+    }
+    // Shape at angle 0 and angles, in turn.
+    let mut shape = vec![Point3::origin(); m];
+    for _ in 0..REFINE_ROUNDS {
+        for k in 0..m {
+            let (mut acc, mut n) = (Vector3::zeros(), 0usize);
+            for t in 0..nt {
+                if let (Some(p), Some(th)) = (z[k][t], angle[t]) {
+                    acc += (turn(&axis, &pivot, -th) * p).coords;
+                    n += 1;
+                }
+            }
+            if n == 0 {
+                return None;
+            }
+            shape[k] = Point3::from(acc / n as f64);
+        }
+        for &t in &frames {
+            if angle[t].is_none() {
+                continue;
+            }
+            let (mut s, mut c) = (0.0, 0.0);
+            for k in 0..m {
+                if let Some(p) = z[k][t] {
+                    let from = shape[k] - pivot;
+                    let to = p - pivot;
+                    let from = Vector2::new(from.dot(&u), from.dot(&v));
+                    let to = Vector2::new(to.dot(&u), to.dot(&v));
+                    s += from.x * to.y - from.y * to.x;
+                    c += from.dot(&to);
+                }
+            }
+            angle[t] = Some(s.atan2(c));
+        }
+    }
+    // Residuals, the angle's precision and the poses.
+    let posed: Vec<usize> = frames
+        .iter()
+        .copied()
+        .filter(|&t| angle[t].is_some())
+        .collect();
+    let t0 = *posed.first()?;
+    let (p0, _) = parent_pose(t0)?;
+    let k_iso = p0 * turn(&axis, &pivot, angle[t0]?);
+    let centre = shape
+        .iter()
+        .map(|s| (k_iso * s).coords)
+        .sum::<Vector3<f64>>()
+        / m as f64;
+    let body_from_s = Translation3::from(-centre) * k_iso;
+    let s_from_body = body_from_s.inverse();
+    let body_shape: Vec<Point3<f64>> = shape.iter().map(|s| body_from_s * s).collect();
+    let mut cam_from_body = vec![None; nt];
+    let mut quality = vec![None; nt];
+    let (mut chi2, mut n_res) = (0.0, 0usize);
+    let mut angle_std = Vec::with_capacity(posed.len());
+    for &t in &posed {
+        let (pose, pq) = parent_pose(t)?;
+        let th = angle[t]?;
+        let h = turn(&axis, &pivot, th);
+        let (rot_p, orig_p, trans_std, rot_std) =
+            pq.map_or((Matrix3::zeros(), Matrix3::zeros(), 0.0, 0.0), |q| {
+                (
+                    q.rot_cov_per_sigma2,
+                    q.origin_cov_per_sigma2,
+                    q.trans_std_per_sigma,
+                    q.rot_std_per_sigma,
+                )
+            });
+        let (mut lever2, mut sq, mut n_vis) = (0.0, 0.0, 0usize);
+        for k in 0..m {
+            let Some(p) = z[k][t] else { continue };
+            let e = p - h * shape[k];
+            let var = 1.0 + trans_std * trans_std + (rot_std * p.coords.norm()).powi(2);
+            chi2 += e.norm_squared() / (sigma * sigma * var);
+            sq += e.norm_squared();
+            n_res += 1;
+            n_vis += 1;
+            lever2 += lever(&(h * shape[k])).powi(2);
+        }
+        let var_angle = 1.0 / lever2.max(f64::MIN_POSITIVE);
+        angle_std.push(var_angle.sqrt());
+        let p_from_body = h * s_from_body;
+        let rm = p_from_body.rotation.to_rotation_matrix().into_inner();
+        let o = p_from_body.translation.vector;
+        let swing = a.cross(&(o - pivot.coords));
+        let ox = o.cross_matrix();
+        let rot_cov = rm.transpose() * (rot_p + a * a.transpose() * var_angle) * rm;
+        let origin_cov = rm.transpose()
+            * (orig_p + ox * rot_p * ox.transpose() + swing * swing.transpose() * var_angle)
+            * rm;
+        cam_from_body[t] = Some(pose * p_from_body);
+        quality[t] = Some(PoseQuality::from_covariances(
+            n_vis,
+            (sq / n_vis as f64).sqrt(),
+            rot_cov,
+            origin_cov,
+        ));
+    }
+    // Unknowns: an angle per posed frame, 3 per keypoint, 4 for the axis line, less the
+    // angle's zero (a gauge).
+    let dof = 3.0 * n_res as f64 - (posed.len() + 3 * m + 3) as f64;
+    if dof < 1.0 {
+        return None;
+    }
+    let mut unwrapped = Vec::with_capacity(posed.len());
+    let mut last = 0.0;
+    for (x, &t) in posed.iter().enumerate() {
+        let th = angle[t]?;
+        last = if x == 0 { th } else { last + wrap(th - last) };
+        unwrapped.push(last);
+    }
+    // The group's own rigidity: a hinge absorbs one degree of freedom per frame, and the
+    // parent's pose noise at long lever arms can hide a group that bends.
+    let (mut rigid_chi2, mut rigid_dof) = (0.0, 0.0);
+    for i in 0..m {
+        for j in i + 1..m {
+            let d: Vec<f64> = (0..nt)
+                .filter_map(|t| {
+                    Some((tracks.get(t, points[i])? - tracks.get(t, points[j])?).norm())
+                })
+                .collect();
+            if d.len() < 2 {
+                continue;
+            }
+            let mean = d.iter().sum::<f64>() / d.len() as f64;
+            rigid_chi2 += d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (2.0 * sigma * sigma);
+            rigid_dof += (d.len() - 1) as f64;
+        }
+    }
+    let lo = unwrapped.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = unwrapped.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    angle_std.sort_by(f64::total_cmp);
+    let median_std = angle_std[angle_std.len() / 2] * sigma;
+    let frames_without = nt - posed.len();
+    Some(Hinge {
+        parent,
+        axis: a,
+        pivot,
+        chi2_per_dof: chi2 / dof,
+        dof,
+        rigidity_chi2_per_dof: if rigid_dof > 0.0 {
+            rigid_chi2 / rigid_dof
+        } else {
+            0.0
+        },
+        rigidity_dof: rigid_dof,
+        arc_in_std: (hi - lo) / median_std.max(f64::MIN_POSITIVE),
+        track: BodyTrack {
+            points: points.to_vec(),
+            shape: body_shape,
+            placed: vec![true; m],
+            reference_frame: t0,
+            cam_from_body,
+            quality,
+            frames_too_few_points: frames_without,
+            frames_degenerate: 0,
+        },
+    })
+}
