@@ -464,12 +464,22 @@ fn bundle_adjusted_axes_are_within_a_degree() {
 /// with a better fit ratio than the siblings' true joints with the base over a hundred, and
 /// the tree hung them on it; the fit freed those joints, but the tree stayed. Tested again on
 /// the whole-tree fit's poses, which pose the hidden link through its own joint in most
-/// frames (with their precision), every joint is found.
+/// frames (with their precision), every joint is found. (With the hidden link posed through
+/// its hinge where it lacks poses, seed 5 needs no retest any more: the retest is checked
+/// with the hinges off, and the default must get every joint too.)
 #[test]
 fn siblings_hidden_by_each_other_get_their_parent_back() {
     for seed in [5, 7] {
         let data = kinetree_tests::revolute_tree(7, seed);
-        let model = kinetree_tests::discover_default(&data.tracks);
+        let cfg = PipelineConfig {
+            hinged_bodies: false,
+            ..PipelineConfig::default()
+        };
+        let model = Pipeline::from_config(&cfg)
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover")
+            .model;
         let e = evaluate(&model, &data.truth);
         assert!(e.joints_exact, "seed {seed}: joints not exact");
         assert!(
@@ -479,6 +489,9 @@ fn siblings_hidden_by_each_other_get_their_parent_back() {
             )),
             "seed {seed}: no retest"
         );
+        let model = kinetree_tests::discover_default(&data.tracks);
+        let e = evaluate(&model, &data.truth);
+        assert!(e.joints_exact, "seed {seed}: joints not exact with the hinges");
     }
 }
 
@@ -536,9 +549,40 @@ fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
     assert!(e.joints_exact && e.ari > 1.0 - 1e-9, "{:?}", e.joints);
     assert!(kinetree_tests::warned(&model, |w| matches!(
         w,
-        kinetree_core::Warning::BodyPosedThroughHinge { points, parent: Some(_), .. }
-            if points == &[11, 15]
+        kinetree_core::Warning::BodyPosedThroughHinge { points, .. } if points == &[11, 15]
     )));
     let (_, without) = run(false);
     assert!(!without.joints_exact, "found without the hinge step");
+}
+
+/// Mechanisms sweep, 7-joint revolute tree, seed 3: links 2 and 3 show three keypoints at
+/// once in 32 and 81 of 200 frames; registered in those alone, their keypoints were mixed
+/// into each other's bodies and three joints were missed. Posed through their hinges where
+/// they lack poses of their own, every body and joint is found; without, not.
+#[test]
+fn links_registered_in_few_frames_are_posed_through_their_hinges() {
+    let data = kinetree_tests::revolute_tree(7, 3);
+    let run = |hinged_bodies: bool| {
+        let cfg = PipelineConfig {
+            hinged_bodies,
+            ..PipelineConfig::default()
+        };
+        let model = Pipeline::from_config(&cfg)
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover")
+            .model;
+        let e = evaluate(&model, &data.truth);
+        (model, e)
+    };
+    let (model, e) = run(true);
+    assert!(e.joints_exact, "{:?}", e.joints);
+    // A body with poses of its own had frames filled through a hinge on another body.
+    assert!(kinetree_tests::warned(&model, |w| matches!(
+        w,
+        kinetree_core::Warning::BodyPosedThroughHinge { points, frames, .. }
+            if model.bodies.iter().any(|b| &b.points == points && b.frames_registered > *frames)
+    )));
+    let (_, without) = run(false);
+    assert!(!without.joints_exact, "found without the hinges");
 }

@@ -104,6 +104,16 @@ const HINGE_SLACK: f64 = 2.0;
 /// ... and its angle sweeps at least this many std-devs of one frame's angle: below, the
 /// group hardly turns and the hinge's axis is a guess.
 const MIN_HINGE_ARC_IN_STD: f64 = 20.0;
+/// ... and its keypoints' RMS distance from where the hinge puts them is at most this many
+/// noise std-devs: the `chi^2` counts the parent's pose noise at each keypoint's lever arm,
+/// so a poorly posed parent passes almost any hinge (a link 20 mm RMS off a sibling's hinge
+/// passed at 1.8 against a bound of 2.6); pure keypoint noise gives about sqrt 3.
+const MAX_HINGE_RMS_IN_SIGMA: f64 = 3.0;
+/// A body registered in at most this share of the frames that show one of its keypoints is
+/// tried for a hinge (`Pipeline::reposed_through_hinges`) ...
+const MAX_REPOSED_SHARE: f64 = 0.5;
+/// ... and posed through it when that poses it in at least this many times as many frames.
+const MIN_REPOSE_GAIN: f64 = 1.5;
 
 /// Joints of `m` that are multi-DoF, not followed by its whole-tree fit, or typed by it.
 fn doubtful_joints(m: &Model) -> usize {
@@ -502,6 +512,34 @@ fn rigid_groups(n_bodies: usize, pairs: &[PairDof], forbidden: &[(usize, usize)]
         }
     }
     group
+}
+
+/// The hinge on a posed body other than `skip`, or on the camera frame, that poses `group`
+/// (see `Pipeline::hinged_groups`) in the most frames, then with the lowest `chi^2`:
+/// whichever body the group turns on, its poses are the same.
+fn best_hinge(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    group: &[usize],
+    skip: Option<usize>,
+    sigma: f64,
+) -> Option<kinetree_pose::Hinge> {
+    std::iter::once(None)
+        .chain((0..poses.bodies.len()).map(Some))
+        .filter(|&parent| parent.is_none() || parent != skip)
+        .filter_map(|parent| kinetree_pose::hinged_body(tracks, poses, parent, group, sigma))
+        .filter(|h| {
+            h.chi2_per_dof <= kinetree_pose::misfit_bound(h.dof, 4.0, HINGE_SLACK)
+                && h.rigidity_chi2_per_dof
+                    <= kinetree_pose::misfit_bound(h.rigidity_dof, 4.0, HINGE_SLACK)
+                && h.arc_in_std >= MIN_HINGE_ARC_IN_STD
+                && h.rms_residual_m <= MAX_HINGE_RMS_IN_SIGMA * sigma
+        })
+        .min_by(|x, y| {
+            x.rms_residual_m
+                .total_cmp(&y.rms_residual_m)
+                .then(y.track.n_registered().cmp(&x.track.n_registered()))
+        })
 }
 
 impl Pipeline {
@@ -1035,12 +1073,29 @@ impl Pipeline {
         let mut regroup_done = false;
         let mut split_rounds = 0;
         let mut cannot_link: Vec<(usize, usize)> = Vec::new();
+        let mut hinge_done = false;
+        let mut posed_by_hinge: Vec<Warning> = Vec::new();
         loop {
             poses = self.pose.estimate(&PoseInput {
                 tracks,
                 segmentation: &seg,
                 noise_sigma_m: sigma,
             })?;
+            // Bodies registered in few frames (or none: the groups made below) are posed
+            // through a hinge where they lack a pose of their own; redone on every pass, as
+            // the other bodies' poses change.
+            posed_by_hinge.clear();
+            if self.hinged_bodies {
+                for (b, h) in self.reposed_through_hinges(tracks, &poses, sigma) {
+                    let (track, filled) = kinetree_pose::filled_from_hinge(&poses.bodies[b], &h);
+                    posed_by_hinge.push(Warning::BodyPosedThroughHinge {
+                        points: track.points.clone(),
+                        parent: h.parent.map(|p| poses.bodies[p].points.clone()),
+                        frames: filled,
+                    });
+                    poses.bodies[b] = track;
+                }
+            }
             let drop: Vec<usize> = (0..poses.bodies.len())
                 .filter(|&b| poses.bodies[b].n_registered() < 2)
                 .collect();
@@ -1109,6 +1164,25 @@ impl Pipeline {
                     continue;
                 }
             }
+            if self.hinged_bodies && !hinge_done {
+                // Once, after the regrouping: unassigned points that turn together on a hinge
+                // become a body, posed through it on the next pass.
+                hinge_done = true;
+                let groups = self.hinged_groups(tracks, dmat, &seg, &poses, sigma)?;
+                if !groups.is_empty() {
+                    let mut labels = seg.labels().to_vec();
+                    for (k, g) in groups.iter().enumerate() {
+                        for &p in g {
+                            labels[p] = Some(seg.n_bodies() + k);
+                        }
+                    }
+                    let grouped: Vec<usize> = groups.iter().flatten().copied().collect();
+                    let mut out = Segmentation::from_raw(&labels, 1);
+                    out.discarded_groups = seg.discarded_groups_without(&grouped);
+                    seg = out;
+                    continue;
+                }
+            }
             if seg.n_bodies() == 0 {
                 return Err(Error::Degenerate(
                     "no rigid body of three or more points could be found and registered".into(),
@@ -1156,45 +1230,40 @@ impl Pipeline {
             seg = seg.merged(&group);
             round += 1;
         }
-        let hinged = if self.hinged_bodies {
-            self.hinged_groups(tracks, dmat, &seg, &poses, sigma)?
-        } else {
-            Vec::new()
-        };
-        if !hinged.is_empty() {
-            let mut labels = seg.labels().to_vec();
-            let nb = seg.n_bodies();
-            for (k, h) in hinged.iter().enumerate() {
-                for &p in &h.track.points {
-                    labels[p] = Some(nb + k);
-                }
-                warnings.push(Warning::BodyPosedThroughHinge {
-                    points: h.track.points.clone(),
-                    parent: h.parent.map(|b| poses.bodies[b].points.clone()),
-                    frames: h.track.n_registered(),
-                });
-            }
-            let grouped: Vec<usize> = hinged.iter().flat_map(|h| h.track.points.clone()).collect();
-            let mut out = Segmentation::from_raw(&labels, 1);
-            out.discarded_groups = seg.discarded_groups_without(&grouped);
-            // `from_raw` numbers bodies by their first point: put the tracks in that order.
-            let mut tracks_by_first: Vec<BodyTrack> = std::mem::take(&mut poses.bodies);
-            tracks_by_first.extend(hinged.into_iter().map(|h| h.track));
-            poses.bodies = out
-                .members()
-                .iter()
-                .map(|pts| {
-                    tracks_by_first
-                        .iter()
-                        .find(|tr| tr.points == *pts)
-                        .cloned()
-                        .ok_or_else(|| Error::Numerical("a body lost its track".into()))
-                })
-                .collect::<Result<_>>()?;
-            seg = out;
-            pairs = self.all_pairs(&poses, sigma)?;
-        }
+        // Each pass of `run` poses the bodies anew: only this pass's hinges stand.
+        warnings.retain(|w| !matches!(w, Warning::BodyPosedThroughHinge { .. }));
+        warnings.extend(posed_by_hinge);
         Ok((seg, poses, pairs))
+    }
+
+    /// Bodies registered in under half the frames that show one of their keypoints (at most
+    /// [`MAX_REPOSED_SHARE`]) that turn on another body about one axis (as in
+    /// `hinged_groups`), posed through that hinge instead when it poses them in at least
+    /// [`MIN_REPOSE_GAIN`] times as many frames. Returns `(body, hinge)` pairs, by body.
+    ///
+    /// A link hidden by its neighbours in most frames (a few frames with three keypoints,
+    /// many with one or two) is registered only in those few; its joints are then tested
+    /// over them alone, and its children's over the frames they share.
+    fn reposed_through_hinges(
+        &self,
+        tracks: &Tracks,
+        poses: &BodyPoses,
+        sigma: f64,
+    ) -> Vec<(usize, kinetree_pose::Hinge)> {
+        (0..poses.bodies.len())
+            .filter_map(|b| {
+                let track = &poses.bodies[b];
+                let shown = (0..poses.n_frames)
+                    .filter(|&t| track.points.iter().any(|&i| tracks.get(t, i).is_some()))
+                    .count();
+                let own = track.n_registered();
+                if own as f64 > MAX_REPOSED_SHARE * shown as f64 {
+                    return None;
+                }
+                let h = best_hinge(tracks, poses, &track.points, Some(b), sigma)?;
+                (h.track.n_registered() as f64 >= MIN_REPOSE_GAIN * own as f64).then_some((b, h))
+            })
+            .collect()
     }
 
     /// Groups of unassigned keypoints, each seen in [`kinetree_pose::MIN_HINGE_FRAMES`]
@@ -1216,7 +1285,7 @@ impl Pipeline {
         seg: &Segmentation,
         poses: &BodyPoses,
         sigma: f64,
-    ) -> Result<Vec<kinetree_pose::Hinge>> {
+    ) -> Result<Vec<Vec<usize>>> {
         let nb = poses.bodies.len();
         let left: Vec<usize> = (0..tracks.n_points())
             .filter(|&i| {
@@ -1228,25 +1297,6 @@ impl Pipeline {
                     })
             })
             .collect();
-        let best_hinge = |group: &[usize]| {
-            std::iter::once(None)
-                .chain((0..nb).map(Some))
-                .filter_map(|parent| {
-                    kinetree_pose::hinged_body(tracks, poses, parent, group, sigma)
-                })
-                .filter(|h| {
-                    h.chi2_per_dof <= kinetree_pose::misfit_bound(h.dof, 4.0, HINGE_SLACK)
-                        && h.rigidity_chi2_per_dof
-                            <= kinetree_pose::misfit_bound(h.rigidity_dof, 4.0, HINGE_SLACK)
-                        && h.arc_in_std >= MIN_HINGE_ARC_IN_STD
-                })
-                .max_by(|x, y| {
-                    x.track
-                        .n_registered()
-                        .cmp(&y.track.n_registered())
-                        .then(y.chi2_per_dof.total_cmp(&x.chi2_per_dof))
-                })
-        };
         let mut stack = vec![left];
         let mut out = Vec::new();
         while let Some(mut group) = stack.pop() {
@@ -1254,8 +1304,8 @@ impl Pipeline {
                 continue;
             }
             group.sort_unstable();
-            if let Some(h) = best_hinge(&group) {
-                out.push(h);
+            if best_hinge(tracks, poses, &group, None, sigma).is_some() {
+                out.push(group);
                 continue;
             }
             let parts = halves(dmat, &group)?;
@@ -1264,7 +1314,7 @@ impl Pipeline {
             }
             stack.extend(parts);
         }
-        out.sort_by(|x, y| x.track.points.cmp(&y.track.points));
+        out.sort();
         Ok(out)
     }
 

@@ -9,8 +9,8 @@
 //! frame where one of them is visible; the pair tests then treat the group like any body.
 
 use kinetree_core::nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector2,
-    Vector3,
+    DMatrix, DVector, Isometry3, Matrix3, Matrix3x2, Matrix4, Point3, Translation3, Unit,
+    UnitQuaternion, Vector2, Vector3,
 };
 use kinetree_core::{BodyPoses, BodyTrack, PoseQuality, Tracks};
 
@@ -28,6 +28,9 @@ pub const MIN_LEVER_IN_SIGMA: f64 = 3.0;
 /// Rounds of alternation between the angles and the shape after the first estimate.
 const REFINE_ROUNDS: usize = 10;
 
+/// Most Gauss-Newton steps of the whole hinge ([`refine`]).
+const GAUSS_NEWTON_STEPS: usize = 10;
+
 /// A group of keypoints posed through a hinge on `parent`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Hinge {
@@ -42,6 +45,10 @@ pub struct Hinge {
     pub chi2_per_dof: f64,
     /// Degrees of freedom of that `chi^2`.
     pub dof: f64,
+    /// RMS distance of the keypoints from where the hinge puts them, metres: the parent's
+    /// pose noise counts in full, so among hinges on different bodies it favours the one
+    /// that explains the keypoints best.
+    pub rms_residual_m: f64,
     /// Rigidity of the group itself, whatever it turns on: the distances of its keypoints
     /// seen together, about their means, as `chi^2 / dof` against their noise (`2 sigma^2`).
     /// 0 with no pair seen together twice.
@@ -59,6 +66,194 @@ pub struct Hinge {
 fn turn(axis: &Unit<Vector3<f64>>, pivot: &Point3<f64>, angle: f64) -> Isometry3<f64> {
     let r = UnitQuaternion::from_axis_angle(axis, angle);
     Isometry3::from_parts(Translation3::from(pivot.coords - r * pivot.coords), r)
+}
+
+/// Sum of squared distances of the samples `z[k][t]` from the hinge's prediction.
+fn hinge_sse(
+    z: &[Vec<Option<Point3<f64>>>],
+    shape: &[Point3<f64>],
+    angle: &[Option<f64>],
+    a: &Vector3<f64>,
+    pivot: &Point3<f64>,
+) -> f64 {
+    let axis = Unit::new_normalize(*a);
+    let mut sse = 0.0;
+    for (t, th) in angle.iter().enumerate() {
+        let Some(th) = th else { continue };
+        let h = turn(&axis, pivot, *th);
+        for (zk, s) in z.iter().zip(shape) {
+            if let Some(p) = zk[t] {
+                sse += (p - h * s).norm_squared();
+            }
+        }
+    }
+    sse
+}
+
+/// Gauss-Newton on every unknown of the hinge at once: axis direction (2), pivot across the
+/// axis (2), the shape at angle 0 (3 per keypoint) and one angle per posed frame, the angles
+/// eliminated frame by frame (each is one unknown, so its block is a scalar). A ridge of
+/// 1e-9 of the mean diagonal fixes the gauge (the angles' zero against a turn of the shape
+/// about the axis). A step is kept when the squared residual does not rise, else halved up
+/// to 3 times; the iteration stops after [`GAUSS_NEWTON_STEPS`] or when no keypoint moves
+/// by 1e-9 m.
+///
+/// Our own: no crate in the workspace fits a model with per-frame nuisance parameters, and
+/// the Schur elimination keeps the solve at the size of the shape (4 + 3m unknowns).
+///
+/// Derivatives of a sample's residual `r = z - p - R(a, th) (s - p)`, with `v = s - p` and
+/// `b` across the axis: `dr/dth = -a x R v`, `dr/ds = -R`, `dr/dp = -(I - R) b`, and for the
+/// axis tilted towards `b`, `-( (b x v) sin th + (b (a.v) + a (b.v)) (1 - cos th) )`.
+/// The hinge's normal equations with the angles eliminated (see [`refine`]): the Schur
+/// complement over (axis tilt, pivot shift, shape), its right-hand side, per frame
+/// `(t, coupling column, angle block, angle rhs)`, and the two directions across the axis.
+type Normal = (
+    DMatrix<f64>,
+    DVector<f64>,
+    Vec<(usize, DVector<f64>, f64, f64)>,
+    [Vector3<f64>; 2],
+);
+
+fn normal_equations(
+    z: &[Vec<Option<Point3<f64>>>],
+    shape: &[Point3<f64>],
+    angle: &[Option<f64>],
+    a: &Vector3<f64>,
+    pivot: &Point3<f64>,
+) -> Normal {
+    let g = 4 + 3 * shape.len();
+    let b1 = a
+        .cross(&if a.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        })
+        .normalize();
+    let b2 = a.cross(&b1);
+    let basis = [b1, b2];
+    let axis = Unit::new_normalize(*a);
+    let mut schur = DMatrix::<f64>::zeros(g, g);
+    let mut rhs = DVector::<f64>::zeros(g);
+    let mut per_frame = Vec::new();
+    let mut jg = DMatrix::<f64>::zeros(3, g);
+    for (t, th) in angle.iter().enumerate() {
+        let Some(th) = *th else { continue };
+        let h = turn(&axis, pivot, th);
+        let rot = h.rotation.to_rotation_matrix().into_inner();
+        let (sn, cs) = th.sin_cos();
+        let mut agt = DVector::<f64>::zeros(g);
+        let (mut d, mut bt) = (0.0, 0.0);
+        for (k, zk) in z.iter().enumerate() {
+            let Some(p) = zk[t] else { continue };
+            let v = shape[k] - pivot;
+            let r = p - h * shape[k];
+            let jt = -a.cross(&(rot * v));
+            jg.fill(0.0);
+            for (j, b) in basis.iter().enumerate() {
+                let da = -(b.cross(&v) * sn + (b * a.dot(&v) + a * b.dot(&v)) * (1.0 - cs));
+                let dp = -(b - rot * b);
+                for row in 0..3 {
+                    jg[(row, j)] = da[row];
+                    jg[(row, 2 + j)] = dp[row];
+                }
+            }
+            for row in 0..3 {
+                for col in 0..3 {
+                    jg[(row, 4 + 3 * k + col)] = -rot[(row, col)];
+                }
+            }
+            let jtv = DVector::from_column_slice(jt.as_slice());
+            let res = DVector::from_column_slice(r.as_slice());
+            schur += jg.transpose() * &jg;
+            rhs -= jg.transpose() * &res;
+            agt += jg.transpose() * &jtv;
+            d += jt.norm_squared();
+            bt -= jt.dot(&r);
+        }
+        if d > 0.0 {
+            per_frame.push((t, agt, d, bt));
+        }
+    }
+    for (_, agt, d, bt) in &per_frame {
+        schur -= agt * agt.transpose() / *d;
+        rhs -= agt * (*bt / *d);
+    }
+    let ridge = 1e-9 * schur.trace() / g as f64;
+    for i in 0..g {
+        schur[(i, i)] += ridge;
+    }
+    (schur, rhs, per_frame, basis)
+}
+
+/// Gauss-Newton on every unknown of the hinge at once: axis direction (2), pivot across the
+/// axis (2), the shape at angle 0 (3 per keypoint) and one angle per posed frame, the angles
+/// eliminated frame by frame (each is one unknown, so its block is a scalar). A ridge of
+/// 1e-9 of the mean diagonal fixes the gauge (the angles' zero against a turn of the shape
+/// about the axis). A step is kept when the squared residual does not rise, else halved up
+/// to 3 times; the iteration stops after [`GAUSS_NEWTON_STEPS`] or when no keypoint moves
+/// by 1e-9 m. Returns the axis, the pivot, and the covariance per sigma^2 of (axis tilt,
+/// pivot shift) along the two returned directions across the axis (rad^2 / m^2 and 1).
+///
+/// Our own: no crate in the workspace fits a model with per-frame nuisance parameters, and
+/// the Schur elimination keeps the solve at the size of the shape (4 + 3m unknowns).
+///
+/// Derivatives of a sample's residual `r = z - p - R(a, th) (s - p)`, with `v = s - p` and
+/// `b` across the axis: `dr/dth = -a x R v`, `dr/ds = -R`, `dr/dp = -(I - R) b`, and for the
+/// axis tilted towards `b`, `-( (b x v) sin th + (b (a.v) + a (b.v)) (1 - cos th) )`.
+fn refine(
+    z: &[Vec<Option<Point3<f64>>>],
+    shape: &mut [Point3<f64>],
+    angle: &mut [Option<f64>],
+    mut a: Vector3<f64>,
+    mut pivot: Point3<f64>,
+) -> (Vector3<f64>, Point3<f64>, Matrix4<f64>, [Vector3<f64>; 2]) {
+    let m = shape.len();
+    let mut sse = hinge_sse(z, shape, angle, &a, &pivot);
+    for _ in 0..GAUSS_NEWTON_STEPS {
+        let (schur, rhs, per_frame, [b1, b2]) = normal_equations(z, shape, angle, &a, &pivot);
+        let Some(step) = schur.cholesky().map(|c| c.solve(&rhs)) else {
+            break;
+        };
+        let mut scale = 1.0;
+        let mut kept = false;
+        for _ in 0..4 {
+            let trial_a = (a + b1 * (scale * step[0]) + b2 * (scale * step[1])).normalize();
+            let trial_p = pivot + b1 * (scale * step[2]) + b2 * (scale * step[3]);
+            let trial_shape: Vec<Point3<f64>> = (0..m)
+                .map(|k| {
+                    shape[k]
+                        + Vector3::new(step[4 + 3 * k], step[5 + 3 * k], step[6 + 3 * k]) * scale
+                })
+                .collect();
+            let mut trial_angle = angle.to_vec();
+            for (t, agt, d, bt) in &per_frame {
+                let dth = (bt - agt.dot(&step)) / d;
+                trial_angle[*t] = angle[*t].map(|x| x + scale * dth);
+            }
+            let trial_sse = hinge_sse(z, &trial_shape, &trial_angle, &trial_a, &trial_p);
+            if trial_sse.is_finite() && trial_sse <= sse {
+                sse = trial_sse;
+                a = trial_a;
+                pivot = trial_p;
+                shape.copy_from_slice(&trial_shape);
+                angle.copy_from_slice(&trial_angle);
+                kept = true;
+                break;
+            }
+            scale *= 0.5;
+        }
+        let largest = (0..m)
+            .map(|k| Vector3::new(step[4 + 3 * k], step[5 + 3 * k], step[6 + 3 * k]).norm())
+            .fold(0.0, f64::max);
+        if !kept || largest * scale < 1e-9 {
+            break;
+        }
+    }
+    let (schur, _, _, basis) = normal_equations(z, shape, angle, &a, &pivot);
+    let cov = schur.try_inverse().map_or(Matrix4::zeros(), |inv| {
+        inv.fixed_view::<4, 4>(0, 0).into_owned()
+    });
+    (a, pivot, cov, basis)
 }
 
 fn wrap(a: f64) -> f64 {
@@ -285,6 +480,13 @@ pub fn hinged_body(
             angle[t] = Some(s.atan2(c));
         }
     }
+    // Axis, pivot, shape and angles together (Gauss-Newton), then what follows from them.
+    let (a, pivot, line_cov, across) = refine(&z, &mut shape, &mut angle, a, pivot);
+    let axis = Unit::new_normalize(a);
+    let lever = |p: &Point3<f64>| {
+        let d = p - pivot;
+        (d - a * d.dot(&a)).norm()
+    };
     // Residuals, the angle's precision and the poses.
     let posed: Vec<usize> = frames
         .iter()
@@ -302,11 +504,25 @@ pub fn hinged_body(
     let body_from_s = Translation3::from(-centre) * k_iso;
     let s_from_body = body_from_s.inverse();
     let body_shape: Vec<Point3<f64>> = shape.iter().map(|s| body_from_s * s).collect();
+    let mut unwrapped = Vec::with_capacity(posed.len());
+    let mut last = 0.0;
+    for (x, &t) in posed.iter().enumerate() {
+        let th = angle[t]?;
+        last = if x == 0 { th } else { last + wrap(th - last) };
+        unwrapped.push(last);
+    }
+    // The axis line's own error (`line_cov`) is shared by every frame; each frame's stated
+    // precision counts it at the frame's angle from the middle of the swept range, where
+    // the shape is best determined, so that a pair test does not take it for motion.
+    let middle = unwrapped.iter().sum::<f64>() / unwrapped.len() as f64;
+    let across = Matrix3x2::from_columns(&across);
+    let tilt_cov = line_cov.fixed_view::<2, 2>(0, 0).into_owned();
+    let shift_cov = line_cov.fixed_view::<2, 2>(2, 2).into_owned();
     let mut cam_from_body = vec![None; nt];
     let mut quality = vec![None; nt];
-    let (mut chi2, mut n_res) = (0.0, 0usize);
+    let (mut chi2, mut n_res, mut sum_sq) = (0.0, 0usize, 0.0);
     let mut angle_std = Vec::with_capacity(posed.len());
-    for &t in &posed {
+    for (&t, &turned) in posed.iter().zip(&unwrapped) {
         let (pose, pq) = parent_pose(t)?;
         let th = angle[t]?;
         let h = turn(&axis, &pivot, th);
@@ -326,6 +542,7 @@ pub fn hinged_body(
             let var = 1.0 + trans_std * trans_std + (rot_std * p.coords.norm()).powi(2);
             chi2 += e.norm_squared() / (sigma * sigma * var);
             sq += e.norm_squared();
+            sum_sq += e.norm_squared();
             n_res += 1;
             n_vis += 1;
             lever2 += lever(&(h * shape[k])).powi(2);
@@ -337,9 +554,25 @@ pub fn hinged_body(
         let o = p_from_body.translation.vector;
         let swing = a.cross(&(o - pivot.coords));
         let ox = o.cross_matrix();
-        let rot_cov = rm.transpose() * (rot_p + a * a.transpose() * var_angle) * rm;
+        // A tilt of the axis by e (across it) turns the frame by sin(d) e + (1 - cos d) a x e
+        // at an angle d from the middle; a shift of the pivot by q moves it by (I - R(d)) q.
+        let (sn, cs) = (turned - middle).sin_cos();
+        let tilt = across * sn + a.cross_matrix() * across * (1.0 - cs);
+        let shift = (Matrix3::identity()
+            - turn(&axis, &Point3::origin(), turned - middle)
+                .rotation
+                .to_rotation_matrix()
+                .into_inner())
+            * across;
+        let lever_o = (o - pivot.coords).cross_matrix();
+        let line_rot = tilt * tilt_cov * tilt.transpose();
+        let rot_cov = rm.transpose() * (rot_p + a * a.transpose() * var_angle + line_rot) * rm;
         let origin_cov = rm.transpose()
-            * (orig_p + ox * rot_p * ox.transpose() + swing * swing.transpose() * var_angle)
+            * (orig_p
+                + ox * rot_p * ox.transpose()
+                + swing * swing.transpose() * var_angle
+                + lever_o * line_rot * lever_o.transpose()
+                + shift * shift_cov * shift.transpose())
             * rm;
         cam_from_body[t] = Some(pose * p_from_body);
         quality[t] = Some(PoseQuality::from_covariances(
@@ -354,13 +587,6 @@ pub fn hinged_body(
     let dof = 3.0 * n_res as f64 - (posed.len() + 3 * m + 3) as f64;
     if dof < 1.0 {
         return None;
-    }
-    let mut unwrapped = Vec::with_capacity(posed.len());
-    let mut last = 0.0;
-    for (x, &t) in posed.iter().enumerate() {
-        let th = angle[t]?;
-        last = if x == 0 { th } else { last + wrap(th - last) };
-        unwrapped.push(last);
     }
     // The group's own rigidity: a hinge absorbs one degree of freedom per frame, and the
     // parent's pose noise at long lever arms can hide a group that bends.
@@ -391,6 +617,7 @@ pub fn hinged_body(
         pivot,
         chi2_per_dof: chi2 / dof,
         dof,
+        rms_residual_m: (sum_sq / n_res as f64).sqrt(),
         rigidity_chi2_per_dof: if rigid_dof > 0.0 {
             rigid_chi2 / rigid_dof
         } else {
@@ -409,4 +636,68 @@ pub fn hinged_body(
             frames_degenerate: 0,
         },
     })
+}
+
+/// `own` (a body's own poses) with the frames it lacks filled from `hinge`'s poses of the
+/// same keypoints, expressed in `own`'s body frame: the two frames differ by a constant
+/// motion, estimated over the frames both pose (quaternion and translation means). With no
+/// such frame, the hinge's track is returned as it is. Returns the track and the number of
+/// frames filled.
+///
+/// Where a body has poses of its own they are kept: a hinge on the wrong body can fit
+/// within the noise (two links turning about axes 3 deg apart through one anchor), and its
+/// poses then bend the body's joints with every other body.
+pub fn filled_from_hinge(own: &BodyTrack, hinge: &Hinge) -> (BodyTrack, usize) {
+    let h = &hinge.track;
+    let both: Vec<Isometry3<f64>> = own
+        .cam_from_body
+        .iter()
+        .zip(&h.cam_from_body)
+        .filter_map(|(k, p)| Some(p.as_ref()?.inverse() * k.as_ref()?))
+        .collect();
+    let Some(first) = both.first() else {
+        let filled = h.n_registered();
+        return (h.clone(), filled);
+    };
+    // Hinge body frame from own body frame: mean rotation (quaternions on one hemisphere)
+    // and mean translation.
+    let mut q = kinetree_core::nalgebra::Vector4::zeros();
+    let mut tr = Vector3::zeros();
+    for d in &both {
+        let c = d.rotation.coords;
+        q += if c.dot(&first.rotation.coords) < 0.0 {
+            -c
+        } else {
+            c
+        };
+        tr += d.translation.vector;
+    }
+    let rot = UnitQuaternion::from_quaternion(kinetree_core::nalgebra::Quaternion::from(q));
+    let offset = Isometry3::from_parts(Translation3::from(tr / both.len() as f64), rot);
+    let rd = rot.to_rotation_matrix().into_inner();
+    let dx = offset.translation.vector.cross_matrix();
+    let mut out = own.clone();
+    let mut filled = 0;
+    for t in 0..out.cam_from_body.len() {
+        if out.cam_from_body[t].is_some() {
+            continue;
+        }
+        let (Some(p), Some(qh)) = (h.cam_from_body[t], h.quality[t]) else {
+            continue;
+        };
+        out.cam_from_body[t] = Some(p * offset);
+        let rot_cov = rd.transpose() * qh.rot_cov_per_sigma2 * rd;
+        let origin_cov = rd.transpose()
+            * (qh.origin_cov_per_sigma2 + dx * qh.rot_cov_per_sigma2 * dx.transpose())
+            * rd;
+        out.quality[t] = Some(PoseQuality::from_covariances(
+            qh.n_visible,
+            qh.rms_residual_m,
+            rot_cov,
+            origin_cov,
+        ));
+        filled += 1;
+    }
+    out.frames_too_few_points = out.frames_too_few_points.saturating_sub(filled);
+    (out, filled)
 }
