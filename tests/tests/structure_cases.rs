@@ -491,7 +491,10 @@ fn siblings_hidden_by_each_other_get_their_parent_back() {
         );
         let model = kinetree_tests::discover_default(&data.tracks);
         let e = evaluate(&model, &data.truth);
-        assert!(e.joints_exact, "seed {seed}: joints not exact with the hinges");
+        assert!(
+            e.joints_exact,
+            "seed {seed}: joints not exact with the hinges"
+        );
     }
 }
 
