@@ -46,6 +46,27 @@ fn discover_without_shape_steps_9_joints_80_points_150_frames(bencher: divan::Be
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 
+/// A 10-joint tree of box links that hide each other (the mechanisms sweep's revolute tree,
+/// seed 7, 110 keypoints, 200 frames at 1 mm): three links get 108-174 frames each from
+/// their hinges, and every joint is found only with them. With and without the hinges, for
+/// their cost.
+#[divan::bench(args = [true, false], sample_count = 5)]
+fn discover_hidden_links_10_joints_110_points_200_frames(bencher: divan::Bencher, hinged: bool) {
+    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+        n_joints: 10,
+        prismatic_fraction: 0.0,
+        tree: true,
+        seed: 7,
+        ..Default::default()
+    });
+    let tracks = kinetree_synth::simulate(&scenario).expect("simulate").tracks;
+    let config = PipelineConfig {
+        hinged_bodies: hinged,
+        ..PipelineConfig::default()
+    };
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
+
 #[divan::bench(sample_count = 20)]
 fn fit_model_positions_9_joints_80_points_150_frames(bencher: divan::Bencher) {
     let tracks = arm_tracks();
