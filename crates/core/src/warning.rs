@@ -52,6 +52,13 @@ pub enum Warning {
         /// Frames it was posed in.
         frames: usize,
     },
+    /// Points that fitted their body's motion in the model's whole-tree fit far worse than
+    /// its other points, and no other body's either; they were left on no body and the
+    /// bodies, joints and positions redone.
+    PointsUnassigned {
+        /// The points.
+        points: Vec<usize>,
+    },
     /// Points that a model's whole-tree fit placed on another body (its fitted motion
     /// explained their tracks better than their own body's), or on a body when they had none
     /// (it explained them clearly better than any other); they were moved there and the
@@ -186,6 +193,10 @@ impl std::fmt::Display for Warning {
                     "point(s) {points:?}, on no body, turn together about one axis fixed in the camera frame and became a body posed through that hinge in {frames} frame(s)"
                 ),
             },
+            Warning::PointsUnassigned { points } => write!(
+                f,
+                "point(s) {points:?} fitted their body's motion far worse than its other points, and no other body's; they were left on no body"
+            ),
             Warning::PointsReassigned { points } => write!(
                 f,
                 "point(s) {points:?} fitted another body's motion better than their own (or, unassigned, one body's clearly best) and were moved to it"

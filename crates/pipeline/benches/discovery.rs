@@ -59,7 +59,9 @@ fn discover_hidden_links_10_joints_110_points_200_frames(bencher: divan::Bencher
         seed: 7,
         ..Default::default()
     });
-    let tracks = kinetree_synth::simulate(&scenario).expect("simulate").tracks;
+    let tracks = kinetree_synth::simulate(&scenario)
+        .expect("simulate")
+        .tracks;
     let config = PipelineConfig {
         hinged_bodies: hinged,
         ..PipelineConfig::default()

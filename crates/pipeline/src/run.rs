@@ -808,9 +808,12 @@ impl Pipeline {
         let mut history = warnings;
         let mut previous: Option<Found> = None;
         let mut moved: Vec<usize> = Vec::new();
+        // Points a model found fitting no body's motion: not attached again by their poses.
+        let mut unassigned: Vec<usize> = Vec::new();
         let mut pass = 0;
         let found = loop {
-            let (bodies, poses, pairs) = self.bodies(tracks, &dmat, seg, sigma, &mut history)?;
+            let (bodies, poses, pairs) =
+                self.bodies(tracks, &dmat, seg, sigma, &mut history, &unassigned)?;
             let mut found = self.model(
                 tracks,
                 &dmat,
@@ -838,7 +841,17 @@ impl Pipeline {
             } else {
                 Vec::new()
             };
+            let ejected: Vec<usize> = if pass < MODEL_PASSES {
+                motions
+                    .points_fitting_no_body(&found.model, tracks)?
+                    .into_iter()
+                    .filter(|i| !moves.iter().any(|(p, _)| p == i))
+                    .collect()
+            } else {
+                Vec::new()
+            };
             if moves.is_empty()
+                && ejected.is_empty()
                 && let Some(again) =
                     self.retest_on_fitted_poses(tracks, &dmat, &found, &motions, sigma, source)?
             {
@@ -848,17 +861,29 @@ impl Pipeline {
                         .points_fitting_another_body(&found.model, tracks)?;
                 }
             }
-            if moves.is_empty() {
+            if moves.is_empty() && ejected.is_empty() {
                 break found;
             }
             let mut labels = found.segmentation.labels().to_vec();
             for &(point, body) in &moves {
                 labels[point] = Some(found.body_order[body]);
             }
+            for &point in &ejected {
+                labels[point] = None;
+            }
             moved = moves.iter().map(|&(point, _)| point).collect();
-            history.push(Warning::PointsReassigned {
-                points: moved.clone(),
-            });
+            if !moved.is_empty() {
+                history.push(Warning::PointsReassigned {
+                    points: moved.clone(),
+                });
+            }
+            if !ejected.is_empty() {
+                history.push(Warning::PointsUnassigned {
+                    points: ejected.clone(),
+                });
+                moved.extend(&ejected);
+                unassigned.extend(&ejected);
+            }
             seg = Segmentation::from_raw(&labels, 1);
             seg.discarded_groups = found.segmentation.discarded_groups.clone();
             previous = Some(found);
@@ -1065,6 +1090,7 @@ impl Pipeline {
         mut seg: Segmentation,
         sigma: f64,
         warnings: &mut Vec<Warning>,
+        keep_off: &[usize],
     ) -> Result<(Segmentation, BodyPoses, Vec<PairDof>)> {
         let mut poses;
         let mut pairs;
@@ -1138,7 +1164,7 @@ impl Pipeline {
                 // Once: give discarded points to the one body whose poses explain them.
                 attach_done = true;
                 let (refined, attached) =
-                    kinetree_pose::attach_unassigned(tracks, &poses, &seg, sigma);
+                    kinetree_pose::attach_unassigned(tracks, &poses, &seg, sigma, keep_off);
                 if !attached.is_empty() {
                     warnings.push(Warning::PointsAttached { points: attached });
                     seg = refined;

@@ -60,8 +60,9 @@ pub fn misfit_bound(k: f64, z: f64, slack: f64) -> f64 {
 /// Gives every unassigned point (seen in at least [`MIN_SHARED_FRAMES`] frames with some body)
 /// to the body whose poses explain it, when exactly one body does ([`point_misfit`] below
 /// [`misfit_bound`] with `z = 4`, slack 2). Assigned points are never moved. A point near a
-/// joint axis can fit two bodies, and such points stay unassigned. Returns the new
-/// segmentation and the points attached.
+/// joint axis can fit two bodies, and such points stay unassigned. Points in `keep_off` are
+/// never attached (the pipeline's model found them fitting no body's motion). Returns the
+/// new segmentation and the points attached.
 ///
 /// Pairwise tests discard a point whose own noise happened to be high over its few visible
 /// frames, because every pair it belongs to shares that noise. This test looks at the point
@@ -73,12 +74,13 @@ pub fn attach_unassigned(
     poses: &BodyPoses,
     seg: &Segmentation,
     sigma: f64,
+    keep_off: &[usize],
 ) -> (Segmentation, Vec<usize>) {
     let nb = poses.bodies.len();
     let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
     let mut attached = Vec::new();
     for (i, label) in labels.iter_mut().enumerate() {
-        if label.is_some() {
+        if label.is_some() || keep_off.contains(&i) {
             continue;
         }
         let fitting: Vec<usize> = (0..nb)

@@ -348,6 +348,64 @@ impl FittedMotions {
         Ok(moves)
     }
 
+    /// Points that fit their own body's fitted motion far worse than it allows (over
+    /// [`OUTLIER_RATIO`] times the larger of its median and the bound of
+    /// [`FittedMotions::points_fitting_another_body`]) and that no other body's motion
+    /// explains within that bound either: the worst such point of each body of four or more
+    /// (one point of another link spoils its body's fitted poses, and with them the fit of
+    /// the body's own points, so the others are judged again after it has gone). They
+    /// belong to no body of the model: typically keypoints of a link seen one or two at a
+    /// time, which the clustering put on a neighbour. Left on no body, they may form a body
+    /// of their own with others like them (posed through a hinge when it fits).
+    ///
+    /// Measured: the mechanisms sweep's 10-joint revolute tree, seed 1: a keypoint of a link
+    /// seen three at a time in 12 of 200 frames sat on a neighbour at `chi^2 / k` 122 (93
+    /// degrees of freedom; the body's median 1.3), and three of the neighbour's own points
+    /// fitted at 9-12 with it.
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
+    pub fn points_fitting_no_body(&self, model: &Model, tracks: &Tracks) -> Result<Vec<usize>> {
+        self.check(model, tracks)?;
+        let sigma = model.noise.sigma_m;
+        let body_median = self.body_medians(model, tracks);
+        // Per body, its worst point that qualifies: `(misfit, point)`.
+        let mut worst: Vec<Option<(f64, usize)>> = vec![None; model.bodies.len()];
+        for i in 0..tracks.n_points() {
+            let Some(own_body) = body_of(model, tracks, i) else {
+                continue;
+            };
+            let Some(median) = body_median[own_body] else {
+                continue;
+            };
+            let Some((own, k)) = misfit(
+                &self.body_poses[own_body],
+                tracks,
+                i,
+                sigma,
+                MIN_FRAMES_TO_PLACE,
+            ) else {
+                continue;
+            };
+            if own <= OUTLIER_RATIO * bound(k).max(median)
+                || model.bodies[own_body].points.len() <= 3
+                || worst[own_body].is_some_and(|(w, _)| w >= own)
+            {
+                continue;
+            }
+            let fits_another = (0..self.body_poses.len())
+                .filter(|&c| c != own_body)
+                .filter_map(|c| misfit(&self.body_poses[c], tracks, i, sigma, MIN_FRAMES_TO_PLACE))
+                .any(|(m, kc)| m <= bound(kc));
+            if !fits_another {
+                worst[own_body] = Some((own, i));
+            }
+        }
+        let mut out: Vec<usize> = worst.into_iter().flatten().map(|(_, i)| i).collect();
+        out.sort_unstable();
+        Ok(out)
+    }
+
     /// Per body of `model`, the median of its points' own `chi^2 / k` against these motions
     /// (see [`MAX_BODY_MEDIAN`]); `None` for a body with no point to score.
     fn body_medians(&self, model: &Model, tracks: &Tracks) -> Vec<Option<f64>> {
