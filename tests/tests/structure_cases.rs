@@ -90,13 +90,25 @@ fn discover(s: &Scenario) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
 }
 
 fn discover_data(data: &SynthData) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
-    let m = Pipeline::from_config(&PipelineConfig::default())
+    discover_hinged(data, PipelineConfig::default().hinged_bodies)
+}
+
+/// The default pipeline's model of `data`, with the hinges on or off, and its evaluation.
+fn discover_hinged(
+    data: &SynthData,
+    hinged_bodies: bool,
+) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
+    let cfg = PipelineConfig {
+        hinged_bodies,
+        ..PipelineConfig::default()
+    };
+    let model = Pipeline::from_config(&cfg)
         .expect("pipeline")
         .run(&data.tracks)
         .expect("discover")
         .model;
-    let e = evaluate(&m, &data.truth);
-    (m, e)
+    let e = evaluate(&model, &data.truth);
+    (model, e)
 }
 
 /// Hides point `i` in frame `t` wherever `hide(t, i)`.
@@ -471,16 +483,7 @@ fn bundle_adjusted_axes_are_within_a_degree() {
 fn siblings_hidden_by_each_other_get_their_parent_back() {
     for seed in [5, 7] {
         let data = kinetree_tests::revolute_tree(7, seed);
-        let cfg = PipelineConfig {
-            hinged_bodies: false,
-            ..PipelineConfig::default()
-        };
-        let model = Pipeline::from_config(&cfg)
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover")
-            .model;
-        let e = evaluate(&model, &data.truth);
+        let (model, e) = discover_hinged(&data, false);
         assert!(e.joints_exact, "seed {seed}: joints not exact");
         assert!(
             kinetree_tests::warned(&model, |w| matches!(
@@ -489,8 +492,7 @@ fn siblings_hidden_by_each_other_get_their_parent_back() {
             )),
             "seed {seed}: no retest"
         );
-        let model = kinetree_tests::discover_default(&data.tracks);
-        let e = evaluate(&model, &data.truth);
+        let (_, e) = discover_hinged(&data, true);
         assert!(
             e.joints_exact,
             "seed {seed}: joints not exact with the hinges"
@@ -530,31 +532,19 @@ fn a_near_tied_parent_is_chosen_by_the_whole_tree_fit() {
 
 /// Mechanisms sweep, 5-joint revolute tree, seed 14: the hub link carrying three children
 /// never shows three keypoints at once (two, keypoints 11 and 15), so it has no pose and
-/// its children looked multi-DoF on the base. Posed through its hinge on the base, it takes
+/// its children looked multi-DoF on the base. Posed through its hinge (on the camera: the
+/// base is static), it takes
 /// its place in the tree and every joint is found; without the hinge step they are not.
 #[test]
 fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
     let data = kinetree_tests::revolute_tree(5, 14);
-    let run = |hinged_bodies: bool| {
-        let cfg = PipelineConfig {
-            hinged_bodies,
-            ..PipelineConfig::default()
-        };
-        let model = Pipeline::from_config(&cfg)
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover")
-            .model;
-        let e = evaluate(&model, &data.truth);
-        (model, e)
-    };
-    let (model, e) = run(true);
+    let (model, e) = discover_hinged(&data, true);
     assert!(e.joints_exact && e.ari > 1.0 - 1e-9, "{:?}", e.joints);
     assert!(kinetree_tests::warned(&model, |w| matches!(
         w,
         kinetree_core::Warning::BodyPosedThroughHinge { points, .. } if points == &[11, 15]
     )));
-    let (_, without) = run(false);
+    let (_, without) = discover_hinged(&data, false);
     assert!(!without.joints_exact, "found without the hinge step");
 }
 
@@ -565,20 +555,7 @@ fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
 #[test]
 fn links_registered_in_few_frames_are_posed_through_their_hinges() {
     let data = kinetree_tests::revolute_tree(7, 3);
-    let run = |hinged_bodies: bool| {
-        let cfg = PipelineConfig {
-            hinged_bodies,
-            ..PipelineConfig::default()
-        };
-        let model = Pipeline::from_config(&cfg)
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover")
-            .model;
-        let e = evaluate(&model, &data.truth);
-        (model, e)
-    };
-    let (model, e) = run(true);
+    let (model, e) = discover_hinged(&data, true);
     assert!(e.joints_exact, "{:?}", e.joints);
     // A body with poses of its own had frames filled through a hinge on another body.
     assert!(kinetree_tests::warned(&model, |w| matches!(
@@ -586,7 +563,7 @@ fn links_registered_in_few_frames_are_posed_through_their_hinges() {
         kinetree_core::Warning::BodyPosedThroughHinge { points, frames, .. }
             if model.bodies.iter().any(|b| &b.points == points && b.frames_registered > *frames)
     )));
-    let (_, without) = run(false);
+    let (_, without) = discover_hinged(&data, false);
     assert!(!without.joints_exact, "found without the hinges");
 }
 

@@ -40,21 +40,22 @@ pub enum Warning {
         /// The groups of points.
         groups: Vec<Vec<usize>>,
     },
-    /// Points on no body (seen too few at a time for a pose of their own, typically one or
-    /// two per frame) that turn together about one axis of a posed body or of the camera
-    /// frame; each group became a body posed through that hinge in the frames where one of
-    /// its points off the axis is visible.
+    /// A body seen too few points at a time for poses of its own in most frames (points on
+    /// no body, typically one or two per frame, or a body registered in under half its
+    /// frames) whose points turn together about one axis of a posed body or of the camera
+    /// frame; it was posed through that hinge in the frames where it had no pose of its own
+    /// and one of its points off the axis is visible (points on no body became a body).
     BodyPosedThroughHinge {
-        /// The group's points.
+        /// The body's points.
         points: Vec<usize>,
         /// The points of the body it turns on when it was posed (`None`: the camera frame).
         parent: Option<Vec<usize>>,
-        /// Frames it was posed in.
+        /// Frames posed through the hinge.
         frames: usize,
     },
     /// Points that fitted their body's motion in the model's whole-tree fit far worse than
-    /// its other points, and no other body's either; they were left on no body and the
-    /// bodies, joints and positions redone.
+    /// the noise and its other points allow, and no other body's either; they were left on
+    /// no body and the bodies, joints and positions redone.
     PointsUnassigned {
         /// The points.
         points: Vec<usize>,
@@ -186,16 +187,16 @@ impl std::fmt::Display for Warning {
             } => match parent {
                 Some(b) => write!(
                     f,
-                    "point(s) {points:?}, on no body, turn together about one axis of the body of points {b:?} and became a body posed through that hinge in {frames} frame(s)"
+                    "the body of point(s) {points:?}, seen too few points at a time, turns about one axis of the body of points {b:?} and was posed through that hinge in {frames} frame(s)"
                 ),
                 None => write!(
                     f,
-                    "point(s) {points:?}, on no body, turn together about one axis fixed in the camera frame and became a body posed through that hinge in {frames} frame(s)"
+                    "the body of point(s) {points:?}, seen too few points at a time, turns about one axis fixed in the camera frame and was posed through that hinge in {frames} frame(s)"
                 ),
             },
             Warning::PointsUnassigned { points } => write!(
                 f,
-                "point(s) {points:?} fitted their body's motion far worse than its other points, and no other body's; they were left on no body"
+                "point(s) {points:?} fitted their body's motion far worse than the noise and its other points allow, and no other body's; they were left on no body"
             ),
             Warning::PointsReassigned { points } => write!(
                 f,

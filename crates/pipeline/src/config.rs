@@ -177,9 +177,10 @@ pub struct PipelineConfig {
     pub pose: PoseConfig,
     /// DoF tester.
     pub dof: DofConfig,
-    /// Pose keypoints that no body takes and that are seen too few at a time for a pose of
-    /// their own (one or two per frame) through a hinge on a posed body, when they turn
-    /// together about one of its axes (`kinetree_pose::hinged_body`). Default on.
+    /// Pose links seen too few keypoints at a time for poses of their own through a hinge on
+    /// a posed body (or the camera), when their keypoints turn together about one of its
+    /// axes (`kinetree_pose::hinged_body`): groups of keypoints on no body become bodies,
+    /// and bodies registered in under half their frames get the others. Default on.
     pub hinged_bodies: bool,
 }
 

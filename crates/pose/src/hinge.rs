@@ -266,7 +266,8 @@ fn wrap(a: f64) -> f64 {
 /// in under [`MIN_HINGE_FRAMES`] frames with the parent, tracks that do not spread across the
 /// axis ([`MIN_HINGE_SPREAD_IN_SIGMA`]), keypoints never seen together with the others, or no
 /// keypoint off the axis. Whether the hinge *holds* is the caller's decision, from
-/// [`Hinge::chi2_per_dof`] and [`Hinge::arc_in_std`].
+/// [`Hinge::chi2_per_dof`], [`Hinge::rigidity_chi2_per_dof`], [`Hinge::rms_residual_m`] and
+/// [`Hinge::arc_in_std`].
 ///
 /// Method: in the parent's frame every keypoint's samples lie in a plane normal to the axis,
 /// so the axis is the least principal direction of the scatter summed over the keypoints
@@ -274,11 +275,14 @@ fn wrap(a: f64) -> f64 {
 /// circle fit, Kasa 1976, with one centre and a radius per keypoint); the angles follow from
 /// the keypoints' phases, their offsets from frames where two are seen together. Then the
 /// shape (keypoints at angle 0) and the angles are refined in turn, each exactly for the
-/// other (the angle of a frame by a 2D Procrustes fit). Axis and pivot stay at their first
-/// estimate, which is exact on noise-free data; the model's bundle adjustment refines them
-/// once the joint is in a model.
+/// other (the angle of a frame by a 2D Procrustes fit), and last everything together by
+/// Gauss-Newton ([`refine`]; measured on three hidden links of the mechanisms sweep: axis
+/// errors 0.13-0.25 deg from the first estimate, 0.13-0.25 after, the squared residual a
+/// little lower). Each frame's stated precision holds the angle's, the parent pose's and
+/// the axis line's own error (the last shared by every frame).
 ///
-/// Complexity: O(T m) for m keypoints, plus an O(m^3) solve.
+/// Complexity: O(T m^3) per Gauss-Newton step for m keypoints (products over the 4 + 3m
+/// unknowns per sample), plus an O(m^3) solve; the group's rigidity check is O(T m^2).
 pub fn hinged_body(
     tracks: &Tracks,
     poses: &BodyPoses,
