@@ -570,14 +570,17 @@ fn best_hinge(
     skip: Option<usize>,
     sigma: f64,
 ) -> Option<kinetree_pose::Hinge> {
+    // The group's rigidity does not depend on the parent: checked once, first.
+    let (rigidity, rigidity_dof) = kinetree_pose::group_rigidity(tracks, group, sigma);
+    if rigidity > kinetree_pose::misfit_bound(rigidity_dof, 4.0, HINGE_SLACK) {
+        return None;
+    }
     std::iter::once(None)
         .chain((0..poses.bodies.len()).map(Some))
         .filter(|&parent| parent.is_none() || parent != skip)
         .filter_map(|parent| kinetree_pose::hinged_body(tracks, poses, parent, group, sigma))
         .filter(|h| {
             h.chi2_per_dof <= kinetree_pose::misfit_bound(h.dof, 4.0, HINGE_SLACK)
-                && h.rigidity_chi2_per_dof
-                    <= kinetree_pose::misfit_bound(h.rigidity_dof, 4.0, HINGE_SLACK)
                 && h.arc_in_std >= MIN_HINGE_ARC_IN_STD
                 && h.rms_residual_m <= MAX_HINGE_RMS_IN_SIGMA * sigma
         })

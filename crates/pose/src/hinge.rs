@@ -8,6 +8,7 @@
 //! fits that hypothesis to a group of keypoints and, when it holds, poses the group in every
 //! frame where one of them is visible; the pair tests then treat the group like any body.
 
+use kinetree_core::geom::{cam_from, unwrap_angles};
 use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix3x2, Matrix4, Point3, Translation3, Unit,
     UnitQuaternion, Vector2, Vector3,
@@ -49,12 +50,6 @@ pub struct Hinge {
     /// pose noise counts in full, so among hinges on different bodies it favours the one
     /// that explains the keypoints best.
     pub rms_residual_m: f64,
-    /// Rigidity of the group itself, whatever it turns on: the distances of its keypoints
-    /// seen together, about their means, as `chi^2 / dof` against their noise (`2 sigma^2`).
-    /// 0 with no pair seen together twice.
-    pub rigidity_chi2_per_dof: f64,
-    /// Degrees of freedom of that `chi^2` (0: no pair seen together twice).
-    pub rigidity_dof: f64,
     /// Angle swept (unwrapped, radians) over the median std-dev of a frame's angle.
     pub arc_in_std: f64,
     /// The group's poses: frames where the parent is posed and a keypoint off the axis is
@@ -66,6 +61,12 @@ pub struct Hinge {
 fn turn(axis: &Unit<Vector3<f64>>, pivot: &Point3<f64>, angle: f64) -> Isometry3<f64> {
     let r = UnitQuaternion::from_axis_angle(axis, angle);
     Isometry3::from_parts(Translation3::from(pivot.coords - r * pivot.coords), r)
+}
+
+/// Distance of `p` from the line through `pivot` along unit `a`.
+fn distance_from_axis(p: &Point3<f64>, pivot: &Point3<f64>, a: &Vector3<f64>) -> f64 {
+    let d = p - pivot;
+    (d - a * d.dot(a)).norm()
 }
 
 /// Sum of squared distances of the samples `z[k][t]` from the hinge's prediction.
@@ -256,8 +257,29 @@ fn refine(
     (a, pivot, cov, basis)
 }
 
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+/// Rigidity of a group of keypoints, whatever it turns on: the distances of the keypoints
+/// seen together, about their means, as `(chi^2 / dof, dof)` against their noise
+/// (`2 sigma^2`); `(0, 0)` with no pair seen together twice. A hinge absorbs one degree of
+/// freedom per frame, and a poorly posed parent's noise at long lever arms can hide a group
+/// that bends, so a hinge's own `chi^2` does not tell this.
+///
+/// Complexity: O(T m^2) for m keypoints.
+pub fn group_rigidity(tracks: &Tracks, points: &[usize], sigma: f64) -> (f64, f64) {
+    let (mut chi2, mut dof) = (0.0, 0.0);
+    for (x, &i) in points.iter().enumerate() {
+        for &j in &points[x + 1..] {
+            let d: Vec<f64> = (0..tracks.n_frames())
+                .filter_map(|t| Some((tracks.get(t, i)? - tracks.get(t, j)?).norm()))
+                .collect();
+            if d.len() < 2 {
+                continue;
+            }
+            let mean = d.iter().sum::<f64>() / d.len() as f64;
+            chi2 += d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (2.0 * sigma * sigma);
+            dof += (d.len() - 1) as f64;
+        }
+    }
+    (if dof > 0.0 { chi2 / dof } else { 0.0 }, dof)
 }
 
 /// Fits a hinge between `parent`'s poses (`None`: the camera frame) and the keypoints
@@ -266,8 +288,8 @@ fn wrap(a: f64) -> f64 {
 /// in under [`MIN_HINGE_FRAMES`] frames with the parent, tracks that do not spread across the
 /// axis ([`MIN_HINGE_SPREAD_IN_SIGMA`]), keypoints never seen together with the others, or no
 /// keypoint off the axis. Whether the hinge *holds* is the caller's decision, from
-/// [`Hinge::chi2_per_dof`], [`Hinge::rigidity_chi2_per_dof`], [`Hinge::rms_residual_m`] and
-/// [`Hinge::arc_in_std`].
+/// [`Hinge::chi2_per_dof`], [`Hinge::rms_residual_m`] and [`Hinge::arc_in_std`], and from
+/// [`group_rigidity`] (the same for every parent).
 ///
 /// Method: in the parent's frame every keypoint's samples lie in a plane normal to the axis,
 /// so the axis is the least principal direction of the scatter summed over the keypoints
@@ -282,7 +304,7 @@ fn wrap(a: f64) -> f64 {
 /// the axis line's own error (the last shared by every frame).
 ///
 /// Complexity: O(T m^3) per Gauss-Newton step for m keypoints (products over the 4 + 3m
-/// unknowns per sample), plus an O(m^3) solve; the group's rigidity check is O(T m^2).
+/// unknowns per sample), plus an O(m^3) solve.
 pub fn hinged_body(
     tracks: &Tracks,
     poses: &BodyPoses,
@@ -296,10 +318,8 @@ pub fn hinged_body(
         return None;
     }
     let parent_pose = |t: usize| -> Option<(Isometry3<f64>, Option<PoseQuality>)> {
-        match parent {
-            None => Some((Isometry3::identity(), None)),
-            Some(b) => poses.bodies[b].cam_from_body[t].map(|p| (p, poses.bodies[b].quality[t])),
-        }
+        let quality = parent.and_then(|b| poses.bodies[b].quality[t]);
+        cam_from(poses, parent, t).map(|p| (p, quality))
     };
     // Samples in the parent's frame.
     let mut z: Vec<Vec<Option<Point3<f64>>>> = vec![vec![None; nt]; m];
@@ -382,10 +402,7 @@ pub fn hinged_body(
         let d = p - pivot;
         d.dot(&v).atan2(d.dot(&u))
     };
-    let lever = |p: &Point3<f64>| {
-        let d = p - pivot;
-        (d - a * d.dot(&a)).norm()
-    };
+    let lever = |p: &Point3<f64>| distance_from_axis(p, &pivot, &a);
     let radius: Vec<f64> = z
         .iter()
         .zip(&counts)
@@ -487,10 +504,7 @@ pub fn hinged_body(
     // Axis, pivot, shape and angles together (Gauss-Newton), then what follows from them.
     let (a, pivot, line_cov, across) = refine(&z, &mut shape, &mut angle, a, pivot);
     let axis = Unit::new_normalize(a);
-    let lever = |p: &Point3<f64>| {
-        let d = p - pivot;
-        (d - a * d.dot(&a)).norm()
-    };
+    let lever = |p: &Point3<f64>| distance_from_axis(p, &pivot, &a);
     // Residuals, the angle's precision and the poses.
     let posed: Vec<usize> = frames
         .iter()
@@ -508,13 +522,10 @@ pub fn hinged_body(
     let body_from_s = Translation3::from(-centre) * k_iso;
     let s_from_body = body_from_s.inverse();
     let body_shape: Vec<Point3<f64>> = shape.iter().map(|s| body_from_s * s).collect();
-    let mut unwrapped = Vec::with_capacity(posed.len());
-    let mut last = 0.0;
-    for (x, &t) in posed.iter().enumerate() {
-        let th = angle[t]?;
-        last = if x == 0 { th } else { last + wrap(th - last) };
-        unwrapped.push(last);
-    }
+    // Defined exactly in the posed frames.
+    let mut unwrapped = angle.clone();
+    unwrap_angles(&mut unwrapped);
+    let unwrapped: Vec<f64> = unwrapped.into_iter().flatten().collect();
     // The axis line's own error (`line_cov`) is shared by every frame; each frame's stated
     // precision counts it at the frame's angle from the middle of the swept range, where
     // the shape is best determined, so that a pair test does not take it for motion.
@@ -592,24 +603,6 @@ pub fn hinged_body(
     if dof < 1.0 {
         return None;
     }
-    // The group's own rigidity: a hinge absorbs one degree of freedom per frame, and the
-    // parent's pose noise at long lever arms can hide a group that bends.
-    let (mut rigid_chi2, mut rigid_dof) = (0.0, 0.0);
-    for i in 0..m {
-        for j in i + 1..m {
-            let d: Vec<f64> = (0..nt)
-                .filter_map(|t| {
-                    Some((tracks.get(t, points[i])? - tracks.get(t, points[j])?).norm())
-                })
-                .collect();
-            if d.len() < 2 {
-                continue;
-            }
-            let mean = d.iter().sum::<f64>() / d.len() as f64;
-            rigid_chi2 += d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (2.0 * sigma * sigma);
-            rigid_dof += (d.len() - 1) as f64;
-        }
-    }
     let lo = unwrapped.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = unwrapped.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     angle_std.sort_by(f64::total_cmp);
@@ -622,12 +615,6 @@ pub fn hinged_body(
         chi2_per_dof: chi2 / dof,
         dof,
         rms_residual_m: (sum_sq / n_res as f64).sqrt(),
-        rigidity_chi2_per_dof: if rigid_dof > 0.0 {
-            rigid_chi2 / rigid_dof
-        } else {
-            0.0
-        },
-        rigidity_dof: rigid_dof,
         arc_in_std: (hi - lo) / median_std.max(f64::MIN_POSITIVE),
         track: BodyTrack {
             points: points.to_vec(),

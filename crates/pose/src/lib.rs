@@ -9,7 +9,7 @@ mod shape;
 pub use attach::{MIN_SHARED_FRAMES, attach_unassigned, misfit_bound, point_misfit};
 pub use hinge::{
     Hinge, MIN_HINGE_FRAMES, MIN_HINGE_SPREAD_IN_SIGMA, MIN_LEVER_IN_SIGMA, filled_from_hinge,
-    hinged_body,
+    group_rigidity, hinged_body,
 };
 pub use kabsch::{centroid, kabsch, rotation_cov_per_sigma2, rotation_std_per_sigma, spread};
 pub use reference::{KabschParams, KabschPoses};
