@@ -571,3 +571,27 @@ fn a_hinge_fills_the_frames_a_link_lacks_in_its_own_body_frame() {
         "filled rotations {rms} stated std-devs (RMS) off the body's own"
     );
 }
+
+/// Bad input to the hinge fit gives no hinge, never a panic: a parent that is not a body, a
+/// noise level that is not a positive number, keypoints that do not exist.
+#[test]
+fn a_hinge_on_bad_input_is_refused() {
+    let data = kinetree_tests::revolute_tree(5, 14);
+    let poses = true_body_poses(&data);
+    let n = poses.bodies.len();
+    let fit = |parent, points: &[usize], sigma| {
+        kinetree_pose::hinged_body(&data.tracks, &poses, parent, points, sigma)
+    };
+    assert!(
+        fit(Some(0), &[11, 15], 0.001).is_some(),
+        "the good case fits"
+    );
+    assert!(fit(Some(n), &[11, 15], 0.001).is_none());
+    for sigma in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        assert!(fit(Some(0), &[11, 15], sigma).is_none(), "sigma {sigma}");
+        let (rigidity, dof) = kinetree_pose::group_rigidity(&data.tracks, &[11, 15], sigma);
+        assert!(rigidity.is_infinite() && dof == 0.0, "sigma {sigma}");
+    }
+    assert!(fit(Some(0), &[11, 15, data.tracks.n_points() + 7], 0.001).is_none());
+    assert!(fit(Some(0), &[11], 0.001).is_none());
+}

@@ -259,12 +259,16 @@ fn refine(
 
 /// Rigidity of a group of keypoints, whatever it turns on: the distances of the keypoints
 /// seen together, about their means, as `(chi^2 / dof, dof)` against their noise
-/// (`2 sigma^2`); `(0, 0)` with no pair seen together twice. A hinge absorbs one degree of
+/// (`2 sigma^2`); `(0, 0)` with no pair seen together twice, `(inf, 0)` when `sigma` is
+/// not a positive number. A hinge absorbs one degree of
 /// freedom per frame, and a poorly posed parent's noise at long lever arms can hide a group
 /// that bends, so a hinge's own `chi^2` does not tell this.
 ///
 /// Complexity: O(T m^2) for m keypoints.
 pub fn group_rigidity(tracks: &Tracks, points: &[usize], sigma: f64) -> (f64, f64) {
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return (f64::INFINITY, 0.0);
+    }
     let (mut chi2, mut dof) = (0.0, 0.0);
     for (x, &i) in points.iter().enumerate() {
         for &j in &points[x + 1..] {
@@ -283,8 +287,9 @@ pub fn group_rigidity(tracks: &Tracks, points: &[usize], sigma: f64) -> (f64, f6
 }
 
 /// Fits a hinge between `parent`'s poses (`None`: the camera frame) and the keypoints
-/// `points`, and poses them through it. Returns `None` when the data cannot support the
-/// hypothesis at all: fewer than two keypoints, a keypoint with under 3 frames or the group
+/// `points`, and poses them through it. Returns `None` for a parent that is not a body of
+/// `poses`, a noise level that is not a positive number, tracks and poses of different
+/// lengths, and when the data cannot support the hypothesis at all: fewer than two keypoints, a keypoint with under 3 frames or the group
 /// in under [`MIN_HINGE_FRAMES`] frames with the parent, tracks that do not spread across the
 /// axis ([`MIN_HINGE_SPREAD_IN_SIGMA`]), keypoints never seen together with the others, or no
 /// keypoint off the axis. Whether the hinge *holds* is the caller's decision, from
@@ -314,7 +319,11 @@ pub fn hinged_body(
 ) -> Option<Hinge> {
     let m = points.len();
     let nt = poses.n_frames;
-    if m < 2 || !(sigma.is_finite() && sigma > 0.0) || tracks.n_frames() != nt {
+    if m < 2
+        || !(sigma.is_finite() && sigma > 0.0)
+        || tracks.n_frames() != nt
+        || parent.is_some_and(|b| b >= poses.bodies.len())
+    {
         return None;
     }
     let parent_pose = |t: usize| -> Option<(Isometry3<f64>, Option<PoseQuality>)> {
