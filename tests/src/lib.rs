@@ -94,9 +94,19 @@ pub fn real_c3d(folder: &str) -> std::path::PathBuf {
 /// The mechanisms sweep's random all-revolute tree of `n_joints` joints drawn from `seed`
 /// (`kinetree_synth::random_scenario`, defaults otherwise: 200 frames at 1 mm), simulated.
 pub fn revolute_tree(n_joints: usize, seed: u64) -> kinetree_synth::SynthData {
+    random_tree(n_joints, 0.0, seed)
+}
+
+/// The mechanisms sweep's random tree of `n_joints` joints, `prismatic_fraction` of them
+/// prismatic, drawn from `seed` (as [`revolute_tree`]), simulated.
+pub fn random_tree(
+    n_joints: usize,
+    prismatic_fraction: f64,
+    seed: u64,
+) -> kinetree_synth::SynthData {
     let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
         n_joints,
-        prismatic_fraction: 0.0,
+        prismatic_fraction,
         tree: true,
         seed,
         ..Default::default()

@@ -48,8 +48,14 @@ fn score(scenario: &Scenario, clustering: &ClusteringConfig) -> (f64, f64, usize
 /// The first `n` mechanisms of a deterministic draw: 1-11 joints (2-12 bodies), chains and
 /// trees, 1 mm noise, 30 % occlusion.
 fn random_mechanisms(n: usize) -> Vec<MechanismSpec> {
+    random_mechanisms_of(1..=11, n)
+}
+
+/// The first `n` mechanisms of a deterministic draw of `joints` joints, chains and trees,
+/// 1 mm noise, 30 % occlusion.
+fn random_mechanisms_of(joints: std::ops::RangeInclusive<usize>, n: usize) -> Vec<MechanismSpec> {
     let mut runner = TestRunner::deterministic();
-    let strategy = strategies::mechanism(1..=11, proptest::bool::ANY).prop_map(|mut s| {
+    let strategy = strategies::mechanism(joints, proptest::bool::ANY).prop_map(|mut s| {
         s.noise_sigma_m = 0.001;
         s.dropout = 0.3;
         s
@@ -98,6 +104,55 @@ fn every_clusterer_segments_random_mechanisms() {
         assert!(
             exact >= need,
             "{name}: ARI = 1 on {exact}/30 (need {need}); (case, bodies, found, ARI, plain): {failures:?}"
+        );
+    }
+}
+
+/// Issue 3 asks for mechanisms of up to 25 bodies: the same setting with 19-24 joints.
+/// Measured on the first 100 of this draw (release build, session 11): identifiable ARI = 1
+/// on 99 / 99 / 96 (hierarchical / spectral / DBSCAN; plain ARI 96 / 96 / 93; 98 / 98 / 95
+/// before the attachment stopped remaking bodies a split had undone, case 79 below). The
+/// misses: case 16 with every clusterer, one keypoint 2-3 mm from a joint axis on the
+/// child (its pair distances with the child's keypoints vary by 1.3-1.4 mm, as rigid ones
+/// do); DBSCAN 24, 50 and 93, one or two keypoints of a small body each (93: a 4-point
+/// link turning little on its parent, two of its keypoints in the parent's neighbourhood).
+/// On the 8 used here: 8 of 8 each.
+#[test]
+fn every_clusterer_segments_mechanisms_of_twenty_to_twenty_five_bodies() {
+    let specs = random_mechanisms_of(19..=24, 8);
+    for (name, c) in clusterers() {
+        for (k, spec) in specs.iter().enumerate() {
+            let (ari, plain, found) = score(&spec.scenario(), &c);
+            assert!(
+                ari > 1.0 - 1e-12,
+                "{name}: case {k} ({} bodies, found {found}): identifiable ARI {ari}, plain {plain}",
+                spec.joints.len() + 1
+            );
+        }
+    }
+}
+
+/// Case 79 of the draw of 20-25 bodies: the pairwise measure breaks a 4-keypoint slider
+/// (keypoints 88-91) into two pairs, both too small to be bodies. One pair fits the poorly
+/// determined poses of a small 4-keypoint link and is attached to it; the split takes it
+/// off again (residual 29 sigma), the attachment puts it back, eight times over, and the
+/// slider was never found. The attachment may not remake a body a split undid: the four
+/// keypoints, left on no body, move as one and become the slider.
+#[test]
+fn a_small_body_broken_into_pairs_is_made_whole() {
+    let spec = random_mechanisms_of(19..=24, 80).pop().expect("case 79");
+    let data = simulate(&spec.scenario()).expect("simulate");
+    let slider = data.truth.point_body[88];
+    let keypoints: Vec<usize> = (0..data.truth.point_body.len())
+        .filter(|&i| data.truth.point_body[i] == slider)
+        .collect();
+    assert_eq!(keypoints, [88, 89, 90, 91]);
+    for (name, c) in clusterers() {
+        let (ari, plain, found) = score(&spec.scenario(), &c);
+        assert_eq!(found, spec.joints.len() + 1, "{name}: {found} bodies");
+        assert!(
+            ari > 1.0 - 1e-12,
+            "{name}: identifiable ARI {ari}, plain {plain}"
         );
     }
 }

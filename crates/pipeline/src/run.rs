@@ -1134,6 +1134,8 @@ impl Pipeline {
         let mut regroup_done = false;
         let mut split_rounds = 0;
         let mut cannot_link: Vec<(usize, usize)> = Vec::new();
+        // The point sets of the bodies split so far: the attachment may not remake one.
+        let mut split_bodies: Vec<Vec<usize>> = Vec::new();
         let mut hinge_done = false;
         let mut posed_by_hinge: Vec<Warning> = Vec::new();
         loop {
@@ -1173,6 +1175,7 @@ impl Pipeline {
                 seg = seg.without_bodies(&drop);
                 continue;
             }
+            let warned = warnings.len();
             if split_rounds < MAX_SPLIT_ROUNDS
                 && let Some(split) = split_mixed_bodies(
                     dmat,
@@ -1191,6 +1194,10 @@ impl Pipeline {
                 )?
             {
                 split_rounds += 1;
+                split_bodies.extend(warnings[warned..].iter().filter_map(|w| match w {
+                    Warning::BodySplit { points, .. } => Some(points.clone()),
+                    _ => None,
+                }));
                 seg = split;
                 attach_done = false;
                 continue;
@@ -1198,8 +1205,14 @@ impl Pipeline {
             if !attach_done {
                 // Once: give discarded points to the one body whose poses explain them.
                 attach_done = true;
-                let (refined, attached) =
-                    kinetree_pose::attach_unassigned(tracks, &poses, &seg, sigma, keep_off);
+                let (refined, attached) = kinetree_pose::attach_unassigned(
+                    tracks,
+                    &poses,
+                    &seg,
+                    sigma,
+                    keep_off,
+                    &split_bodies,
+                );
                 if !attached.is_empty() {
                     warnings.push(Warning::PointsAttached { points: attached });
                     seg = refined;
