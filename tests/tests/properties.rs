@@ -305,7 +305,7 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// End-to-end recovery on `cases()` mechanisms drawn from the strategies by proptest's
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
-/// per 64 for platform rounding: 64 of the first 64 are recovered (635 of 640; the deep
+/// per 64 for platform rounding: 64 of the first 64 are recovered (637 of 640; the deep
 /// pass needs 620). Before: 167 of 200 before joint positions came from the
 /// whole-tree fit, 182 before a rotation hidden by the chi-square slack could make a joint
 /// revolute, 185 before points near a joint axis were moved by the model's fit, 193 (605 of
@@ -317,9 +317,10 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// unassigned points given to the body whose fitted motion explains them, bodies split when
 /// their halves' rigid fits are far better), 632 before session 8 (joints typed by the
 /// whole-tree fit where the pair test found one rotation direction but another type), 634
-/// before session 9 (near-tied tree edges settled by whole-tree fits). The 5 failures in 640
-/// are all joints not exact (a 3.1 cm slider typed multi-DoF, wrong trees at 2.3-3.8 mm, a
-/// body merged with a neighbour). The failures are printed,
+/// before session 9 (near-tied tree edges settled by whole-tree fits), 636 before session 11
+/// (a keypoint that alone makes a joint multi-DoF taken off its body: case 83). The 3
+/// failures left in 640 are all joints not exact (wrong trees at 2.3-3.8 mm: cases 340, 372,
+/// and 441, whose link 2 holds a base keypoint and tests rigid to the base). The failures are printed,
 /// and `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {

@@ -60,6 +60,14 @@ pub enum Warning {
         /// The points.
         points: Vec<usize>,
     },
+    /// Points each of which alone made a joint multi-DoF: without it, and without no other
+    /// point of the joint's two bodies, the pair test found a single-DoF joint. They were
+    /// left on no body (another body's fitted motion may take them) and the bodies, joints
+    /// and positions redone.
+    PointsMakingJointsMultiDof {
+        /// The points.
+        points: Vec<usize>,
+    },
     /// Points that a model's whole-tree fit placed on another body (its fitted motion
     /// explained their tracks better than their own body's), or on a body when they had none
     /// (it explained them clearly better than any other); they were moved there and the
@@ -194,6 +202,10 @@ impl std::fmt::Display for Warning {
                     "the body of point(s) {points:?}, seen too few points at a time, turns about one axis fixed in the camera frame and was posed through that hinge in {frames} frame(s)"
                 ),
             },
+            Warning::PointsMakingJointsMultiDof { points } => write!(
+                f,
+                "without point(s) {points:?} (one per joint), a multi-DoF joint between their body and its neighbour tested single-DoF; they were left on no body"
+            ),
             Warning::PointsUnassigned { points } => write!(
                 f,
                 "point(s) {points:?} fitted their body's motion far worse than the noise and its other points allow, and no other body's; they were left on no body"
