@@ -875,7 +875,7 @@ impl Pipeline {
             } else {
                 Vec::new()
             };
-            let mut ejected: Vec<usize> = if pass < MODEL_PASSES {
+            let ejected: Vec<usize> = if pass < MODEL_PASSES {
                 motions
                     .points_fitting_no_body(&found.model, tracks)?
                     .into_iter()
@@ -884,16 +884,17 @@ impl Pipeline {
             } else {
                 Vec::new()
             };
-            if moves.is_empty() && ejected.is_empty() && pass < MODEL_PASSES {
-                ejected = self.points_spoiling_joints(tracks, &found, sigma)?;
-                if !ejected.is_empty() {
-                    history.push(Warning::PointsMakingJointsMultiDof {
-                        points: ejected.clone(),
-                    });
-                }
-            }
+            // When the fit moves and ejects nothing: keypoints that alone make a joint
+            // multi-DoF, left on no body too. (Looked for on every pass, alongside the moves:
+            // two runs of the mechanisms sweep lost their ARI of 1, two gained a joint.)
+            let spoilers = if pass < MODEL_PASSES && moves.is_empty() && ejected.is_empty() {
+                self.points_spoiling_joints(tracks, &found, sigma)?
+            } else {
+                Vec::new()
+            };
+            let settled = ejected.is_empty() && spoilers.is_empty();
             if moves.is_empty()
-                && ejected.is_empty()
+                && settled
                 && let Some(again) =
                     self.retest_on_fitted_poses(tracks, &dmat, &found, &motions, sigma, source)?
             {
@@ -903,14 +904,14 @@ impl Pipeline {
                         .points_fitting_another_body(&found.model, tracks)?;
                 }
             }
-            if moves.is_empty() && ejected.is_empty() {
+            if moves.is_empty() && settled {
                 break found;
             }
             let mut labels = found.segmentation.labels().to_vec();
             for &(point, body) in &moves {
                 labels[point] = Some(found.body_order[body]);
             }
-            for &point in &ejected {
+            for &point in ejected.iter().chain(&spoilers) {
                 labels[point] = None;
             }
             moved = moves.iter().map(|&(point, _)| point).collect();
@@ -920,16 +921,17 @@ impl Pipeline {
                 });
             }
             if !ejected.is_empty() {
-                if !history.last().is_some_and(|w| {
-                    matches!(w, Warning::PointsMakingJointsMultiDof { points } if points == &ejected)
-                }) {
-                    history.push(Warning::PointsUnassigned {
-                        points: ejected.clone(),
-                    });
-                }
-                moved.extend(&ejected);
-                unassigned.extend(&ejected);
+                history.push(Warning::PointsUnassigned {
+                    points: ejected.clone(),
+                });
             }
+            if !spoilers.is_empty() {
+                history.push(Warning::PointsMakingJointsMultiDof {
+                    points: spoilers.clone(),
+                });
+            }
+            moved.extend(ejected.iter().chain(&spoilers));
+            unassigned.extend(ejected.iter().chain(&spoilers));
             seg = Segmentation::from_raw(&labels, 1);
             seg.discarded_groups = found.segmentation.discarded_groups.clone();
             previous = Some(found);
@@ -1036,9 +1038,15 @@ impl Pipeline {
 
     /// Points that make a joint multi-DoF: for every multi-DoF joint of the model, the
     /// keypoint of its parent or child body (bodies of more than three) without which the
-    /// body, posed again, and the other pass the pair test as a single-DoF joint, when it is
-    /// the only such keypoint of the two. It belongs to another body: left on none, the
-    /// model's fitted motions may place it in the next pass.
+    /// body, posed by itself again, and the other pass the pair test as a single-DoF joint,
+    /// while with it, posed the same way over the same frames, they do not; when it is the
+    /// only such keypoint of the two. It belongs to another body: left on none, the model's
+    /// fitted motions may place it in the next pass.
+    ///
+    /// Why the same frames: fewer frames pass the test more easily. On a 10-joint tree
+    /// (mechanisms sweep, revolute, seed 13) a link posed through its hinge in 170 frames was
+    /// posed by itself in 15, and without any one of three of its keypoints (two its own) in
+    /// 7-13, each time single-DoF: the frame count alone would have decided.
     ///
     /// A keypoint near a joint axis is rigid to both bodies pairwise and can be clustered
     /// onto the wrong one. Rate-test case 83: on a 4-keypoint slider seen three keypoints at
@@ -1046,7 +1054,8 @@ impl Pipeline {
     /// 0.00, its own link's at 0.48), so the model's moves kept it, and the slider's joint
     /// had a rotation. Judging the keypoint against the body posed without it does not find
     /// it: the poses of three or four keypoints are so loose that it fitted them at 0.40;
-    /// the pair test does (one DoF without it, two without any other of the 12 keypoints).
+    /// the pair test does (one DoF without it over 76 frames, two with it over the same
+    /// frames, two without any other of the 12 keypoints).
     /// The uniqueness guards against a joint at the edge of its test: it is one keypoint
     /// that spoils it, or none. Real recordings (markers on skin, ball joints): unchanged.
     fn points_spoiling_joints(
@@ -1058,8 +1067,23 @@ impl Pipeline {
         let order = &found.body_order;
         let poses = &found.poses;
         let spread: Vec<(f64, f64)> = poses.bodies.iter().map(pose_spread).collect();
+        // `points` posed as one body by themselves; `None` when they cannot be.
+        let posed_alone = |points: &[usize]| {
+            let mut raw = vec![None; tracks.n_points()];
+            for &q in points {
+                raw[q] = Some(0);
+            }
+            self.pose
+                .estimate(&PoseInput {
+                    tracks,
+                    segmentation: &Segmentation::from_raw(&raw, 1),
+                    noise_sigma_m: sigma,
+                })
+                .ok()
+                .and_then(|alone| alone.bodies.into_iter().next())
+        };
         let mut out: Vec<usize> = Vec::new();
-        let mut without = poses.clone();
+        let mut trial = poses.clone();
         for joint in found
             .model
             .joints
@@ -1072,43 +1096,50 @@ impl Pipeline {
             } else {
                 (p, c)
             };
+            // Whether the pair test with `side` posed as `track` finds a single-DoF joint.
+            let mut single_dof = |side: usize, track: BodyTrack| {
+                trial.bodies[side] = track;
+                let input = DofInput {
+                    poses: &trial,
+                    noise_sigma_m: sigma,
+                };
+                let tested = self
+                    .dof
+                    .test_pair(&input, Some(frame), moving)
+                    .ok()
+                    .map(|pair| pair.joint.is_single_dof());
+                trial.bodies[side] = poses.bodies[side].clone();
+                tested
+            };
             let mut single: Vec<usize> = Vec::new();
             for side in [c, p] {
                 let points = &poses.bodies[side].points;
                 if points.len() <= kinetree_core::MIN_BODY_POINTS {
                     continue;
                 }
+                // Posed by itself (its poses may have come through a hinge) with all its
+                // points, the body must test multi-DoF on exactly the frames it keeps without
+                // the point: fewer frames pass more easily.
+                let Some(all) = posed_alone(points) else {
+                    continue;
+                };
                 for &i in points {
-                    let mut raw = vec![None; tracks.n_points()];
-                    for &q in points.iter().filter(|&&q| q != i) {
-                        raw[q] = Some(0);
-                    }
-                    // A body that cannot be posed without the point is no evidence.
-                    let Some(track) = self
-                        .pose
-                        .estimate(&PoseInput {
-                            tracks,
-                            segmentation: &Segmentation::from_raw(&raw, 1),
-                            noise_sigma_m: sigma,
-                        })
-                        .ok()
-                        .and_then(|alone| alone.bodies.into_iter().next())
-                    else {
+                    let rest: Vec<usize> = points.iter().copied().filter(|&q| q != i).collect();
+                    let Some(without) = posed_alone(&rest) else {
                         continue;
                     };
-                    without.bodies[side] = track;
-                    let input = DofInput {
-                        poses: &without,
-                        noise_sigma_m: sigma,
-                    };
-                    if self
-                        .dof
-                        .test_pair(&input, Some(frame), moving)
-                        .is_ok_and(|pair| pair.joint.is_single_dof())
+                    let mut with = all.clone();
+                    for t in 0..with.cam_from_body.len() {
+                        if without.cam_from_body.get(t).is_none_or(Option::is_none) {
+                            with.cam_from_body[t] = None;
+                            with.quality[t] = None;
+                        }
+                    }
+                    if single_dof(side, without) == Some(true)
+                        && single_dof(side, with) == Some(false)
                     {
                         single.push(i);
                     }
-                    without.bodies[side] = poses.bodies[side].clone();
                 }
             }
             if let [i] = single[..]
