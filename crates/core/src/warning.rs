@@ -60,8 +60,9 @@ pub enum Warning {
         /// The points.
         points: Vec<usize>,
     },
-    /// Points each of which alone made a joint multi-DoF: without it, and without no other
-    /// point of the joint's two bodies, the pair test found a single-DoF joint. They were
+    /// Points each of which alone made a joint multi-DoF: with it left out of its body, the
+    /// pair test found a single-DoF joint where, over the same frames, it found more with
+    /// it, and leaving out no other point of the joint's two bodies did the same. They were
     /// left on no body (another body's fitted motion may take them) and the bodies, joints
     /// and positions redone.
     PointsMakingJointsMultiDof {

@@ -885,8 +885,9 @@ impl Pipeline {
                 Vec::new()
             };
             // When the fit moves and ejects nothing: keypoints that alone make a joint
-            // multi-DoF, left on no body too. (Looked for on every pass, alongside the moves:
-            // two runs of the mechanisms sweep lost their ARI of 1, two gained a joint.)
+            // multi-DoF, left on no body too. (Looked for alongside the moves on every pass:
+            // two runs of the mechanisms sweep lost their ARI of 1, one of the stages sweep
+            // gained its joints.)
             let spoilers = if pass < MODEL_PASSES && moves.is_empty() && ejected.is_empty() {
                 self.points_spoiling_joints(tracks, &found, sigma)?
             } else {
