@@ -111,6 +111,17 @@ fn discover_hinged(
     (model, e)
 }
 
+/// Asserts that `point` and `mate` share a true body and that the model put both on one
+/// body.
+fn assert_placed_with(model: &kinetree_core::Model, data: &SynthData, point: usize, mate: usize) {
+    assert_eq!(data.truth.point_body[point], data.truth.point_body[mate]);
+    let (b, m) = (model.point_body[point], model.point_body[mate]);
+    assert!(
+        b >= 0 && b == m,
+        "point {point} on {b}, point {mate} on {m}"
+    );
+}
+
 /// Hides point `i` in frame `t` wherever `hide(t, i)`.
 fn hide(data: &mut SynthData, hide: impl Fn(usize, usize) -> bool) {
     let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
@@ -533,8 +544,8 @@ fn a_near_tied_parent_is_chosen_by_the_whole_tree_fit() {
 /// Mechanisms sweep, 5-joint revolute tree, seed 14: the hub link carrying three children
 /// never shows three keypoints at once (two, keypoints 11 and 15), so it has no pose and
 /// its children looked multi-DoF on the base. Posed through its hinge (on the camera: the
-/// base is static), it takes
-/// its place in the tree and every joint is found; without the hinge step they are not.
+/// base is static), it takes its place in the tree and every joint is found; without the
+/// hinge step they are not.
 #[test]
 fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
     let data = kinetree_tests::revolute_tree(5, 14);
@@ -575,15 +586,13 @@ fn links_registered_in_few_frames_are_posed_through_their_hinges() {
 #[test]
 fn a_keypoint_fitting_no_body_leaves_the_one_it_was_put_on() {
     let data = kinetree_tests::revolute_tree(7, 11);
-    let model = kinetree_tests::discover_default(&data.tracks);
-    let e = evaluate(&model, &data.truth);
+    let (model, e) = discover_data(&data);
     assert!(e.joints_exact, "{:?}", e.joints);
     assert!(kinetree_tests::warned(&model, |w| matches!(
         w,
         kinetree_core::Warning::PointsUnassigned { points } if points.contains(&15)
     )));
-    assert_eq!(data.truth.point_body[15], data.truth.point_body[8]);
-    assert!(model.point_body[15] >= 0 && model.point_body[15] == model.point_body[8]);
+    assert_placed_with(&model, &data, 15, 8);
 }
 
 /// Mechanisms sweep, 5-joint tree with half its joints prismatic, seed 19: splitting a
@@ -596,18 +605,16 @@ fn a_keypoint_fitting_no_body_leaves_the_one_it_was_put_on() {
 #[test]
 fn an_outlier_leaves_a_body_of_three_keypoints() {
     let data = kinetree_tests::random_tree(5, 0.5, 19);
-    let model = kinetree_tests::discover_default(&data.tracks);
-    let e = evaluate(&model, &data.truth);
+    let (model, e) = discover_data(&data);
     assert!(e.joints_exact, "{:?}", e.joints);
     assert!(kinetree_tests::warned(&model, |w| matches!(
         w,
         kinetree_core::Warning::PointsReassigned { points } if points == &[50]
     )));
-    let body_of = |p: usize| model.point_body[p];
-    assert_eq!(data.truth.point_body[50], data.truth.point_body[49]);
-    assert!(body_of(50) >= 0 && body_of(50) == body_of(49));
+    assert_placed_with(&model, &data, 50, 49);
     assert_eq!((data.truth.point_body[3], data.truth.point_body[5]), (0, 0));
-    assert!(body_of(3) >= 0 && body_of(3) == body_of(5) && body_of(3) == body_of(1));
+    assert_placed_with(&model, &data, 3, 5);
+    assert_placed_with(&model, &data, 3, 1);
 }
 
 /// Rate-test case 83 (8-joint chain, 1.5 mm of noise, 34 % occlusion): keypoint 16 of
@@ -621,13 +628,11 @@ fn an_outlier_leaves_a_body_of_three_keypoints() {
 fn a_keypoint_that_gives_a_slide_a_rotation_leaves_it() {
     let spec = kinetree_tests::rate_draw(84).pop().expect("case 83");
     let data = simulate(&spec.scenario()).expect("simulate");
-    let model = kinetree_tests::discover_default(&data.tracks);
-    let e = evaluate(&model, &data.truth);
+    let (model, e) = discover_data(&data);
     assert!(e.joints_exact, "{:?}", e.joints);
     assert!(kinetree_tests::warned(&model, |w| matches!(
         w,
         kinetree_core::Warning::PointsMakingJointsMultiDof { points } if points == &[16]
     )));
-    assert_eq!(data.truth.point_body[16], data.truth.point_body[12]);
-    assert!(model.point_body[16] >= 0 && model.point_body[16] == model.point_body[12]);
+    assert_placed_with(&model, &data, 16, 12);
 }

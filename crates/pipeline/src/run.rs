@@ -711,21 +711,31 @@ impl Pipeline {
 
     /// Whether `points` fit as one rigid body (as [`Pipeline::fits_as_one`]).
     fn points_fit_as_one(&self, tracks: &Tracks, points: &[usize], sigma: f64) -> Result<bool> {
+        Ok(self
+            .posed_as_one(tracks, points, sigma)?
+            .as_ref()
+            .and_then(BodyTrack::median_residual_m)
+            .is_some_and(|r| r <= SPLIT_RESIDUAL_IN_SIGMA * sigma))
+    }
+
+    /// `points` posed by the pipeline's pose stage as one body by themselves; `None` when the
+    /// stage returns no body.
+    fn posed_as_one(
+        &self,
+        tracks: &Tracks,
+        points: &[usize],
+        sigma: f64,
+    ) -> Result<Option<BodyTrack>> {
         let mut raw = vec![None; tracks.n_points()];
         for &p in points {
             raw[p] = Some(0);
         }
-        let union = Segmentation::from_raw(&raw, 1);
         let fitted = self.pose.estimate(&PoseInput {
             tracks,
-            segmentation: &union,
+            segmentation: &Segmentation::from_raw(&raw, 1),
             noise_sigma_m: sigma,
         })?;
-        Ok(fitted
-            .bodies
-            .first()
-            .and_then(BodyTrack::median_residual_m)
-            .is_some_and(|r| r <= SPLIT_RESIDUAL_IN_SIGMA * sigma))
+        Ok(fitted.bodies.into_iter().next())
     }
 
     /// Stage 1 alone: the pair statistics, the noise level (given, or estimated and then
@@ -1068,21 +1078,9 @@ impl Pipeline {
         let order = &found.body_order;
         let poses = &found.poses;
         let spread: Vec<(f64, f64)> = poses.bodies.iter().map(pose_spread).collect();
-        // `points` posed as one body by themselves; `None` when they cannot be.
-        let posed_alone = |points: &[usize]| {
-            let mut raw = vec![None; tracks.n_points()];
-            for &q in points {
-                raw[q] = Some(0);
-            }
-            self.pose
-                .estimate(&PoseInput {
-                    tracks,
-                    segmentation: &Segmentation::from_raw(&raw, 1),
-                    noise_sigma_m: sigma,
-                })
-                .ok()
-                .and_then(|alone| alone.bodies.into_iter().next())
-        };
+        // `None` when the points cannot be posed.
+        let posed_alone =
+            |points: &[usize]| self.posed_as_one(tracks, points, sigma).ok().flatten();
         let mut out: Vec<usize> = Vec::new();
         let mut trial = poses.clone();
         for joint in found
@@ -1367,8 +1365,7 @@ impl Pipeline {
                 hinge_done = true;
                 let groups = self.hinged_groups(tracks, dmat, &seg, &poses, sigma)?;
                 if !groups.is_empty() {
-                    let out = with_new_bodies(&seg, &groups);
-                    seg = out;
+                    seg = with_new_bodies(&seg, &groups);
                     continue;
                 }
             }
@@ -1477,10 +1474,7 @@ impl Pipeline {
             .filter(|&i| {
                 seg.body_of(i).is_none()
                     && tracks.visible_count(i) >= kinetree_pose::MIN_HINGE_FRAMES
-                    && !(0..nb).any(|b| {
-                        kinetree_pose::point_misfit(tracks, poses, b, i, sigma)
-                            .is_some_and(|(m, k)| m <= kinetree_pose::misfit_bound(k, 4.0, 2.0))
-                    })
+                    && !(0..nb).any(|b| kinetree_pose::explains_point(tracks, poses, b, i, sigma))
             })
             .collect();
         accepted_groups(dmat, left, 2, |group| {

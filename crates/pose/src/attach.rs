@@ -57,6 +57,20 @@ pub fn misfit_bound(k: f64, z: f64, slack: f64) -> f64 {
     slack * kinetree_core::stats::chi2_per_dof_quantile(k, z)
 }
 
+/// Whether body `body`'s poses explain `point` as a rigid part of it: [`point_misfit`] within
+/// [`misfit_bound`] at `z = 4`, slack 2 (the attachment's rule, also the pipeline's test of
+/// a point fitting no body before hinges are looked for).
+pub fn explains_point(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    body: usize,
+    point: usize,
+    sigma: f64,
+) -> bool {
+    point_misfit(tracks, poses, body, point, sigma)
+        .is_some_and(|(m, k)| m <= misfit_bound(k, 4.0, 2.0))
+}
+
 /// Gives every unassigned point (seen in at least [`MIN_SHARED_FRAMES`] frames with some body)
 /// to the body whose poses explain it, when exactly one body does ([`point_misfit`] below
 /// [`misfit_bound`] with `z = 4`, slack 2). Assigned points are never moved. A point near a
@@ -94,10 +108,7 @@ pub fn attach_unassigned(
             continue;
         }
         let fitting: Vec<usize> = (0..nb)
-            .filter(|&b| {
-                point_misfit(tracks, poses, b, i, sigma)
-                    .is_some_and(|(m, k)| m <= misfit_bound(k, 4.0, 2.0))
-            })
+            .filter(|&b| explains_point(tracks, poses, b, i, sigma))
             .collect();
         if let [b] = fitting[..] {
             *label = Some(b);
@@ -113,13 +124,12 @@ pub fn attach_unassigned(
             undone.contains(&members)
         })
         .collect();
-    attached.retain(|&i| {
-        let keep = !remade.contains(&labels[i]);
-        if !keep {
+    for &i in &attached {
+        if remade.contains(&labels[i]) {
             labels[i] = None;
         }
-        keep
-    });
+    }
+    attached.retain(|&i| labels[i].is_some());
     if attached.is_empty() {
         return (seg.clone(), attached);
     }

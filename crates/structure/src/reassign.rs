@@ -395,7 +395,7 @@ impl FittedMotions {
                 continue;
             };
             if own <= OUTLIER_RATIO * bound(k).max(median)
-                || model.bodies[own_body].points.len() <= 3
+                || model.bodies[own_body].points.len() <= MIN_BODY_POINTS
                 || worst[own_body].is_some_and(|(w, _)| w >= own)
             {
                 continue;
