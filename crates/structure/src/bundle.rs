@@ -228,16 +228,7 @@ fn reduced_system(
             .collect();
         // The frame's own block, unseen parameters pinned, a tiny ridge for near-dependent
         // ones (a joint whose child's points are all near its axis in this frame).
-        let mut d = lin.normal.clone();
-        for i in 0..m {
-            let v = d[(i, i)];
-            d[(i, i)] = if lin.seen[i] && v > 0.0 {
-                v * (1.0 + 1e-10)
-            } else {
-                1.0
-            };
-        }
-        let Some(chol) = d.cholesky() else {
+        let Some(chol) = lin.damped_factor(1e-10, &observer.pattern) else {
             continue;
         };
         // Each local parameter's twist against its own subtree's information.
@@ -285,7 +276,8 @@ fn reduced_system(
                     .tr_copy_from(&entry);
             }
         }
-        let solved = chol.solve(&cross);
+        let mut solved = cross.clone();
+        chol.solve_columns_mut(&mut solved);
         normal.gemm_tr(-1.0, &cross, &solved, 1.0);
         rhs.gemv_tr(-1.0, &solved, &lin.rhs, 1.0);
     }

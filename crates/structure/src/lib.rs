@@ -5,6 +5,7 @@ mod bundle;
 mod observer;
 mod reassign;
 mod refine;
+mod tree_cholesky;
 
 pub use observer::{
     FrameFit, MAX_JOINT_EXCESS, MAX_STD_M, MAX_STD_RAD, Observer, fit_model_positions,

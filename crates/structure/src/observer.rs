@@ -1,6 +1,7 @@
 //! The observer: joint positions of new frames from a discovered model, by a kinematic fit of
 //! the whole tree to each frame's visible keypoints.
 
+use crate::tree_cholesky::{TreeCholesky, TreePattern};
 use kinetree_core::geom::{angle_about, kabsch_with_rank_check, wrap_pi};
 use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Quaternion, Translation3, Unit,
@@ -95,6 +96,9 @@ pub struct Observer {
     pub(crate) joint_col: Vec<Option<usize>>,
     /// Parameters that move each body: its free ancestor's six, then the joints down to it.
     pub(crate) cols: Vec<Vec<usize>>,
+    /// The parameters' paths (each one's is the start of its body's `cols`), for the
+    /// factorisation of the normal matrix without fill-in ([`TreeCholesky`]).
+    pub(crate) pattern: TreePattern,
     pub(crate) n_params: usize,
 }
 
@@ -218,6 +222,7 @@ impl Observer {
             free_col: Vec::new(),
             joint_col: Vec::new(),
             cols: Vec::new(),
+            pattern: TreePattern::default(),
             n_params: 0,
         };
         // Joints freed when the model was discovered stay free, so new frames are fitted as
@@ -274,6 +279,14 @@ impl Observer {
                 }
             }
         }
+        let mut parent = vec![None; self.n_params];
+        for path in &self.cols {
+            for pair in path.windows(2) {
+                parent[pair[1]] = Some(pair[0]);
+            }
+        }
+        // Columns are laid out parents first, so the pattern always exists.
+        self.pattern = TreePattern::new(&parent).unwrap_or_default();
     }
 
     /// Number of joints (the length of [`Observer::observe`]'s result).
@@ -481,7 +494,7 @@ impl Observer {
             };
             let mut moved = false;
             while lambda < 1e10 {
-                let Some(step) = lin.solve(lambda) else {
+                let Some(step) = lin.solve(lambda, &self.pattern) else {
                     lambda *= 10.0;
                     continue;
                 };
@@ -1295,18 +1308,30 @@ pub(crate) struct Linear {
 
 impl Linear {
     /// The damped step `(N + lambda diag N) x = g`; parameters no point depends on stay.
-    fn solve(&self, lambda: f64) -> Option<DVector<f64>> {
-        let mut m = self.normal.clone();
-        for i in 0..m.nrows() {
-            let d = m[(i, i)];
-            m[(i, i)] = if self.seen[i] && d > 0.0 {
-                d * (1.0 + lambda)
-            } else {
-                1.0
-            };
-        }
-        let step = m.cholesky()?.solve(&self.rhs);
+    /// `pattern` is the observer's [`Observer::pattern`].
+    fn solve(&self, lambda: f64, pattern: &TreePattern) -> Option<DVector<f64>> {
+        let step = self.damped_factor(lambda, pattern)?.solve(&self.rhs);
         step.iter().all(|x| x.is_finite()).then_some(step)
+    }
+
+    /// The factor of `N + lambda diag N`, with parameters no point depends on pinned (a unit
+    /// diagonal); `None` when it is not positive definite.
+    pub(crate) fn damped_factor<'a>(
+        &self,
+        lambda: f64,
+        pattern: &'a TreePattern,
+    ) -> Option<TreeCholesky<'a>> {
+        let diagonal: Vec<f64> = (0..self.normal.nrows())
+            .map(|i| {
+                let d = self.normal[(i, i)];
+                if self.seen[i] && d > 0.0 {
+                    d * (1.0 + lambda)
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        TreeCholesky::with_diagonal(&self.normal, &diagonal, pattern)
     }
 
     /// Per parameter, its variance in units of the noise variance and its variance
