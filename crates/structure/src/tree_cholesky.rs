@@ -121,18 +121,11 @@ impl<'a> TreeCholesky<'a> {
         x
     }
 
-    /// Solves `N x = b` in place (`x` holds `b` on entry), through `L^T y = b` from the last
-    /// parameter up, then `L x = y` from the first down.
+    /// Solves `N x = b` in place (`x` holds `b` on entry), through `L^T y = b`
+    /// ([`TreeCholesky::half_solve_mut`]), then `L x = y` from the first parameter down.
     pub(crate) fn solve_mut(&self, x: &mut [f64]) {
+        self.half_solve_mut(x);
         let size = self.pattern.len();
-        for k in (0..size).rev() {
-            let (path, row) = self.row(k);
-            let xk = x[k] / row[path.len()];
-            x[k] = xk;
-            for (&a, &l) in path.iter().zip(row) {
-                x[a] -= l * xk;
-            }
-        }
         for k in 0..size {
             let (path, row) = self.row(k);
             let dot: f64 = path.iter().zip(row).map(|(&a, &l)| l * x[a]).sum();
@@ -140,22 +133,34 @@ impl<'a> TreeCholesky<'a> {
         }
     }
 
-    /// Parameter `k`'s path (without `k`) and its row of the factor (with `L[k, k]` last).
-    fn row(&self, k: usize) -> (&[usize], &[f64]) {
-        let (begin, end) = (self.pattern.start[k], self.pattern.start[k + 1]);
-        (&self.pattern.paths[begin..end - 1], &self.rows[begin..end])
+    /// Solves `L^T y = b` in place (`y` holds `b` on entry), from the last parameter up:
+    /// `b^T N^-1 c = y_b . y_c`.
+    pub(crate) fn half_solve_mut(&self, y: &mut [f64]) {
+        for k in (0..self.pattern.len()).rev() {
+            let (path, row) = self.row(k);
+            let yk = y[k] / row[path.len()];
+            y[k] = yk;
+            for (&a, &l) in path.iter().zip(row) {
+                y[a] -= l * yk;
+            }
+        }
     }
 
-    /// Solves `N X = B` for every column of `b` in place.
-    pub(crate) fn solve_columns_mut(&self, b: &mut DMatrix<f64>) {
+    /// [`TreeCholesky::half_solve_mut`] on every column of `b`.
+    pub(crate) fn half_solve_columns_mut(&self, b: &mut DMatrix<f64>) {
         let rows = b.nrows();
         if rows == 0 {
             return;
         }
-        // Column-major storage: each column is one contiguous slice.
         for column in b.as_mut_slice().chunks_exact_mut(rows) {
-            self.solve_mut(column);
+            self.half_solve_mut(column);
         }
+    }
+
+    /// Parameter `k`'s path (without `k`) and its row of the factor (with `L[k, k]` last).
+    fn row(&self, k: usize) -> (&[usize], &[f64]) {
+        let (begin, end) = (self.pattern.start[k], self.pattern.start[k + 1]);
+        (&self.pattern.paths[begin..end - 1], &self.rows[begin..end])
     }
 }
 
@@ -224,9 +229,9 @@ mod tests {
             let m = tree_matrix(&parent, seed);
             let b = DVector::from_fn(parent.len(), |i, _| (i as f64 * 0.37 + seed as f64).sin());
             let dense = m.clone().cholesky().expect("positive definite").solve(&b);
-            let tree = TreeCholesky::with_diagonal(&m, m.diagonal().as_slice(), &pattern)
-                .expect("positive definite")
-                .solve(&b);
+            let factor = TreeCholesky::with_diagonal(&m, m.diagonal().as_slice(), &pattern)
+                .expect("positive definite");
+            let tree = factor.solve(&b);
             assert!(
                 (&dense - &tree).amax() < 1e-9 * dense.amax().max(1.0),
                 "seed {seed}: {} apart",
@@ -234,11 +239,18 @@ mod tests {
             );
             // The residual itself, not only agreement with nalgebra.
             assert!((&m * &tree - &b).amax() < 1e-9);
-            let mut columns = DMatrix::from_columns(&[b.clone(), b.map(|v| 2.0 * v)]);
-            TreeCholesky::with_diagonal(&m, m.diagonal().as_slice(), &pattern)
-                .expect("positive definite")
-                .solve_columns_mut(&mut columns);
-            assert!((columns.column(1) - &tree * 2.0).amax() < 1e-9);
+            // Half solves: y_b . y_c = b^T N^-1 c, here with c = 2 b and a column that is
+            // zero above the second free body's parameters.
+            let c = DVector::from_fn(
+                parent.len(),
+                |i, _| if i >= 11 { (i as f64).cos() } else { 0.0 },
+            );
+            let mut halves = DMatrix::from_columns(&[b.clone(), b.map(|v| 2.0 * v), c.clone()]);
+            factor.half_solve_columns_mut(&mut halves);
+            let bb = b.dot(&tree);
+            let bc = c.dot(&tree);
+            assert!((halves.column(0).dot(&halves.column(1)) - 2.0 * bb).abs() < 1e-9 * bb.abs());
+            assert!((halves.column(0).dot(&halves.column(2)) - bc).abs() < 1e-9 * bb.abs());
         }
     }
 
