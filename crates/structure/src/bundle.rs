@@ -22,6 +22,7 @@ use crate::refine::JointParams;
 use kinetree_core::geom::perpendicular_basis;
 use kinetree_core::nalgebra::{DMatrix, DVector, Isometry3, Matrix6xX, Point3, Vector6};
 use kinetree_core::{Result, Tracks};
+use rayon::prelude::*;
 
 /// One adjusted joint.
 #[derive(Debug, Clone, Copy)]
@@ -144,8 +145,10 @@ pub(crate) fn adjust(observer: &Observer, tracks: &Tracks) -> Result<Option<Obse
                     Block { params, ..*b }
                 })
                 .collect();
+            // Frames are refitted independently, in parallel; collected in order, so the sum
+            // below is the same as a sequential one.
             let refitted: Vec<Descent> = frames
-                .iter()
+                .par_iter()
                 .map(|f| trial.descend(f.descent.state.clone(), &f.visible))
                 .collect();
             let c: f64 = refitted.iter().map(|d| d.cost).sum();
@@ -370,7 +373,11 @@ mod tests {
         subtract_gram_upper(&mut upper, &y);
         for j in 0..5 {
             for i in 0..5 {
-                let want = if i <= j { expected[(i, j)] } else { start[(i, j)] };
+                let want = if i <= j {
+                    expected[(i, j)]
+                } else {
+                    start[(i, j)]
+                };
                 assert!((upper[(i, j)] - want).abs() < 1e-12, "entry ({i}, {j})");
             }
         }

@@ -8,6 +8,7 @@ use kinetree_core::nalgebra::{
     UnitQuaternion, Vector3, Vector6,
 };
 use kinetree_core::{Error, Model, PoseQuality, Result, Tracks, Warning};
+use rayon::prelude::*;
 
 #[derive(Debug, Clone)]
 struct ObservedBody {
@@ -1411,25 +1412,33 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
         if over.is_empty() {
             break;
         }
+        let candidates: Vec<usize> = (0..observer.joints.len())
+            .filter(|&k| {
+                observer.joint_col[k].is_some()
+                    && over.iter().any(|&o| {
+                        o == k
+                            || observer.joint_col[o].is_some_and(|c| {
+                                observer.cols[observer.joints[k].child].contains(&c)
+                            })
+                    })
+            })
+            .collect();
+        // Each candidate is freed and the sequence refitted independently, in parallel; the
+        // best is then chosen in joint order, as a sequential loop would.
+        let trials = candidates
+            .par_iter()
+            .map(|&k| {
+                let mut trial = observer.clone();
+                trial.free_joint(k);
+                let trial_fits = trial.fit_sequence(tracks)?;
+                let miss: f64 = trial_fits.iter().map(|f| f.sum_sq_m2).sum();
+                Ok((k, miss, trial, trial_fits))
+            })
+            .collect::<Result<Vec<_>>>()?;
         let mut best: Option<(usize, f64, Observer, Vec<FrameFit>)> = None;
-        for k in 0..observer.joints.len() {
-            if observer.joint_col[k].is_none() {
-                continue;
-            }
-            let below_over = over.iter().any(|&o| {
-                o == k
-                    || observer.joint_col[o]
-                        .is_some_and(|c| observer.cols[observer.joints[k].child].contains(&c))
-            });
-            if !below_over {
-                continue;
-            }
-            let mut trial = observer.clone();
-            trial.free_joint(k);
-            let trial_fits = trial.fit_sequence(tracks)?;
-            let miss: f64 = trial_fits.iter().map(|f| f.sum_sq_m2).sum();
-            if best.as_ref().is_none_or(|b| miss < b.1) {
-                best = Some((k, miss, trial, trial_fits));
+        for trial in trials {
+            if best.as_ref().is_none_or(|b| trial.1 < b.1) {
+                best = Some(trial);
             }
         }
         let Some((k, _, freed, freed_fits)) = best else {
