@@ -112,10 +112,8 @@ pub(crate) fn adjust(observer: &Observer, tracks: &Tracks) -> Result<Option<Obse
     let mut lambda = 1e-3;
     let mut previous_gain: Option<f64> = None;
     let variance = (observer.sigma * observer.sigma).max(f64::MIN_POSITIVE);
-    let mut scratch = Scratch::default();
     for _ in 0..MAX_STEPS {
-        let Some((normal, rhs)) = reduced_system(&current, &blocks, n, &frames, &mut scratch)
-        else {
+        let Some((normal, rhs)) = reduced_system(&current, &blocks, n, &frames) else {
             break;
         };
         let mut accepted = false;
@@ -195,7 +193,6 @@ fn reduced_system(
     blocks: &[Block],
     n: usize,
     frames: &[Frame],
-    scratch: &mut Scratch,
 ) -> Option<(DMatrix<f64>, DVector<f64>)> {
     // The body each frame parameter moves with its subtree: a free pose's body, a joint's
     // child.
@@ -216,80 +213,133 @@ fn reduced_system(
         .iter()
         .map(|b| Some((observer.joint_col[b.joint]?, observer.joints[b.joint].child)))
         .collect::<Option<_>>()?;
-    let moves = |column: usize, body: usize| observer.cols[body].contains(&column);
+    let layout = Layout {
+        blocks,
+        n,
+        owner,
+        place,
+    };
     let mut normal = DMatrix::<f64>::zeros(n, n);
     let mut rhs = DVector::<f64>::zeros(n);
     let mut used = false;
-    for f in frames {
-        let Some(lin) = observer.linearise(&f.descent.poses, &f.visible, scratch) else {
-            continue;
-        };
-        used = true;
-        let twists: Vec<Option<Matrix6xX<f64>>> = blocks
-            .iter()
-            .map(|b| block_twists(observer, b, f, &lin.origin))
+    // Frames' terms are formed in parallel, a batch at a time (a term is n x n), and added in
+    // frame order, so the sums do not depend on the number of threads.
+    for batch in frames.chunks(FRAME_BATCH) {
+        let terms: Vec<Option<Option<(DMatrix<f64>, DVector<f64>)>>> = batch
+            .par_iter()
+            .map_init(Scratch::default, |scratch, f| {
+                frame_term(observer, &layout, f, scratch)
+            })
             .collect();
-        // The frame's own block, unseen parameters pinned, a tiny ridge for near-dependent
-        // ones (a joint whose child's points are all near its axis in this frame).
-        let Some(chol) = lin.damped_factor(1e-10, &observer.pattern) else {
-            continue;
-        };
-        // Each local parameter's twist against its own subtree's information.
-        let local: Vec<Vector6<f64>> = (0..m)
-            .map(|c| scratch.info[owner[c]] * scratch.twist[c])
-            .collect();
-        let mut cross = DMatrix::<f64>::zeros(m, n);
-        for (u, bu) in blocks.iter().enumerate() {
-            let Some(tu) = &twists[u] else { continue };
-            let (cu, child) = place[u];
-            let len = tu.ncols();
-            let mut g = rhs.rows_mut(bu.offset, len);
-            g += tu.transpose() * scratch.grad[child];
-            let weighted = tu.transpose() * scratch.info[child];
-            // Against the joints at or below this one (the deeper one's subtree is shared).
-            for (v, bv) in blocks.iter().enumerate() {
-                let Some(tv) = &twists[v] else { continue };
-                let (_, below) = place[v];
-                if !moves(cu, below) {
-                    continue;
-                }
-                let block = tu.transpose() * (scratch.info[below] * tv);
-                let mut upper = normal.view_mut((bu.offset, bv.offset), (len, tv.ncols()));
-                upper += &block;
-                if u != v {
-                    let mut lower = normal.view_mut((bv.offset, bu.offset), (tv.ncols(), len));
-                    lower += block.transpose();
-                }
-            }
-            // Against the frame's parameters: above or at the child, the child's subtree;
-            // below it, the parameter's own.
-            for c in 0..m {
-                if !lin.seen[c] {
-                    continue;
-                }
-                let entry = if moves(c, child) {
-                    &weighted * scratch.twist[c]
-                } else if moves(cu, owner[c]) {
-                    tu.transpose() * local[c]
-                } else {
-                    continue;
-                };
-                cross
-                    .view_mut((c, bu.offset), (1, len))
-                    .tr_copy_from(&entry);
+        for term in terms.into_iter().flatten() {
+            used = true;
+            if let Some((n_f, g_f)) = term {
+                normal += n_f;
+                rhs += g_f;
             }
         }
-        // cross^T D^-1 cross = Y^T Y and cross^T D^-1 l = Y^T z with Y = L^-T cross and
-        // z = L^-T l (D = L^T L): one triangular sweep per column instead of two.
-        chol.half_solve_columns_mut(&mut cross);
-        let mut z = lin.rhs.clone();
-        chol.half_solve_mut(z.as_mut_slice());
-        subtract_gram_upper(&mut normal, &cross);
-        rhs.gemv_tr(-1.0, &cross, &z, 1.0);
     }
     // The frames' terms went into the upper triangle only.
     normal.fill_lower_triangle_with_upper_triangle();
     used.then_some((normal, rhs))
+}
+
+/// What [`reduced_system`] needs of the model besides the frames.
+struct Layout<'a> {
+    blocks: &'a [Block],
+    /// Number of joint parameters.
+    n: usize,
+    /// The body each frame parameter moves with its subtree.
+    owner: Vec<usize>,
+    /// Per block: its joint's position column and child.
+    place: Vec<(usize, usize)>,
+}
+
+/// Frames whose terms of the reduced system are formed at once.
+const FRAME_BATCH: usize = 16;
+
+/// One frame's term of [`reduced_system`]: `A_t - B_t D_t^-1 B_t^T` (on and above the
+/// diagonal) and `g_t - B_t D_t^-1 l_t`. `None` without a usable linearisation; `Some(None)`
+/// when the frame's own normal matrix cannot be factored.
+fn frame_term(
+    observer: &Observer,
+    layout: &Layout,
+    f: &Frame,
+    scratch: &mut Scratch,
+) -> Option<Option<(DMatrix<f64>, DVector<f64>)>> {
+    let Layout {
+        blocks,
+        n,
+        owner,
+        place,
+    } = layout;
+    let (n, m) = (*n, observer.n_params);
+    let moves = |column: usize, body: usize| observer.cols[body].contains(&column);
+    let mut normal = DMatrix::<f64>::zeros(n, n);
+    let mut rhs = DVector::<f64>::zeros(n);
+    let lin = observer.linearise(&f.descent.poses, &f.visible, scratch)?;
+    let twists: Vec<Option<Matrix6xX<f64>>> = blocks
+        .iter()
+        .map(|b| block_twists(observer, b, f, &lin.origin))
+        .collect();
+    // The frame's own block, unseen parameters pinned, a tiny ridge for near-dependent
+    // ones (a joint whose child's points are all near its axis in this frame).
+    let Some(chol) = lin.damped_factor(1e-10, &observer.pattern) else {
+        return Some(None);
+    };
+    // Each local parameter's twist against its own subtree's information.
+    let local: Vec<Vector6<f64>> = (0..m)
+        .map(|c| scratch.info[owner[c]] * scratch.twist[c])
+        .collect();
+    let mut cross = DMatrix::<f64>::zeros(m, n);
+    for (u, bu) in blocks.iter().enumerate() {
+        let Some(tu) = &twists[u] else { continue };
+        let (cu, child) = place[u];
+        let len = tu.ncols();
+        let mut g = rhs.rows_mut(bu.offset, len);
+        g += tu.transpose() * scratch.grad[child];
+        let weighted = tu.transpose() * scratch.info[child];
+        // Against the joints at or below this one (the deeper one's subtree is shared).
+        for (v, bv) in blocks.iter().enumerate() {
+            let Some(tv) = &twists[v] else { continue };
+            let (_, below) = place[v];
+            if !moves(cu, below) {
+                continue;
+            }
+            let block = tu.transpose() * (scratch.info[below] * tv);
+            let mut upper = normal.view_mut((bu.offset, bv.offset), (len, tv.ncols()));
+            upper += &block;
+            if u != v {
+                let mut lower = normal.view_mut((bv.offset, bu.offset), (tv.ncols(), len));
+                lower += block.transpose();
+            }
+        }
+        // Against the frame's parameters: above or at the child, the child's subtree;
+        // below it, the parameter's own.
+        for c in 0..m {
+            if !lin.seen[c] {
+                continue;
+            }
+            let entry = if moves(c, child) {
+                &weighted * scratch.twist[c]
+            } else if moves(cu, owner[c]) {
+                tu.transpose() * local[c]
+            } else {
+                continue;
+            };
+            cross
+                .view_mut((c, bu.offset), (1, len))
+                .tr_copy_from(&entry);
+        }
+    }
+    // cross^T D^-1 cross = Y^T Y and cross^T D^-1 l = Y^T z with Y = L^-T cross and
+    // z = L^-T l (D = L^T L): one triangular sweep per column instead of two.
+    chol.half_solve_columns_mut(&mut cross);
+    let mut z = lin.rhs.clone();
+    chol.half_solve_mut(z.as_mut_slice());
+    subtract_gram_upper(&mut normal, &cross);
+    rhs.gemv_tr(-1.0, &cross, &z, 1.0);
+    Some(Some((normal, rhs)))
 }
 
 /// `normal -= y^T y` on and above the diagonal: the product is symmetric, so half of nalgebra's
