@@ -225,17 +225,21 @@ fn reduced_system(
     // Frames' terms are formed in parallel, a batch at a time (a term is n x n), and added in
     // frame order, so the sums do not depend on the number of threads.
     for batch in frames.chunks(FRAME_BATCH) {
-        let terms: Vec<Option<Option<(DMatrix<f64>, DVector<f64>)>>> = batch
+        let terms: Vec<FrameTerm> = batch
             .par_iter()
             .map_init(Scratch::default, |scratch, f| {
                 frame_term(observer, &layout, f, scratch)
             })
             .collect();
-        for term in terms.into_iter().flatten() {
-            used = true;
-            if let Some((n_f, g_f)) = term {
-                normal += n_f;
-                rhs += g_f;
+        for term in terms {
+            match term {
+                FrameTerm::Unused => {}
+                FrameTerm::Unfactored => used = true,
+                FrameTerm::Term(n_f, g_f) => {
+                    used = true;
+                    normal += n_f;
+                    rhs += g_f;
+                }
             }
         }
     }
@@ -258,15 +262,18 @@ struct Layout<'a> {
 /// Frames whose terms of the reduced system are formed at once.
 const FRAME_BATCH: usize = 16;
 
-/// One frame's term of [`reduced_system`]: `A_t - B_t D_t^-1 B_t^T` (on and above the
-/// diagonal) and `g_t - B_t D_t^-1 l_t`. `None` without a usable linearisation; `Some(None)`
-/// when the frame's own normal matrix cannot be factored.
-fn frame_term(
-    observer: &Observer,
-    layout: &Layout,
-    f: &Frame,
-    scratch: &mut Scratch,
-) -> Option<Option<(DMatrix<f64>, DVector<f64>)>> {
+/// One frame's part of [`reduced_system`].
+enum FrameTerm {
+    /// No usable linearisation (no point seen).
+    Unused,
+    /// Linearised, but the frame's own normal matrix could not be factored: it adds nothing.
+    Unfactored,
+    /// `A_t - B_t D_t^-1 B_t^T` (on and above the diagonal) and `g_t - B_t D_t^-1 l_t`.
+    Term(DMatrix<f64>, DVector<f64>),
+}
+
+/// One frame's term of [`reduced_system`].
+fn frame_term(observer: &Observer, layout: &Layout, f: &Frame, scratch: &mut Scratch) -> FrameTerm {
     let Layout {
         blocks,
         n,
@@ -277,7 +284,9 @@ fn frame_term(
     let moves = |column: usize, body: usize| observer.cols[body].contains(&column);
     let mut normal = DMatrix::<f64>::zeros(n, n);
     let mut rhs = DVector::<f64>::zeros(n);
-    let lin = observer.linearise(&f.descent.poses, &f.visible, scratch)?;
+    let Some(lin) = observer.linearise(&f.descent.poses, &f.visible, scratch) else {
+        return FrameTerm::Unused;
+    };
     let twists: Vec<Option<Matrix6xX<f64>>> = blocks
         .iter()
         .map(|b| block_twists(observer, b, f, &lin.origin))
@@ -285,7 +294,7 @@ fn frame_term(
     // The frame's own block, unseen parameters pinned, a tiny ridge for near-dependent
     // ones (a joint whose child's points are all near its axis in this frame).
     let Some(chol) = lin.damped_factor(1e-10, &observer.pattern) else {
-        return Some(None);
+        return FrameTerm::Unfactored;
     };
     // Each local parameter's twist against its own subtree's information.
     let local: Vec<Vector6<f64>> = (0..m)
@@ -339,7 +348,7 @@ fn frame_term(
     chol.half_solve_mut(z.as_mut_slice());
     subtract_gram_upper(&mut normal, &cross);
     rhs.gemv_tr(-1.0, &cross, &z, 1.0);
-    Some(Some((normal, rhs)))
+    FrameTerm::Term(normal, rhs)
 }
 
 /// `normal -= y^T y` on and above the diagonal: the product is symmetric, so half of nalgebra's
