@@ -14,6 +14,7 @@ use kinetree_dissimilarity::{
     estimate_noise_sigma, estimate_noise_sigma_nearest_rigid, pair_stats, refine_noise_sigma,
 };
 use kinetree_structure::FittedMotions;
+use rayon::prelude::*;
 
 /// The stages, built from a [`PipelineConfig`] or supplied by the caller.
 #[derive(Debug)]
@@ -649,26 +650,29 @@ impl Pipeline {
         };
         let n = poses.bodies.len();
         let spread: Vec<(f64, f64)> = poses.bodies.iter().map(pose_spread).collect();
-        let mut out = Vec::new();
-        let mut test = |a: Option<usize>, b: usize| -> Result<()> {
-            match self.dof.test_pair(&input, a, b) {
-                Ok(p) => out.push(p),
-                Err(Error::Degenerate(_)) => {}
-                Err(e) => return Err(e),
-            }
-            Ok(())
-        };
-        for b in 0..n {
-            test(None, b)?;
-        }
+        // Every body against the camera, then every pair in the frame of the one whose poses
+        // are the steadier. The tests are independent: run in parallel, kept in this order.
+        let mut pairs: Vec<(Option<usize>, usize)> = (0..n).map(|b| (None, b)).collect();
         for i in 0..n {
             for j in i + 1..n {
-                if frame_first(&spread, i, j) {
-                    test(Some(j), i)?;
+                pairs.push(if frame_first(&spread, i, j) {
+                    (Some(j), i)
                 } else {
-                    test(Some(i), j)?;
-                }
+                    (Some(i), j)
+                });
             }
+        }
+        let tested: Vec<Result<Option<PairDof>>> = pairs
+            .par_iter()
+            .map(|&(a, b)| match self.dof.test_pair(&input, a, b) {
+                Ok(p) => Ok(Some(p)),
+                Err(Error::Degenerate(_)) => Ok(None),
+                Err(e) => Err(e),
+            })
+            .collect();
+        let mut out = Vec::new();
+        for t in tested {
+            out.extend(t?);
         }
         Ok(out)
     }

@@ -5,6 +5,7 @@ use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, Translation3};
 use kinetree_core::{
     BodyPoses, BodyTrack, Error, PoseEstimator, PoseInput, PoseQuality, Result, Tracks,
 };
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`KabschPoses`].
@@ -345,9 +346,10 @@ impl PoseEstimator for KabschPoses {
                 message: format!("must be finite and >= 0, got {}", input.noise_sigma_m),
             });
         }
+        // Bodies are posed independently: in parallel, collected in body order.
         let bodies = seg
             .members()
-            .iter()
+            .par_iter()
             .map(|pts| self.body_track(input.tracks, pts, input.noise_sigma_m))
             .collect();
         Ok(BodyPoses {
