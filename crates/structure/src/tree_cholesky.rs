@@ -12,14 +12,15 @@
 //! known without analysis, and the matrices have tens of rows. nalgebra's dense Cholesky was
 //! most of a frame's fit (34 % of discovery on the 21-body scenes, measured with `perf`), and
 //! a general sparse factorisation (faer's, behind its `sparse-linalg` feature) would add a
-//! symbolic analysis and a compressed-column copy to every call.
+//! symbolic analysis and a compressed-column copy to every call (not measured). On the
+//! 21-body scenes the discovery time fell from 100 to 59 s with this factorisation.
 
 use kinetree_core::nalgebra::{DMatrix, DVector};
 
 /// The parameters' paths: for each parameter, the ones above it, top first. A parameter's
-/// path is its parent's path followed by the parent, so the parameters on a path are the
-/// path's prefixes' ends: the factor's row of a parameter on `k`'s path is a prefix of `k`'s
-/// row, and each elimination step is a run of contiguous updates.
+/// path is its parent's path followed by the parent, so the path of the `i`-th parameter on
+/// `k`'s path is the first `i` entries of `k`'s: its row of the factor lines up with the start
+/// of `k`'s row, and each elimination step is a run of contiguous updates.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct TreePattern {
     /// Where each parameter's path (and its packed row) starts in `paths` (and the factor).
