@@ -69,6 +69,26 @@ fn discover_hidden_links_10_joints_110_points_200_frames(bencher: divan::Bencher
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 
+/// A 21-body tree (20 joints, 8 keypoints per link, 200 frames, 1 mm, 10 % dropout, seed 3:
+/// the slowest of the noise test's scenes at 1 mm), where the whole-tree fits and their
+/// bundle adjustments dominate. Three samples of about 17 s each on 2 cores.
+#[divan::bench(sample_count = 3)]
+fn discover_tree_20_joints_168_points_200_frames(bencher: divan::Bencher) {
+    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+        n_joints: 20,
+        extra_points: 0,
+        tree: true,
+        noise_sigma_m: 0.001,
+        dropout: 0.1,
+        seed: 3,
+        ..Default::default()
+    });
+    let tracks = kinetree_synth::simulate(&scenario)
+        .expect("simulate")
+        .tracks;
+    bencher.bench_local(|| discover(divan::black_box(&tracks)));
+}
+
 #[divan::bench(sample_count = 20)]
 fn fit_model_positions_9_joints_80_points_150_frames(bencher: divan::Bencher) {
     let tracks = arm_tracks();
