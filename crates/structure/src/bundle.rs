@@ -243,7 +243,8 @@ fn reduced_system(
             }
         }
     }
-    // The frames' terms went into the upper triangle only.
+    // The Gram products went into the upper triangle only (the joint-joint blocks into both):
+    // the lower one is copied from it.
     normal.fill_lower_triangle_with_upper_triangle();
     used.then_some((normal, rhs))
 }
@@ -282,8 +283,6 @@ fn frame_term(observer: &Observer, layout: &Layout, f: &Frame, scratch: &mut Scr
     } = layout;
     let (n, m) = (*n, observer.n_params);
     let moves = |column: usize, body: usize| observer.cols[body].contains(&column);
-    let mut normal = DMatrix::<f64>::zeros(n, n);
-    let mut rhs = DVector::<f64>::zeros(n);
     let Some(lin) = observer.linearise(&f.descent.poses, &f.visible, scratch) else {
         return FrameTerm::Unused;
     };
@@ -296,6 +295,8 @@ fn frame_term(observer: &Observer, layout: &Layout, f: &Frame, scratch: &mut Scr
     let Some(chol) = lin.damped_factor(1e-10, &observer.pattern) else {
         return FrameTerm::Unfactored;
     };
+    let mut normal = DMatrix::<f64>::zeros(n, n);
+    let mut rhs = DVector::<f64>::zeros(n);
     // Each local parameter's twist against its own subtree's information.
     let local: Vec<Vector6<f64>> = (0..m)
         .map(|c| scratch.info[owner[c]] * scratch.twist[c])
