@@ -458,19 +458,20 @@ fn pose_spread(track: &BodyTrack) -> (f64, f64) {
     (spread, travel)
 }
 
-/// Whether body `j` should be the frame of the pair `(i, j)`: it is better posed, or equally
-/// well posed (within rounding) and travels less. Exact ties keep the lower index as the
-/// frame (identical bodies moving identically).
-fn frame_first(spread: &[(f64, f64)], i: usize, j: usize) -> bool {
+/// The pair of bodies `i`, `j` as `(frame, moving)`: `j` is the frame when it is better
+/// posed, or equally well posed (within rounding) and travels less; else `i`. Exact ties keep
+/// `i` (identical bodies moving identically).
+fn frame_and_moving(spread: &[(f64, f64)], i: usize, j: usize) -> (usize, usize) {
     let differs = |a: f64, b: f64| (a - b).abs() > 1e-9 * a.abs().max(b.abs());
     let ((si, ti), (sj, tj)) = (spread[i], spread[j]);
-    if differs(si, sj) {
+    let j_first = if differs(si, sj) {
         sj < si
     } else if differs(ti, tj) {
         tj < ti
     } else {
         false
-    }
+    };
+    if j_first { (j, i) } else { (i, j) }
 }
 
 /// Pairs of bodies the pairwise measure keeps apart: the mean dissimilarity over their
@@ -638,7 +639,7 @@ impl Pipeline {
     }
 
     /// Every pair's DoF test: each body against the camera frame, and each pair of bodies
-    /// with the better-posed one as the frame (see [`pose_spread`] and [`frame_first`]). The
+    /// with the better-posed one as the frame (see [`pose_spread`] and [`frame_and_moving`]). The
     /// test of `b` in `a`'s frame is not that of `a` in `b`'s (the frame's rotation noise acts
     /// at the lever arm of the other's origin), so the direction must not follow the body
     /// numbering, which follows the order of the points: with the lower index as the frame,
@@ -655,11 +656,8 @@ impl Pipeline {
         let mut pairs: Vec<(Option<usize>, usize)> = (0..n).map(|b| (None, b)).collect();
         for i in 0..n {
             for j in i + 1..n {
-                pairs.push(if frame_first(&spread, i, j) {
-                    (Some(j), i)
-                } else {
-                    (Some(i), j)
-                });
+                let (frame, moving) = frame_and_moving(&spread, i, j);
+                pairs.push((Some(frame), moving));
             }
         }
         let tested: Vec<Result<Option<PairDof>>> = pairs
@@ -1094,11 +1092,7 @@ impl Pipeline {
             .filter(|j| j.joint_type == "multi_dof")
         {
             let (p, c) = (order[joint.parent], order[joint.child]);
-            let (frame, moving) = if frame_first(&spread, p, c) {
-                (c, p)
-            } else {
-                (p, c)
-            };
+            let (frame, moving) = frame_and_moving(&spread, p, c);
             // Whether the pair test with `side` posed as `track` finds a single-DoF joint.
             let mut single_dof = |side: usize, track: BodyTrack| {
                 trial.bodies[side] = track;
