@@ -399,13 +399,18 @@ fn tally(
 /// within their limit (246 under the flat figure), 260 of 262 with honest deviations, errors
 /// 1.02 deviations; on 640 draws 639 models, 2851 of 2854 axes, 1834 of 1834 pivots, 2850 of
 /// 2854 positions (2654 under the flat figure), 2850 of 2854 honest, 1.02. Required: about
-/// the measured rates less a point or two (every miss is printed).
+/// the measured rates less a point or two (every miss is printed). The positions smoothed
+/// over time (`Joint::smoothed_positions`, session 13) are held to the flat figure itself:
+/// on 64 draws 258 of 262 joints within it, errors 0.94 of their stated deviations; on 640
+/// draws 2828 of 2854, 0.93. Required: 97 % of the joints, errors 0.7-1.25 deviations.
 #[test]
 fn issue_four_targets_at_one_millimetre() {
     let n = cases() as usize;
     let (mut structure, mut axes, mut pivots, mut rms) = ((0, 0), (0, 0), (0, 0), (0, 0));
     let (mut flat_rms, mut calibrated) = ((0, 0), (0, 0));
+    let mut smoothed_flat = (0, 0);
     let mut z_squares = Vec::new();
+    let mut smoothed_z_squares = Vec::new();
     let mut misses = Vec::new();
     for (case, mut spec) in rate_draw(n).into_iter().enumerate() {
         spec.noise_sigma_m = 0.001;
@@ -465,17 +470,29 @@ fn issue_four_targets_at_one_millimetre() {
                 )
             });
             z_squares.push(z * z);
+            let smoothed = j.smoothed_rms.unwrap_or(f64::INFINITY);
+            tally(&mut smoothed_flat, smoothed < flat, &mut misses, || {
+                format!(
+                    "case {case} joint {}: smoothed RMS {smoothed:.4} (flat {flat}, per frame {position:.4})",
+                    j.joint
+                )
+            });
+            let smoothed_z = j.smoothed_z_rms.unwrap_or(f64::INFINITY);
+            smoothed_z_squares.push(smoothed_z * smoothed_z);
         }
     }
     for m in &misses {
         eprintln!("{m}");
     }
     let rate = |(k, of): (usize, usize)| k as f64 / of.max(1) as f64;
-    let pooled_z = (z_squares.iter().sum::<f64>() / z_squares.len().max(1) as f64).sqrt();
+    let pooled =
+        |squares: &[f64]| (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt();
+    let (pooled_z, smoothed_z) = (pooled(&z_squares), pooled(&smoothed_z_squares));
     eprintln!(
         "structure {structure:?}, axes {axes:?}, pivots {pivots:?}, positions {rms:?} \
          (under the flat figure {flat_rms:?}), stated deviations honest {calibrated:?}, \
-         errors {pooled_z:.3} stated deviations"
+         errors {pooled_z:.3} stated deviations; smoothed positions under the flat figure \
+         {smoothed_flat:?}, errors {smoothed_z:.3} of their stated deviations"
     );
     assert!(rate(structure) >= 0.95, "structure exact {structure:?}");
     assert!(rate(axes) >= 0.99, "axes {axes:?}");
@@ -486,6 +503,14 @@ fn issue_four_targets_at_one_millimetre() {
         "positions under 0.01 rad or 1 mm {flat_rms:?}"
     );
     assert!(rate(calibrated) >= 0.97, "honest deviations {calibrated:?}");
+    assert!(
+        rate(smoothed_flat) >= 0.97,
+        "smoothed positions under 0.01 rad or 1 mm {smoothed_flat:?}"
+    );
+    assert!(
+        (0.7..1.25).contains(&smoothed_z),
+        "smoothed errors in stated deviations {smoothed_z}"
+    );
     assert!(
         (0.8..1.25).contains(&pooled_z),
         "errors in stated deviations {pooled_z}"

@@ -85,6 +85,11 @@ enum Command {
         /// Output CSV.
         #[arg(short, long, default_value = "config.csv")]
         output: PathBuf,
+        /// Write the positions smoothed over the frames (a constant-velocity Kalman smoother
+        /// weighting each frame's position by its standard deviation, as the model's
+        /// `smoothed_positions`) instead of each frame's own estimate.
+        #[arg(long)]
+        smooth: bool,
     },
     /// Export a model: URDF (links, joints with origin, axis and observed limits), DOT (the
     /// kinematic graph) or JSON (the model, re-validated, with its schema version).
@@ -265,7 +270,8 @@ fn main() -> Result<()> {
             model,
             tracks,
             output,
-        } => observe(&model, &tracks, &output),
+            smooth,
+        } => observe(&model, &tracks, &output, smooth),
         Command::Export {
             model,
             format,
@@ -366,7 +372,7 @@ fn main() -> Result<()> {
     }
 }
 
-fn observe(model_path: &Path, tracks_path: &Path, output: &Path) -> Result<()> {
+fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -> Result<()> {
     use std::io::Write;
     let model = kinetree_io::read_model(model_path)?;
     let tracks = kinetree_io::read_tracks(tracks_path)?;
@@ -383,9 +389,24 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path) -> Result<()> {
     // Each frame's fit starts from the frames before it, so revolute columns come out
     // unwrapped.
     let fits = observer.fit_sequence(&tracks)?;
-    let columns: Vec<Vec<Option<f64>>> = (0..observer.n_joints())
+    let mut columns: Vec<Vec<Option<f64>>> = (0..observer.n_joints())
         .map(|k| fits.iter().map(|f| f.positions[k]).collect())
         .collect();
+    if smooth {
+        for (k, column) in columns.iter_mut().enumerate() {
+            let std: Vec<Option<f64>> = fits
+                .iter()
+                .map(|f| f.std[k].filter(|s| s.is_finite() && *s > 0.0))
+                .collect();
+            let max_std = if observer.is_revolute(k) {
+                kinetree_structure::MAX_STD_RAD
+            } else {
+                kinetree_structure::MAX_STD_M
+            };
+            *column = kinetree_structure::smooth_positions(column, &std, max_std)?
+                .map_or_else(|| vec![None; column.len()], |s| s.positions);
+        }
+    }
     let mut w = std::io::BufWriter::new(
         std::fs::File::create(output).with_context(|| format!("creating {}", output.display()))?,
     );

@@ -215,6 +215,61 @@ fn observe_writes_one_column_per_joint() {
             "joint {k}: offsets {offsets:?}"
         );
     }
+    // `--smooth`: the model's smoothed positions, up to the same offset.
+    let smoothed_csv = dir.join("smoothed.csv");
+    run_ok(
+        kinetree()
+            .arg("observe")
+            .arg(&model)
+            .arg(dir.join("tracks.csv"))
+            .arg("--smooth")
+            .arg("-o")
+            .arg(&smoothed_csv),
+    );
+    let text = std::fs::read_to_string(&smoothed_csv).expect("csv");
+    let smoothed_rows: Vec<Vec<Option<f64>>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').skip(1).map(|v| v.parse().ok()).collect())
+        .collect();
+    for (k, joint) in json["joints"]
+        .as_array()
+        .expect("joints")
+        .iter()
+        .enumerate()
+    {
+        let batch: Vec<Option<f64>> = joint["smoothed_positions"]
+            .as_array()
+            .expect("smoothed positions")
+            .iter()
+            .map(serde_json::Value::as_f64)
+            .collect();
+        let offsets: Vec<f64> = smoothed_rows
+            .iter()
+            .zip(&batch)
+            .filter_map(|(r, b)| Some(b.as_ref()? - r[k].as_ref()?))
+            .collect();
+        assert!(
+            offsets.len() > 90,
+            "joint {k}: {} smoothed frames",
+            offsets.len()
+        );
+        let turns = (offsets[0] / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+        assert!(
+            offsets.iter().all(|o| (o - turns).abs() < 1e-6),
+            "joint {k}: smoothed offsets {offsets:?}"
+        );
+        // Smoothing changes the values.
+        let moved = smoothed_rows
+            .iter()
+            .zip(&rows)
+            .filter(|(s, r)| s[k].zip(r[k]).is_some_and(|(s, r)| (s - r).abs() > 1e-9))
+            .count();
+        assert!(
+            moved > 50,
+            "joint {k}: only {moved} frames changed by smoothing"
+        );
+    }
 }
 
 #[test]

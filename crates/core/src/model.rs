@@ -130,6 +130,17 @@ pub struct Joint {
     /// multi-DoF joint). Weights for anyone averaging or smoothing the positions.
     #[serde(default)]
     pub position_std: Vec<Option<f64>>,
+    /// The positions smoothed over time (`kinetree_structure::smooth_positions`: a
+    /// constant-velocity Kalman smoother weighting each position by `position_std`, its
+    /// process noise chosen by maximum likelihood), from the first to the last frame with a
+    /// position and a standard deviation, gaps bridged; null outside, where the smoothed
+    /// standard deviation exceeds 0.5 rad or 0.1 m, and for a joint with fewer than three
+    /// such frames. A prior on the motion, not a per-frame estimate.
+    #[serde(default)]
+    pub smoothed_positions: Vec<Option<f64>>,
+    /// Standard deviation of each smoothed position.
+    #[serde(default)]
+    pub smoothed_std: Vec<Option<f64>>,
     /// Observed range `[min, max]` of the positions.
     pub range: Option<[f64; 2]>,
     /// Estimated relative DoF.

@@ -41,6 +41,13 @@ pub struct JointEval {
     /// an estimate as good as it says).
     #[serde(default)]
     pub position_z_rms: Option<f64>,
+    /// RMS error of the smoothed positions (`Joint::smoothed_positions`), after their own
+    /// sign and offset alignment.
+    #[serde(default)]
+    pub smoothed_rms: Option<f64>,
+    /// RMS of the smoothed positions' errors in units of their standard deviations.
+    #[serde(default)]
+    pub smoothed_z_rms: Option<f64>,
 }
 
 /// The comparison of a model with the truth.
@@ -137,6 +144,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             position_rms: None,
             position_std_rms: None,
             position_z_rms: None,
+            smoothed_rms: None,
+            smoothed_z_rms: None,
         };
         if let Some(j) = found {
             let expected = match spec.joint_type {
@@ -174,6 +183,13 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             e.position_rms = aligned_rms(&j.positions, &truth.joint_positions[k]);
             (e.position_std_rms, e.position_z_rms) =
                 precision_check(&j.positions, &j.position_std, &truth.joint_positions[k]).unzip();
+            e.smoothed_rms = aligned_rms(&j.smoothed_positions, &truth.joint_positions[k]);
+            e.smoothed_z_rms = precision_check(
+                &j.smoothed_positions,
+                &j.smoothed_std,
+                &truth.joint_positions[k],
+            )
+            .map(|(_, z)| z);
         }
         all_ok &= e.found && e.type_ok;
         joints.push(e);

@@ -1596,6 +1596,8 @@ impl Pipeline {
                 positions,
                 // Set with the positions by `kinetree_structure::fit_model_positions`.
                 position_std: Vec::new(),
+                smoothed_positions: Vec::new(),
+                smoothed_std: Vec::new(),
                 range: None,
                 dof: pair.dof,
                 ranks: Ranks {

@@ -5,6 +5,7 @@ mod bundle;
 mod observer;
 mod reassign;
 mod refine;
+mod smooth;
 mod tree_cholesky;
 
 pub use observer::{
@@ -14,6 +15,7 @@ pub use reassign::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
     OUTLIER_RATIO,
 };
+pub use smooth::{MIN_SMOOTHED_FRAMES, SmoothedPositions, smooth_positions};
 
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{
