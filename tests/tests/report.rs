@@ -78,10 +78,11 @@ keypoint whose track fits no other body's true motion within noise
 {noise}
 The method holds up to a few millimetres of noise on these 10-50 cm bodies and fails at 1 cm,
 where pairs on one body vary as much as pairs across a joint near its axis. Hierarchical
-(average linkage) and spectral clustering agree almost everywhere; DBSCAN trails them once
-noise rises, because a density criterion has little to work with on bodies of 4-12 points
-(the pipeline's pairwise split of mixed bodies and DBSCAN's regrouping of its leftovers
-narrowed the gap: 17/20 against 14/20 joints exact at 3 mm before them).
+(average linkage) and spectral clustering agree almost everywhere; DBSCAN, whose density
+criterion has little to work with on bodies of 4-12 points, is level with them up to 3 mm
+and a run behind at 1 cm (the pipeline's pairwise split of mixed bodies and DBSCAN's
+regrouping of its leftovers closed the gap: 17/20 against 14/20 joints exact at 3 mm before
+them).
 
 ### Occlusion and sequence length (experiments/sweeps/occlusion-and-frames.toml)
 
@@ -96,7 +97,8 @@ are inferred through third points rather than dropped (the paper drops such poin
 Chains stay mostly right up to 10 joints. Trees degrade faster, most with revolute joints:
 their box links hide each other, and a link may show one or two keypoints at a time in most
 frames. Such links are posed through their hinges (next section); most misses left are
-links whose few keypoints the clustering mixed into their neighbours. All-prismatic
+links whose few keypoints the clustering mixed into their neighbours, or links with only
+0-4 keypoints ever in view. All-prismatic
 mechanisms are the easiest case: a translation without rotation is unmistakable.
 
 ### Hidden links (experiments/sweeps/hinges.toml)

@@ -478,14 +478,16 @@ fn drawn_model(spec: &MechanismSpec) -> (kinetree_core::Model, f64) {
     (model, ari)
 }
 
-/// Three mechanisms of the rate test's draw (cases 218, 486, 622: 1.3-1.9 mm of noise,
-/// 14-34 % occlusion) where one point seen in 76-125 frames was left unassigned: the
-/// attachment takes a point only when exactly one body's per-body poses fit it within a wide
-/// bound, and these fitted two. Against the whole-tree fit's motions one body explains each
-/// clearly best, and it gets the point: identifiable ARI 1 on all three (0.981-0.990 before).
+/// Two mechanisms of the rate test's draw (cases 218 and 486: 1.3-1.9 mm of noise, 14-34 %
+/// occlusion) where one point seen in 76-125 frames was left unassigned: the attachment
+/// takes a point only when exactly one body's per-body poses fit it within a wide bound, and
+/// these fitted two. Against the whole-tree fit's motions one body explains each clearly
+/// best, and it gets the point: identifiable ARI 1 on both (0.981-0.990 before). (A third,
+/// case 622, has come out with identifiable ARI 1 and no move since the noise level pools
+/// the pairs inside bodies, session 13.)
 #[test]
 fn an_unassigned_point_goes_to_the_body_whose_fitted_motion_explains_it() {
-    segmented_with_moved_points(&kinetree_tests::rate_draw(623), &[218, 486, 622]);
+    segmented_with_moved_points(&kinetree_tests::rate_draw(487), &[218, 486]);
 }
 
 /// Asserts that the default pipeline segments each of `cases` of `specs` with identifiable
