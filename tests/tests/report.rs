@@ -71,7 +71,8 @@ keypoint on its body. Box corners hidden from the camera in every frame cannot b
 any method, which keeps structure-exact rates below joints-exact ones; nor can keypoints
 near a joint axis, which fit both bodies' motions within noise. "Identifiable ARI 1": every
 keypoint whose track fits no other body's true motion within noise
-(`kinetree_eval::ambiguous_points`) is on its body.
+(`kinetree_eval::ambiguous_points`) is on its body. The RMS columns are each run's worst
+joint, per frame and, in the last two, smoothed over time (`Joint::smoothed_positions`).
 
 ### Noise and clusterers (experiments/sweeps/noise-and-clusterers.toml)
 

@@ -190,13 +190,14 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
         );
         for j in &e.joints {
             emitln!(
-                "  true joint {}: found {}, type ok {}, axis error {}, joint RMS {}",
+                "  true joint {}: found {}, type ok {}, axis error {}, joint RMS {} (smoothed {})",
                 j.joint,
                 j.found,
                 j.type_ok,
                 j.axis_error_deg
                     .map_or("-".into(), |v| format!("{v:.3} deg")),
-                j.position_rms.map_or("-".into(), |v| format!("{v:.4}"))
+                j.position_rms.map_or("-".into(), |v| format!("{v:.4}")),
+                j.smoothed_rms.map_or("-".into(), |v| format!("{v:.4}"))
             );
         }
     }

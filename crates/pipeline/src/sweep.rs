@@ -37,6 +37,7 @@
 use crate::config::ExperimentConfig;
 use crate::experiment::run_experiment;
 use kinetree_core::{Error, Result};
+use kinetree_eval::JointEval;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -102,6 +103,11 @@ pub struct SweepRun {
     pub max_revolute_rms_rad: Option<f64>,
     /// Largest joint-position RMS over prismatic joints, metres.
     pub max_prismatic_rms_m: Option<f64>,
+    /// Largest RMS of the smoothed positions (`Joint::smoothed_positions`) over revolute
+    /// joints, radians.
+    pub max_revolute_smoothed_rms_rad: Option<f64>,
+    /// ... over prismatic joints, metres.
+    pub max_prismatic_smoothed_rms_m: Option<f64>,
     /// Bodies found.
     pub bodies: Option<usize>,
 }
@@ -438,6 +444,8 @@ impl Sweep {
             max_axis_error_deg: None,
             max_revolute_rms_rad: None,
             max_prismatic_rms_m: None,
+            max_revolute_smoothed_rms_rad: None,
+            max_prismatic_smoothed_rms_m: None,
             bodies: None,
         };
         let outcome = self.config(p, seed).and_then(|c| {
@@ -462,18 +470,18 @@ impl Sweep {
                     let revolute = |k: usize| {
                         truth.mechanism.joints[k].joint_type == kinetree_synth::JointType::Revolute
                     };
-                    run.max_revolute_rms_rad = max(e
-                        .joints
-                        .iter()
-                        .filter(|j| revolute(j.joint))
-                        .filter_map(|j| j.position_rms)
-                        .collect());
-                    run.max_prismatic_rms_m = max(e
-                        .joints
-                        .iter()
-                        .filter(|j| !revolute(j.joint))
-                        .filter_map(|j| j.position_rms)
-                        .collect());
+                    let worst = |of_revolute: bool, rms: fn(&JointEval) -> Option<f64>| {
+                        max(e
+                            .joints
+                            .iter()
+                            .filter(|j| revolute(j.joint) == of_revolute)
+                            .filter_map(rms)
+                            .collect())
+                    };
+                    run.max_revolute_rms_rad = worst(true, |j| j.position_rms);
+                    run.max_prismatic_rms_m = worst(false, |j| j.position_rms);
+                    run.max_revolute_smoothed_rms_rad = worst(true, |j| j.smoothed_rms);
+                    run.max_prismatic_smoothed_rms_m = worst(false, |j| j.smoothed_rms);
                 }
             }
         }
@@ -502,7 +510,7 @@ pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
         s.push_str(&csv_field(k));
         s.push(',');
     }
-    s.push_str("seed,error,bodies,ari,identifiable_ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m\n");
+    s.push_str("seed,error,bodies,ari,identifiable_ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m,max_revolute_smoothed_rms_rad,max_prismatic_smoothed_rms_m\n");
     for r in runs {
         for v in &r.values {
             s.push_str(&csv_field(v));
@@ -510,7 +518,7 @@ pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
         }
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{}",
             r.seed,
             csv_field(r.error.as_deref().unwrap_or("")),
             r.bodies.map_or(String::new(), |b| b.to_string()),
@@ -521,6 +529,8 @@ pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
             opt(r.max_axis_error_deg),
             opt(r.max_revolute_rms_rad),
             opt(r.max_prismatic_rms_m),
+            opt(r.max_revolute_smoothed_rms_rad),
+            opt(r.max_prismatic_smoothed_rms_m),
         );
     }
     s
@@ -544,11 +554,11 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
     let _ = writeln!(
         s,
-        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) |",
+        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) |",
         head.join(" | "),
         if head.is_empty() { "" } else { " | " }
     );
-    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 9));
+    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 11));
     for p in 0..sweep.points.len() {
         let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
         let n = rs.len();
@@ -567,7 +577,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         let values: Vec<String> = sweep.points[p].iter().map(|v| format!("`{v}`")).collect();
         let _ = writeln!(
             s,
-            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             values.join(" | "),
             if values.is_empty() { "" } else { " | " },
             rs.iter().filter(|r| r.error.is_some()).count(),
@@ -585,6 +595,22 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
             ),
             fmt(
                 median(rs.iter().filter_map(|r| r.max_prismatic_rms_m).collect()),
+                1e3
+            ),
+            fmt(
+                median(
+                    rs.iter()
+                        .filter_map(|r| r.max_revolute_smoothed_rms_rad)
+                        .collect()
+                ),
+                1.0
+            ),
+            fmt(
+                median(
+                    rs.iter()
+                        .filter_map(|r| r.max_prismatic_smoothed_rms_m)
+                        .collect()
+                ),
                 1e3
             ),
         );
