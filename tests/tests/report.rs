@@ -98,8 +98,8 @@ are inferred through third points rather than dropped (the paper drops such poin
 Chains stay mostly right up to 10 joints. Trees degrade faster, most with revolute joints:
 their box links hide each other, and a link may show one or two keypoints at a time in most
 frames. Such links are posed through their hinges (next section); most misses left are
-links whose few keypoints the clustering mixed into their neighbours, or links with only
-0-4 keypoints ever in view. All-prismatic
+links whose few keypoints, each seen in part of the frames, the clustering mixed into their
+neighbours; fewer are links with under three keypoints seen in ten frames. All-prismatic
 mechanisms are the easiest case: a translation without rotation is unmistakable.
 
 ### Hidden links (experiments/sweeps/hinges.toml)
