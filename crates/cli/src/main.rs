@@ -395,17 +395,9 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -
         .collect();
     if smooth {
         for (k, column) in columns.iter_mut().enumerate() {
-            let std: Vec<Option<f64>> = fits
-                .iter()
-                .map(|f| f.std[k].filter(|s| s.is_finite() && *s > 0.0))
-                .collect();
-            let max_std = if observer.is_revolute(k) {
-                kinetree_structure::MAX_STD_RAD
-            } else {
-                kinetree_structure::MAX_STD_M
-            };
-            *column = kinetree_structure::smooth_positions(column, &std, max_std)?
-                .map_or_else(|| vec![None; column.len()], |s| s.positions);
+            let std: Vec<Option<f64>> = fits.iter().map(|f| f.std[k]).collect();
+            (*column, _) =
+                kinetree_structure::smooth_fitted_positions(column, &std, observer.is_revolute(k))?;
         }
     }
     let mut w = std::io::BufWriter::new(

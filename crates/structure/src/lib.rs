@@ -15,7 +15,10 @@ pub use reassign::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
     OUTLIER_RATIO,
 };
-pub use smooth::{MIN_SMOOTHED_FRAMES, SmoothedPositions, smooth_positions};
+pub use smooth::{
+    MIN_SMOOTHED_FRAMES, PositionColumn, SmoothedPositions, smooth_fitted_positions,
+    smooth_positions,
+};
 
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{

@@ -1544,25 +1544,11 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             .zip(&joint.positions)
             .map(|(f, q)| q.and(f.std[k]))
             .collect();
-        let max_std = match joint.joint_type.as_str() {
-            "prismatic" => MAX_STD_M,
-            _ => MAX_STD_RAD,
-        };
-        // A frame whose deviation is not a positive number (none is expected from the fit)
-        // is left out of the smoothing rather than failing the model.
-        let weights: Vec<Option<f64>> = joint
-            .position_std
-            .iter()
-            .map(|s| s.filter(|s| s.is_finite() && *s > 0.0))
-            .collect();
-        let smoothed = crate::smooth_positions(&joint.positions, &weights, max_std)?;
-        (joint.smoothed_positions, joint.smoothed_std) = match smoothed {
-            Some(s) => (s.positions, s.std),
-            None => (
-                vec![None; joint.positions.len()],
-                vec![None; joint.positions.len()],
-            ),
-        };
+        (joint.smoothed_positions, joint.smoothed_std) = crate::smooth_fitted_positions(
+            &joint.positions,
+            &joint.position_std,
+            joint.joint_type != "prismatic",
+        )?;
         let known: Vec<f64> = joint.positions.iter().flatten().copied().collect();
         joint.range = (!known.is_empty()).then(|| {
             [

@@ -21,6 +21,7 @@
 //! has two entries, the measurement is one number with its own variance in every frame, and
 //! the choice of `q` needs the innovations' likelihood, which that crate does not expose.
 
+use crate::{MAX_STD_M, MAX_STD_RAD};
 use kinetree_core::nalgebra::{Matrix2, Vector2};
 use kinetree_core::{Error, Result};
 
@@ -43,6 +44,33 @@ pub struct SmoothedPositions {
     /// Square root of the chosen `q`: the standard deviation of the acceleration per frame,
     /// in the input's units per frame squared.
     pub acceleration_std: f64,
+}
+
+/// One value per frame, null where unknown.
+pub type PositionColumn = Vec<Option<f64>>;
+
+/// A joint's positions from the whole-tree fit smoothed ([`smooth_positions`]): frames whose
+/// standard deviation is not a positive number are left out (the fit gives none), and the
+/// limit on the smoothed deviation is the fit's own, [`MAX_STD_RAD`] for a revolute joint
+/// and [`MAX_STD_M`] for a prismatic one. Returns the smoothed positions and their standard
+/// deviations, all null for a joint with fewer than [`MIN_SMOOTHED_FRAMES`] usable frames.
+///
+/// # Errors
+/// As [`smooth_positions`].
+pub fn smooth_fitted_positions(
+    positions: &[Option<f64>],
+    std: &[Option<f64>],
+    revolute: bool,
+) -> Result<(PositionColumn, PositionColumn)> {
+    let weights: Vec<Option<f64>> = std
+        .iter()
+        .map(|s| s.filter(|s| s.is_finite() && *s > 0.0))
+        .collect();
+    let max_std = if revolute { MAX_STD_RAD } else { MAX_STD_M };
+    Ok(match smooth_positions(positions, &weights, max_std)? {
+        Some(s) => (s.positions, s.std),
+        None => (vec![None; positions.len()], vec![None; positions.len()]),
+    })
 }
 
 /// The filter's state and covariance at one frame, before and after its measurement.
@@ -366,6 +394,30 @@ mod tests {
             smooth_positions(&[Some(0.0); 3], &[Some(0.1); 3], f64::NAN),
             Err(Error::InvalidParameter { name, .. }) if name == "max_std"
         ));
+    }
+
+    #[test]
+    fn fitted_positions_skip_unusable_deviations_and_take_the_limit_of_their_type() {
+        let n = 50;
+        let truth = sine(n);
+        let (positions, mut std) = measured(&truth, 0.2, 11);
+        // A zero and a NaN deviation: left out, not an error.
+        std[0] = Some(0.0);
+        std[1] = Some(f64::NAN);
+        let (revolute, revolute_std) =
+            smooth_fitted_positions(&positions, &std, true).expect("valid");
+        assert!(revolute[0].is_none() && revolute[1].is_none());
+        assert!(revolute[10].is_some() && revolute_std[10].is_some_and(|s| s > 0.0));
+        // Deviations of 0.2-0.4 pass the 0.5 rad limit smoothed, not the 0.1 m one.
+        let (prismatic, _) = smooth_fitted_positions(&positions, &std, false).expect("valid");
+        let kept = |v: &[Option<f64>]| v.iter().filter(|x| x.is_some()).count();
+        assert!(kept(&prismatic) < kept(&revolute), "{prismatic:?}");
+        // Too few usable frames: all null, of the input's length.
+        let (none, none_std) =
+            smooth_fitted_positions(&positions[..3], &[Some(0.1), None, Some(-1.0)], true)
+                .expect("valid");
+        assert_eq!((none.len(), none_std.len()), (3, 3));
+        assert!(none.iter().chain(&none_std).all(Option::is_none));
     }
 
     #[test]
