@@ -1,5 +1,6 @@
 //! The `kinetree` binary: the README's run command, and simulate -> discover.
 
+use std::path::Path;
 use std::process::Command;
 
 fn kinetree() -> Command {
@@ -149,6 +150,69 @@ fn discover_reports_bad_files_without_panicking() {
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
+/// `kinetree observe MODEL TRACKS -o CSV` with `extra` arguments: the CSV's header and its
+/// rows, one value or `None` per joint.
+fn observed(
+    model: &Path,
+    tracks: &Path,
+    csv: &Path,
+    extra: &[&str],
+) -> (String, Vec<Vec<Option<f64>>>) {
+    run_ok(
+        kinetree()
+            .arg("observe")
+            .arg(model)
+            .arg(tracks)
+            .args(extra)
+            .arg("-o")
+            .arg(csv),
+    );
+    let text = std::fs::read_to_string(csv).expect("csv");
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or_default().to_string();
+    let rows = lines
+        .map(|l| l.split(',').skip(1).map(|v| v.parse().ok()).collect())
+        .collect();
+    (header, rows)
+}
+
+/// Asserts that each joint's column of `rows` is the model's `field` (a per-frame array of
+/// its joints) up to one offset in every frame, a whole number of turns, on over 90 frames.
+fn assert_columns_are_the_models(
+    rows: &[Vec<Option<f64>>],
+    model: &serde_json::Value,
+    field: &str,
+) {
+    for (k, joint) in model["joints"]
+        .as_array()
+        .expect("joints")
+        .iter()
+        .enumerate()
+    {
+        let batch: Vec<Option<f64>> = joint[field]
+            .as_array()
+            .expect(field)
+            .iter()
+            .map(serde_json::Value::as_f64)
+            .collect();
+        let offsets: Vec<f64> = rows
+            .iter()
+            .zip(&batch)
+            .filter_map(|(r, b)| Some(b.as_ref()? - r[k].as_ref()?))
+            .collect();
+        assert!(
+            offsets.len() > 90,
+            "{field}, joint {k}: {} common frames",
+            offsets.len()
+        );
+        let turns = (offsets[0] / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+        assert!(
+            offsets.iter().all(|o| (o - turns).abs() < 1e-6),
+            "{field}, joint {k}: offsets {offsets:?}"
+        );
+    }
+}
+
 #[test]
 fn observe_writes_one_column_per_joint() {
     let dir = tmp("observe");
@@ -166,101 +230,22 @@ fn observe_writes_one_column_per_joint() {
             .args(["--noise-sigma", "0.001", "-o"])
             .arg(&model),
     );
-    let csv = dir.join("config.csv");
-    run_ok(
-        kinetree()
-            .arg("observe")
-            .arg(&model)
-            .arg(dir.join("tracks.csv"))
-            .arg("-o")
-            .arg(&csv),
-    );
-    let text = std::fs::read_to_string(&csv).expect("csv");
-    let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("frame,revolute_0_1,revolute_1_2"));
-    let rows: Vec<Vec<Option<f64>>> = lines
-        .map(|l| l.split(',').skip(1).map(|v| v.parse().ok()).collect())
-        .collect();
+    let tracks = dir.join("tracks.csv");
+    let (header, rows) = observed(&model, &tracks, &dir.join("config.csv"), &[]);
+    assert_eq!(header, "frame,revolute_0_1,revolute_1_2");
     assert_eq!(rows.len(), 100);
     // On the frames it was discovered from, the observed columns are the model's positions
     // up to the same offset in every frame (a whole number of turns): both come from the
     // same warm-started fit, unwrapped.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&model).expect("model")).expect("json");
-    for (k, joint) in json["joints"]
-        .as_array()
-        .expect("joints")
-        .iter()
-        .enumerate()
-    {
-        let batch: Vec<Option<f64>> = joint["positions"]
-            .as_array()
-            .expect("positions")
-            .iter()
-            .map(serde_json::Value::as_f64)
-            .collect();
-        let offsets: Vec<f64> = rows
-            .iter()
-            .zip(&batch)
-            .filter_map(|(r, b)| Some(b.as_ref()? - r[k].as_ref()?))
-            .collect();
-        assert!(
-            offsets.len() > 90,
-            "joint {k}: {} common frames",
-            offsets.len()
-        );
-        let turns = (offsets[0] / std::f64::consts::TAU).round() * std::f64::consts::TAU;
-        assert!(
-            offsets.iter().all(|o| (o - turns).abs() < 1e-6),
-            "joint {k}: offsets {offsets:?}"
-        );
-    }
-    // `--smooth`: the model's smoothed positions, up to the same offset.
-    let smoothed_csv = dir.join("smoothed.csv");
-    run_ok(
-        kinetree()
-            .arg("observe")
-            .arg(&model)
-            .arg(dir.join("tracks.csv"))
-            .arg("--smooth")
-            .arg("-o")
-            .arg(&smoothed_csv),
-    );
-    let text = std::fs::read_to_string(&smoothed_csv).expect("csv");
-    let smoothed_rows: Vec<Vec<Option<f64>>> = text
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').skip(1).map(|v| v.parse().ok()).collect())
-        .collect();
-    for (k, joint) in json["joints"]
-        .as_array()
-        .expect("joints")
-        .iter()
-        .enumerate()
-    {
-        let batch: Vec<Option<f64>> = joint["smoothed_positions"]
-            .as_array()
-            .expect("smoothed positions")
-            .iter()
-            .map(serde_json::Value::as_f64)
-            .collect();
-        let offsets: Vec<f64> = smoothed_rows
-            .iter()
-            .zip(&batch)
-            .filter_map(|(r, b)| Some(b.as_ref()? - r[k].as_ref()?))
-            .collect();
-        assert!(
-            offsets.len() > 90,
-            "joint {k}: {} smoothed frames",
-            offsets.len()
-        );
-        let turns = (offsets[0] / std::f64::consts::TAU).round() * std::f64::consts::TAU;
-        assert!(
-            offsets.iter().all(|o| (o - turns).abs() < 1e-6),
-            "joint {k}: smoothed offsets {offsets:?}"
-        );
-        // Smoothing changes the values.
-        let moved = smoothed_rows
+    assert_columns_are_the_models(&rows, &json, "positions");
+    // `--smooth`: the model's smoothed positions, up to the same offsets, and not the
+    // per-frame ones.
+    let (_, smoothed) = observed(&model, &tracks, &dir.join("smoothed.csv"), &["--smooth"]);
+    assert_columns_are_the_models(&smoothed, &json, "smoothed_positions");
+    for k in 0..2 {
+        let moved = smoothed
             .iter()
             .zip(&rows)
             .filter(|(s, r)| s[k].zip(r[k]).is_some_and(|(s, r)| (s - r).abs() > 1e-9))
