@@ -53,6 +53,13 @@ pub enum Warning {
         /// Frames posed through the hinge.
         frames: usize,
     },
+    /// Points of a body posed through a hinge that do not turn with it: left out, each lowered
+    /// the hinge's `chi^2` by far more than its own degrees of freedom allow. They were left on
+    /// no body and the body posed again.
+    PointsOffHinge {
+        /// The points.
+        points: Vec<usize>,
+    },
     /// Points that fitted their body's motion in the model's whole-tree fit far worse than
     /// the noise and its other points allow, and no other body's either; they were left on
     /// no body and the bodies, joints and positions redone.
@@ -206,6 +213,10 @@ impl std::fmt::Display for Warning {
             Warning::PointsMakingJointsMultiDof { points } => write!(
                 f,
                 "without point(s) {points:?} (one per joint), a multi-DoF joint between their body and its neighbour tested single-DoF; they were left on no body"
+            ),
+            Warning::PointsOffHinge { points } => write!(
+                f,
+                "point(s) {points:?} did not turn with the hinge their body was posed through; they were left on no body"
             ),
             Warning::PointsUnassigned { points } => write!(
                 f,
