@@ -117,15 +117,47 @@ impl Segmentation {
             .collect()
     }
 
+    /// Takes the listed points off their bodies (they become unassigned; a body left with
+    /// none is gone) and renumbers canonically.
+    pub fn without_points(&self, points: &[usize]) -> Self {
+        self.keeping(|point, _| !points.contains(&point))
+    }
+
     /// Drops the listed bodies (their points become discarded) and renumbers canonically.
     pub fn without_bodies(&self, drop: &[usize]) -> Self {
+        self.keeping(|_, body| !drop.contains(&body))
+    }
+
+    /// The assignments `keep(point, body)` accepts, renumbered canonically, with the same
+    /// discarded groups.
+    fn keeping(&self, keep: impl Fn(usize, usize) -> bool) -> Self {
         let raw: Vec<Option<usize>> = self
             .labels
             .iter()
-            .map(|l| l.filter(|b| !drop.contains(b)))
+            .enumerate()
+            .map(|(i, l)| l.filter(|&b| keep(i, b)))
             .collect();
         let mut out = Self::from_raw(&raw, 0);
         out.discarded_groups.clone_from(&self.discarded_groups);
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn points_and_bodies_are_taken_off_and_the_rest_renumbered() {
+        let mut seg = Segmentation::from_raw(&[Some(0), Some(0), Some(1), Some(2), None], 1);
+        seg.discarded_groups = vec![vec![4]];
+        // Point 2 was body 1's only point: body 1 is gone and body 2 becomes body 1.
+        let fewer = seg.without_points(&[1, 2]);
+        assert_eq!(fewer.labels(), &[Some(0), None, None, Some(1), None]);
+        assert_eq!(fewer.n_bodies(), 2);
+        assert_eq!(fewer.discarded_groups, vec![vec![4]]);
+        let dropped = seg.without_bodies(&[0]);
+        assert_eq!(dropped.labels(), &[None, None, Some(0), Some(1), None]);
+        assert_eq!(dropped.discarded_groups, vec![vec![4]]);
     }
 }

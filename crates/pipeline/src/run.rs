@@ -1357,13 +1357,7 @@ impl Pipeline {
                     })
                     .collect();
                 if !off.is_empty() {
-                    let mut labels = seg.labels().to_vec();
-                    for &i in &off {
-                        labels[i] = None;
-                    }
-                    let mut next = Segmentation::from_raw(&labels, 1);
-                    next.discarded_groups = seg.discarded_groups.clone();
-                    seg = next;
+                    seg = seg.without_points(&off);
                     off_hinges.extend(&off);
                     warnings.push(Warning::PointsOffHinge { points: off });
                     continue;
