@@ -90,7 +90,7 @@ fn discover(s: &Scenario) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
 }
 
 fn discover_data(data: &SynthData) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
-    discover_hinged(data, PipelineConfig::default().hinged_bodies)
+    discover_hinged(data, true)
 }
 
 /// The default pipeline's model of `data`, with the hinges on or off, and its evaluation.
@@ -98,10 +98,7 @@ fn discover_hinged(
     data: &SynthData,
     hinged_bodies: bool,
 ) -> (kinetree_core::Model, kinetree_eval::Evaluation) {
-    let cfg = PipelineConfig {
-        hinged_bodies,
-        ..PipelineConfig::default()
-    };
+    let cfg = PipelineConfig::default().with_hinges(hinged_bodies);
     let model = Pipeline::from_config(&cfg)
         .expect("pipeline")
         .run(&data.tracks)

@@ -8,6 +8,7 @@ pub mod geom;
 pub mod model;
 mod pairs;
 mod poses;
+mod repair;
 mod segmentation;
 mod stage;
 pub mod stats;
@@ -19,6 +20,10 @@ pub use model::Model;
 pub use nalgebra;
 pub use pairs::{DissimilarityMatrix, PairStats, condensed_index, n_pairs};
 pub use poses::{BodyPoses, BodyTrack, JointKind, PairDof, PoseQuality, RankTest};
+pub use repair::{
+    Constraints, Draft, Edit, FittedPoses, ModelDraft, ModelMaker, Proposal, Repair, RepairContext,
+    RepairLimit, RepairPhase, StageSlots, TraceEntry,
+};
 pub use segmentation::{MIN_BODY_POINTS, Segmentation};
 pub use stage::{
     Clustering, ClusteringInput, Dissimilarity, DissimilarityInput, DofInput, DofTester,

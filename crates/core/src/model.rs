@@ -197,6 +197,9 @@ pub struct Model {
     pub reprediction_rms_in_sigma: Option<f64>,
     /// Degenerate situations met on the way.
     pub warnings: Vec<Warning>,
+    /// Every change the repairs made, in order ([`crate::TraceEntry`]).
+    #[serde(default)]
+    pub trace: Vec<crate::TraceEntry>,
 }
 
 impl Model {

@@ -62,10 +62,7 @@ fn discover_hidden_links_10_joints_110_points_200_frames(bencher: divan::Bencher
     let tracks = kinetree_synth::simulate(&scenario)
         .expect("simulate")
         .tracks;
-    let config = PipelineConfig {
-        hinged_bodies: hinged,
-        ..PipelineConfig::default()
-    };
+    let config = PipelineConfig::default().with_hinges(hinged);
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 

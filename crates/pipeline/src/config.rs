@@ -1,5 +1,7 @@
 //! Configuration: one serde enum per stage slot, every variant wrapping a params struct.
 
+use crate::repairs::RepairsConfig;
+use crate::runner::RunnerParams;
 use kinetree_clustering::{
     Dbscan, DbscanParams, Hierarchical, HierarchicalParams, Spectral, SpectralParams,
 };
@@ -159,6 +161,25 @@ pub enum NoiseEstimator {
     NearestRigid,
 }
 
+/// The default of the `halves` slot: average-linkage hierarchical clustering cut into two
+/// clusters.
+fn default_halves() -> ClusteringConfig {
+    ClusteringConfig::Hierarchical(HierarchicalParams {
+        n_clusters: Some(2),
+        ..HierarchicalParams::default()
+    })
+}
+
+/// Refuses the key `hinged_bodies`, naming the keys that replaced it.
+fn replaced_hinged_bodies<'de, D: serde::Deserializer<'de>>(
+    _: D,
+) -> std::result::Result<(), D::Error> {
+    Err(serde::de::Error::custom(
+        "`pipeline.hinged_bodies` was replaced by `pipeline.repairs.hinges.enabled` and \
+         `pipeline.repairs.hinge_groups.enabled`",
+    ))
+}
+
 /// The whole pipeline's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -173,15 +194,22 @@ pub struct PipelineConfig {
     pub dissimilarity: DissimilarityConfig,
     /// Clustering method.
     pub clustering: ClusteringConfig,
+    /// The clusterer that cuts a group of points in two, for the repairs `split`, `regroup`
+    /// and `hinge_groups` (run on the group's own sub-matrix with seed 0). It must return two
+    /// clusters: `n_clusters = 2`. Default: average-linkage hierarchical.
+    pub halves: ClusteringConfig,
     /// Pose estimator.
     pub pose: PoseConfig,
     /// DoF tester.
     pub dof: DofConfig,
-    /// Pose links seen too few keypoints at a time for poses of their own through a hinge on
-    /// a posed body (or the camera), when their keypoints turn together about one of its
-    /// axes (`kinetree_pose::hinged_body`): groups of keypoints on no body become bodies,
-    /// and bodies registered in under half their frames get the others. Default on.
-    pub hinged_bodies: bool,
+    /// The repairs (`[pipeline.repairs.<name>]`), each with `enabled` and its thresholds.
+    pub repairs: RepairsConfig,
+    /// The runner's limits.
+    pub runner: RunnerParams,
+    /// Replaced by `repairs.hinges.enabled` and `repairs.hinge_groups.enabled`: setting it
+    /// is an error that names them.
+    #[serde(default, skip_serializing, deserialize_with = "replaced_hinged_bodies")]
+    pub hinged_bodies: (),
 }
 
 impl Default for PipelineConfig {
@@ -192,10 +220,51 @@ impl Default for PipelineConfig {
             seed: 0,
             dissimilarity: DissimilarityConfig::default(),
             clustering: ClusteringConfig::default(),
+            halves: default_halves(),
             pose: PoseConfig::default(),
             dof: DofConfig::default(),
-            hinged_bodies: true,
+            repairs: RepairsConfig::default(),
+            runner: RunnerParams::default(),
+            hinged_bodies: (),
         }
+    }
+}
+
+impl PipelineConfig {
+    /// Checks what the stages' and repairs' constructors do not: the noise level, the
+    /// `halves` slot's cluster count, the repairs' and runner's ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming the key.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(s) = self.noise_sigma_m
+            && !(s.is_finite() && s > 0.0)
+        {
+            return Err(Error::InvalidParameter {
+                name: "noise_sigma_m".into(),
+                message: format!("must be finite and positive, got {s}"),
+            });
+        }
+        let halves = match &self.halves {
+            ClusteringConfig::Hierarchical(p) => p.n_clusters,
+            ClusteringConfig::Dbscan(p) => p.n_clusters,
+            ClusteringConfig::Spectral(p) => p.n_clusters,
+        };
+        if halves != Some(2) {
+            return Err(Error::InvalidParameter {
+                name: "pipeline.halves.n_clusters".into(),
+                message: format!("must be 2 (the slot cuts groups in two), got {halves:?}"),
+            });
+        }
+        self.repairs.validate()?;
+        self.runner.validate()
+    }
+
+    /// The config with the hinge repairs (`hinges` and `hinge_groups`) on or off.
+    pub fn with_hinges(mut self, on: bool) -> Self {
+        self.repairs.hinges.enabled = on;
+        self.repairs.hinge_groups.enabled = on;
+        self
     }
 }
 

@@ -4,12 +4,18 @@
 //! impl in its crate, add a variant to the slot's enum in [`config`], a match arm in its
 //! `build`, and a line in the conformance tests.
 
+mod assemble;
 pub mod config;
+pub mod conformance;
 pub mod experiment;
+pub mod repairs;
 pub mod report;
 mod run;
+pub mod runner;
 pub mod sweep;
 
 pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};
 pub use experiment::{ExperimentOutcome, load_data, run_experiment, write_results};
+pub use repairs::RepairsConfig;
 pub use run::{Discovery, Grouping, Pipeline};
+pub use runner::RunnerParams;

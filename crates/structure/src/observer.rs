@@ -250,6 +250,16 @@ impl Observer {
         }
     }
 
+    /// Frees the joint from body `parent` to body `child` (model ids), if the model has it
+    /// (see [`Observer::free_joint`]).
+    pub fn free_joint_between(&mut self, parent: usize, child: usize) {
+        if let Some(&Some(k)) = self.parent_joint.get(child)
+            && self.joints[k].parent == parent
+        {
+            self.free_joint(k);
+        }
+    }
+
     /// Assigns the fit's parameters: six per freely posed body, one per single-DoF joint.
     fn lay_out(&mut self) {
         let nb = self.bodies.len();

@@ -9,7 +9,7 @@
 use crate::observer::{Observer, Scratch};
 use kinetree_core::nalgebra::{Isometry3, Vector3};
 use kinetree_core::stats::chi2_per_dof_quantile;
-use kinetree_core::{BodyPoses, Error, MIN_BODY_POINTS, Model, PoseQuality, Result, Tracks};
+use kinetree_core::{BodyPoses, Error, FittedPoses, MIN_BODY_POINTS, Model, Result, Tracks};
 
 /// Fewest frames in which a point must be seen with a body's fitted pose to count in the
 /// body's median misfit ([`MAX_BODY_MEDIAN`]), and for a body's halves to be judged by their
@@ -115,10 +115,8 @@ fn bound(k: f64) -> f64 {
 /// [`FittedMotions::points_fitting_another_body`] and [`FittedMotions::points_settled`].
 #[derive(Debug, Clone)]
 pub struct FittedMotions {
-    /// `[body][frame]`, `None` where the fit leaves the body's pose undetermined.
-    body_poses: Vec<Vec<Option<Isometry3<f64>>>>,
-    /// `[body][frame]`, the precision of each fitted pose ([`Observer::pose_qualities`]).
-    body_qualities: Vec<Vec<Option<PoseQuality>>>,
+    /// The fitted poses and their precision, by model body.
+    fitted: FittedPoses,
 }
 
 /// `point`'s `chi^2 / k` on its own body `own`, and the other body whose fitted poses explain
@@ -155,14 +153,26 @@ impl FittedMotions {
     /// # Errors
     /// As [`Observer::new`] and [`Observer::fit_sequence`].
     pub fn new(model: &Model, tracks: &Tracks) -> Result<Self> {
-        let observer = Observer::new(model)?;
+        Self::freeing(model, tracks, &[])
+    }
+
+    /// The whole-tree fit of `model` on `tracks` with the joints `freed` (`(parent, child)`
+    /// model body ids) free as well as those the model already frees.
+    ///
+    /// # Errors
+    /// As [`Observer::new`] and [`Observer::fit_sequence`].
+    pub fn freeing(model: &Model, tracks: &Tracks, freed: &[(usize, usize)]) -> Result<Self> {
+        let mut observer = Observer::new(model)?;
+        for &(parent, child) in freed {
+            observer.free_joint_between(parent, child);
+        }
         let mut scratch = Scratch::default();
         let mut qualities = Vec::with_capacity(tracks.n_frames());
         let fits = observer.fit_sequence_with(tracks, |descent, visible| {
             qualities.push(observer.pose_qualities(&descent, &visible, &mut scratch));
         })?;
         let nb = model.bodies.len();
-        Ok(Self {
+        Ok(Self::from_fitted(FittedPoses {
             body_poses: (0..nb)
                 .map(|b| {
                     fits.iter()
@@ -181,7 +191,17 @@ impl FittedMotions {
                         .collect()
                 })
                 .collect(),
-        })
+        }))
+    }
+
+    /// Motions from poses already fitted (as [`FittedMotions::fitted`] gives them).
+    pub fn from_fitted(fitted: FittedPoses) -> Self {
+        Self { fitted }
+    }
+
+    /// The fitted poses and their precision, by model body.
+    pub fn fitted(&self) -> &FittedPoses {
+        &self.fitted
     }
 
     /// The per-body poses `per_body` (segmentation numbering; `body_order[model body]` is its
@@ -194,16 +214,20 @@ impl FittedMotions {
     /// # Errors
     /// [`Error::Shape`] when `per_body` or `body_order` do not match these motions.
     pub fn onto_body_poses(&self, per_body: &BodyPoses, body_order: &[usize]) -> Result<BodyPoses> {
-        if body_order.len() != self.body_poses.len()
-            || per_body.bodies.len() != self.body_poses.len()
+        if body_order.len() != self.fitted.body_poses.len()
+            || per_body.bodies.len() != self.fitted.body_poses.len()
             || body_order.iter().any(|&s| s >= per_body.bodies.len())
-            || self.body_poses.iter().any(|p| p.len() != per_body.n_frames)
+            || self
+                .fitted
+                .body_poses
+                .iter()
+                .any(|p| p.len() != per_body.n_frames)
         {
             return Err(Error::Shape {
                 expected: format!(
                     "per-body poses of the {} fitted bodies over {} frames",
-                    self.body_poses.len(),
-                    self.body_poses.first().map_or(0, Vec::len)
+                    self.fitted.body_poses.len(),
+                    self.fitted.body_poses.first().map_or(0, Vec::len)
                 ),
                 found: format!(
                     "{} bodies over {} frames, {} in the body order",
@@ -214,9 +238,9 @@ impl FittedMotions {
             });
         }
         let mut out = per_body.clone();
-        for (model_body, fitted) in self.body_poses.iter().enumerate() {
+        for (model_body, fitted) in self.fitted.body_poses.iter().enumerate() {
             let track = &mut out.bodies[body_order[model_body]];
-            let qualities = &self.body_qualities[model_body];
+            let qualities = &self.fitted.body_qualities[model_body];
             for ((pose, quality), (f, fq)) in track
                 .cam_from_body
                 .iter_mut()
@@ -235,8 +259,12 @@ impl FittedMotions {
 
     /// [`Error::Shape`] unless these motions were fitted for `model`'s bodies on `tracks`.
     fn check(&self, model: &Model, tracks: &Tracks) -> Result<()> {
-        if self.body_poses.len() != model.bodies.len()
-            || self.body_poses.iter().any(|p| p.len() != tracks.n_frames())
+        if self.fitted.body_poses.len() != model.bodies.len()
+            || self
+                .fitted
+                .body_poses
+                .iter()
+                .any(|p| p.len() != tracks.n_frames())
         {
             return Err(Error::Shape {
                 expected: format!(
@@ -244,7 +272,7 @@ impl FittedMotions {
                     model.bodies.len(),
                     tracks.n_frames()
                 ),
-                found: format!("{} bodies", self.body_poses.len()),
+                found: format!("{} bodies", self.fitted.body_poses.len()),
             });
         }
         Ok(())
@@ -275,7 +303,7 @@ impl FittedMotions {
         tracks: &Tracks,
     ) -> Result<Vec<(usize, usize)>> {
         self.check(model, tracks)?;
-        let body_poses = &self.body_poses;
+        let body_poses = &self.fitted.body_poses;
         let sigma = model.noise.sigma_m;
         let mut left: Vec<usize> = model.bodies.iter().map(|b| b.points.len()).collect();
         let body_median = self.body_medians(model, tracks);
@@ -343,7 +371,7 @@ impl FittedMotions {
                     continue;
                 }
                 let Some((own, (other, k), c)) =
-                    own_and_best_other(&self.body_poses, tracks, i, b, sigma)
+                    own_and_best_other(&self.fitted.body_poses, tracks, i, b, sigma)
                 else {
                     continue;
                 };
@@ -386,7 +414,7 @@ impl FittedMotions {
                 continue;
             };
             let Some((own, k)) = misfit(
-                &self.body_poses[own_body],
+                &self.fitted.body_poses[own_body],
                 tracks,
                 i,
                 sigma,
@@ -400,9 +428,17 @@ impl FittedMotions {
             {
                 continue;
             }
-            let fits_another = (0..self.body_poses.len())
+            let fits_another = (0..self.fitted.body_poses.len())
                 .filter(|&c| c != own_body)
-                .filter_map(|c| misfit(&self.body_poses[c], tracks, i, sigma, MIN_FRAMES_TO_PLACE))
+                .filter_map(|c| {
+                    misfit(
+                        &self.fitted.body_poses[c],
+                        tracks,
+                        i,
+                        sigma,
+                        MIN_FRAMES_TO_PLACE,
+                    )
+                })
                 .any(|(m, kc)| m <= bound(kc));
             if !fits_another {
                 worst[own_body] = Some((own, i));
@@ -427,7 +463,8 @@ impl FittedMotions {
                     .iter()
                     .filter(|&&i| i < tracks.n_points())
                     .filter_map(|&i| {
-                        misfit(&self.body_poses[b], tracks, i, sigma, MIN_FRAMES).map(|m| m.0)
+                        misfit(&self.fitted.body_poses[b], tracks, i, sigma, MIN_FRAMES)
+                            .map(|m| m.0)
                     })
                     .collect();
                 m.sort_by(f64::total_cmp);
@@ -458,10 +495,10 @@ impl FittedMotions {
             return None;
         }
         let sigma = model.noise.sigma_m;
-        let mut scored: Vec<((f64, f64), usize)> = (0..self.body_poses.len())
+        let mut scored: Vec<((f64, f64), usize)> = (0..self.fitted.body_poses.len())
             .filter_map(|b| {
                 misfit(
-                    &self.body_poses[b],
+                    &self.fitted.body_poses[b],
                     tracks,
                     point,
                     sigma,
@@ -488,7 +525,7 @@ impl FittedMotions {
     /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
     pub fn points_settled(&self, model: &Model, tracks: &Tracks, points: &[usize]) -> Result<bool> {
         self.check(model, tracks)?;
-        let body_poses = &self.body_poses;
+        let body_poses = &self.fitted.body_poses;
         let sigma = model.noise.sigma_m;
         Ok(points.iter().all(|&i| {
             body_of(model, tracks, i)

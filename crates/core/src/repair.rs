@@ -1,0 +1,386 @@
+//! Repairs: the steps after the stages that look at a draft of the result and propose an edit.
+//!
+//! A [`Repair`] is object-safe, `Send + Sync`, and returns [`Result`], like the stage traits in
+//! [`crate::stage`]. The runner (`kinetree-pipeline`'s `runner`) owns the loop: it asks each
+//! enabled repair of a phase, in order, for a [`Proposal`], applies the edit, redoes what the
+//! edit invalidates (poses, pair tests, the model), records the change in the model's
+//! [`trace`](crate::Model::trace), and asks the repair whether its edit stands once the
+//! redone draft exists ([`Repair::stands`]).
+
+use crate::{
+    BodyPoses, Clustering, Dissimilarity, DissimilarityMatrix, DofTester, Model, PairDof,
+    PairStats, PoseEstimator, PoseQuality, Result, Segmentation, Tracks, Warning,
+};
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+/// When the runner asks a repair, and which edits it may return.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RepairPhase {
+    /// After each clustering (the draft has a segmentation only): [`Edit::NoiseLevel`], after
+    /// which the dissimilarity and the clustering are redone.
+    Grouping,
+    /// After each pose estimate: [`Edit::Segmentation`] (the poses are redone and the phase
+    /// restarts) or [`Edit::Poses`] (the poses are replaced and the next repair asked).
+    Bodies,
+    /// After the first model of a segmentation is assembled, before its whole-tree fit:
+    /// [`Edit::Tree`]. The alternative is finished like the model and replaces it when
+    /// [`Repair::stands`] says so.
+    Tree,
+    /// After each finished model, for at most the runner's `model_passes` passes:
+    /// [`Edit::Points`]; the bodies and the model are then redone, and the pass is reverted
+    /// unless every edit of it stands.
+    Points,
+    /// After a finished model that no `Points` repair edited: [`Edit::Model`], which replaces
+    /// the model.
+    Model,
+}
+
+/// How often the runner asks a repair within one run of its phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RepairLimit {
+    /// Every time the phase comes round.
+    Always,
+    /// Once per run of the phase, whether it proposes an edit or not (asked again after a
+    /// repair named in [`Repair::reopened_by`] edits).
+    Once,
+    /// Until it has made this many edits in the run of its phase.
+    Edits(usize),
+}
+
+/// The stages a repair may use, as configured: a repair that clusters, poses or tests does it
+/// through these, so swapping a stage swaps it inside the repairs too.
+#[derive(Debug, Clone, Copy)]
+pub struct StageSlots<'a> {
+    /// The dissimilarity measure.
+    pub dissimilarity: &'a dyn Dissimilarity,
+    /// The clustering of all points into bodies.
+    pub clustering: &'a dyn Clustering,
+    /// The clusterer that cuts a group of points in two (the `halves` slot): used by the
+    /// repairs that split bodies or groups.
+    pub halves: &'a dyn Clustering,
+    /// The pose estimator.
+    pub pose: &'a dyn PoseEstimator,
+    /// The DoF tester.
+    pub dof: &'a dyn DofTester,
+}
+
+/// What a repair may read besides the draft: the data and the configured stages.
+#[derive(Debug, Clone, Copy)]
+pub struct RepairContext<'a> {
+    /// The tracks.
+    pub tracks: &'a Tracks,
+    /// Pair statistics of the tracks.
+    pub stats: &'a PairStats,
+    /// The dissimilarity matrix at the current noise level.
+    pub dissimilarity: &'a DissimilarityMatrix,
+    /// Per-coordinate noise std-dev in metres.
+    pub noise_sigma_m: f64,
+    /// The noise estimator's first estimate, when the level was estimated by a method whose
+    /// estimate may be refined; `None` when it was given.
+    pub estimated_noise_sigma_m: Option<f64>,
+    /// The configured stages.
+    pub stages: StageSlots<'a>,
+    /// Makes models as the runner does, for repairs that compare or rebuild models; `None` in
+    /// the grouping phase.
+    pub models: Option<&'a dyn ModelMaker>,
+    /// Seed for any random choice.
+    pub seed: u64,
+}
+
+/// Decisions the repairs have made that later steps must respect. They are typed here, not
+/// carried by warnings (warnings only report).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Constraints {
+    /// Pairs of points that must not end in one body (one point of each part of a split).
+    /// Cleared at the start of each bodies phase.
+    pub cannot_link: Vec<(usize, usize)>,
+    /// Point sets of bodies a split undid: no attachment may remake one. Cleared at the start
+    /// of each bodies phase.
+    pub undone_bodies: Vec<Vec<usize>>,
+    /// Points taken off a hinged body: not attached again by poses, not taken off twice.
+    /// Cleared at the start of each bodies phase.
+    pub off_hinge: Vec<usize>,
+    /// Points a model's fit found belonging to no body's motion: never attached by poses.
+    /// Kept for the whole run.
+    pub kept_off: Vec<usize>,
+    /// Point sets of every body a split undid in the run: points of the bodies born of them
+    /// may leave for a body whose fitted motion explains them. Kept for the whole run.
+    pub split_origins: Vec<Vec<usize>>,
+}
+
+impl Constraints {
+    /// Appends `other`'s decisions.
+    pub fn extend(&mut self, other: &Self) {
+        self.cannot_link.extend_from_slice(&other.cannot_link);
+        self.undone_bodies
+            .extend(other.undone_bodies.iter().cloned());
+        self.off_hinge.extend_from_slice(&other.off_hinge);
+        self.kept_off.extend_from_slice(&other.kept_off);
+        self.split_origins
+            .extend(other.split_origins.iter().cloned());
+    }
+
+    /// Forgets the decisions that hold for one bodies phase only.
+    pub fn start_bodies_phase(&mut self) {
+        self.cannot_link.clear();
+        self.undone_bodies.clear();
+        self.off_hinge.clear();
+    }
+
+    /// Whether there are no decisions.
+    pub fn is_empty(&self) -> bool {
+        self.cannot_link.is_empty()
+            && self.undone_bodies.is_empty()
+            && self.off_hinge.is_empty()
+            && self.kept_off.is_empty()
+            && self.split_origins.is_empty()
+    }
+}
+
+/// Every body's pose in every frame from a model's whole-tree fit, with its precision; in the
+/// model's body numbering.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FittedPoses {
+    /// `[body][frame]`, `None` where the fit leaves the body's pose undetermined.
+    pub body_poses: Vec<Vec<Option<Isometry3<f64>>>>,
+    /// `[body][frame]`, the precision of each fitted pose.
+    pub body_qualities: Vec<Vec<Option<PoseQuality>>>,
+}
+
+/// Makes models from bodies, poses and pair tests, as the runner does.
+pub trait ModelMaker: Send + Sync + std::fmt::Debug {
+    /// The model of `segmentation`'s bodies with `poses` and `pairs` (segmentation numbering),
+    /// its spanning tree chosen without the edges `excluded` (`(parent, child)`), `history` as
+    /// its first warnings; not yet fitted (no positions' precision, no re-prediction).
+    ///
+    /// # Errors
+    /// [`crate::Error::Degenerate`] when there is no body; a stage's error.
+    fn assemble(
+        &self,
+        segmentation: &Segmentation,
+        poses: &BodyPoses,
+        pairs: &[PairDof],
+        excluded: &[(usize, usize)],
+        history: &[Warning],
+    ) -> Result<ModelDraft>;
+    /// The finished model: assembled, the tree repairs applied, fitted whole to every frame.
+    ///
+    /// # Errors
+    /// As [`ModelMaker::assemble`], and the whole-tree fit's.
+    fn make(
+        &self,
+        segmentation: &Segmentation,
+        poses: &BodyPoses,
+        pairs: &[PairDof],
+        history: &[Warning],
+    ) -> Result<ModelDraft>;
+}
+
+/// A model with what it was made from.
+#[derive(Debug, Clone)]
+pub struct ModelDraft {
+    /// The model (bodies in tree order).
+    pub model: Model,
+    /// `model body id -> segmentation body id`.
+    pub body_order: Vec<usize>,
+    /// The model's whole-tree fit, when the runner has made it (the `Points` and `Model`
+    /// phases have it).
+    pub fitted: Option<FittedPoses>,
+    /// The warnings of the steps before the model (its own come on top in `model.warnings`).
+    pub history: Vec<Warning>,
+}
+
+/// The current state of a run, as a repair sees it.
+#[derive(Debug, Clone)]
+pub struct Draft {
+    /// Which point belongs to which body (segmentation numbering).
+    pub segmentation: Segmentation,
+    /// Poses per body of the segmentation; absent in the grouping phase.
+    pub poses: Option<BodyPoses>,
+    /// Every pair's DoF test on `poses`, when made (segmentation numbering).
+    pub pairs: Option<Vec<PairDof>>,
+    /// The model, in the tree, points and model phases.
+    pub model: Option<ModelDraft>,
+    /// Decisions made so far.
+    pub constraints: Constraints,
+    /// The point edits proposed so far in this pass of the points phase, in order:
+    /// `(point, new body)` (segmentation numbering; `None`: on no body).
+    pub pending: Vec<(usize, Option<usize>)>,
+}
+
+impl Draft {
+    /// A draft with a segmentation only.
+    pub fn new(segmentation: Segmentation) -> Self {
+        Self {
+            segmentation,
+            poses: None,
+            pairs: None,
+            model: None,
+            constraints: Constraints::default(),
+            pending: Vec::new(),
+        }
+    }
+}
+
+/// The change a repair proposes.
+#[derive(Debug, Clone)]
+pub enum Edit {
+    /// A new per-coordinate noise level.
+    NoiseLevel {
+        /// The level, metres.
+        sigma_m: f64,
+        /// Whether the dissimilarity and the clustering are redone at it (else the grouping
+        /// phase ends with it).
+        redo_clustering: bool,
+    },
+    /// A new segmentation.
+    Segmentation(Segmentation),
+    /// New poses for the same segmentation.
+    Poses(BodyPoses),
+    /// The tree without these edges `(parent, child)` (segmentation numbering).
+    Tree(Vec<(usize, usize)>),
+    /// Points moved: `(point, new body)` (segmentation numbering; `None`: on no body).
+    Points(Vec<(usize, Option<usize>)>),
+    /// A replacement model, with the poses and segmentation it was made from.
+    Model {
+        /// The model.
+        model: Box<ModelDraft>,
+        /// Its poses (segmentation numbering).
+        poses: BodyPoses,
+    },
+}
+
+impl Edit {
+    /// The edit's kind, as named in the trace.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::NoiseLevel { .. } => "noise_level",
+            Self::Segmentation(_) => "segmentation",
+            Self::Poses(_) => "poses",
+            Self::Tree(_) => "tree",
+            Self::Points(_) => "points",
+            Self::Model { .. } => "model",
+        }
+    }
+}
+
+/// What a repair returns when it has something to change.
+#[derive(Debug, Clone)]
+pub struct Proposal {
+    /// The edit.
+    pub edit: Edit,
+    /// Decisions that come with it.
+    pub constraints: Constraints,
+    /// Warnings that report it (report-only). With an [`Edit::Poses`] they describe those
+    /// poses and are dropped when the poses are redone.
+    pub warnings: Vec<Warning>,
+    /// One line on what the edit does, for the trace.
+    pub summary: String,
+    /// The points it concerns, for the trace (ascending).
+    pub points: Vec<usize>,
+}
+
+impl Proposal {
+    /// A proposal with no constraints, warnings or points.
+    pub fn new(edit: Edit, summary: impl Into<String>) -> Self {
+        Self {
+            edit,
+            constraints: Constraints::default(),
+            warnings: Vec::new(),
+            summary: summary.into(),
+            points: Vec::new(),
+        }
+    }
+}
+
+/// One change in a run, for the model's trace.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TraceEntry {
+    /// The repair that made it.
+    pub repair: String,
+    /// Its phase.
+    pub phase: RepairPhase,
+    /// The runner's model pass (0 for the first model and everything before it).
+    pub pass: usize,
+    /// `applied`, `kept` (a tree or model edit that stood), `discarded` (one that did not)
+    /// or `reverted` (a points pass undone because this repair's edit did not stand).
+    pub outcome: String,
+    /// The edit's kind ([`Edit::kind`]).
+    pub edit: String,
+    /// What it did.
+    pub summary: String,
+    /// The points it concerned.
+    #[serde(default)]
+    pub points: Vec<usize>,
+}
+
+/// A step after the stages that proposes an edit to the draft, or nothing.
+///
+/// ```
+/// use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
+///
+/// /// Proposes nothing; asked after every pose estimate.
+/// #[derive(Debug)]
+/// struct Idle;
+///
+/// impl Repair for Idle {
+///     fn name(&self) -> &str {
+///         "idle"
+///     }
+///     fn phase(&self) -> RepairPhase {
+///         RepairPhase::Bodies
+///     }
+///     fn propose(&self, _: &RepairContext<'_>, _: &Draft) -> Result<Option<Proposal>> {
+///         Ok(None)
+///     }
+/// }
+/// let boxed: Box<dyn Repair> = Box::new(Idle);
+/// assert_eq!(boxed.name(), "idle");
+/// ```
+pub trait Repair: Send + Sync + std::fmt::Debug {
+    /// Short name used in configs and the trace.
+    fn name(&self) -> &str;
+    /// When the runner asks it.
+    fn phase(&self) -> RepairPhase;
+    /// How often the runner asks it within one run of its phase.
+    fn limit(&self) -> RepairLimit {
+        RepairLimit::Always
+    }
+    /// Repairs whose edits make a [`RepairLimit::Once`] repair be asked again.
+    fn reopened_by(&self) -> &[&str] {
+        &[]
+    }
+    /// Whether the runner tests every pair on the current poses (the draft's `pairs`) before
+    /// asking it.
+    fn needs_pair_tests(&self) -> bool {
+        false
+    }
+    /// Whether a `Points` repair is asked again when a `Model` repair replaced the model in
+    /// the same pass.
+    fn asked_on_replaced_model(&self) -> bool {
+        false
+    }
+    /// The edit this repair proposes for `draft`, or `None`.
+    ///
+    /// # Errors
+    /// A stage's error; never for a draft that merely gives it nothing to do.
+    fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>>;
+    /// Whether `edit`, which this repair proposed on `before`, stands on `after`, the draft
+    /// the runner redid with it. The default keeps every edit.
+    ///
+    /// # Errors
+    /// A stage's error.
+    fn stands(
+        &self,
+        ctx: &RepairContext<'_>,
+        edit: &Edit,
+        before: &Draft,
+        after: &Draft,
+    ) -> Result<bool> {
+        let _ = (ctx, edit, before, after);
+        Ok(true)
+    }
+}

@@ -1,0 +1,206 @@
+//! A model assembled from bodies, poses and pair tests: the tree, the bodies in tree order, a
+//! joint per tree edge.
+
+use crate::Pipeline;
+use kinetree_core::geom::cam_from;
+use kinetree_core::model::{
+    Body, Joint, NoiseInfo, NoiseSource, Ranks, RigidTransform, SCHEMA_VERSION, StageNames,
+};
+use kinetree_core::{
+    BodyPoses, DofInput, Error, JointKind, Model, ModelDraft, PairDof, Result, Segmentation,
+    Tracks, Warning,
+};
+
+/// The model of a segmentation's bodies, poses and pair tests (segmentation numbering): the
+/// spanning tree without the edges `excluded`, the bodies renumbered in tree order, a joint
+/// per tree edge from its pair test, and the warnings of the assembly after `warnings`. Not
+/// fitted: the whole-tree fit sets the positions' precision and the re-prediction.
+///
+/// # Errors
+/// [`Error::Degenerate`] when there is no body; the DoF stage's error.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn assemble(
+    pipeline: &Pipeline,
+    tracks: &Tracks,
+    seg: &Segmentation,
+    poses: &BodyPoses,
+    pairs: Vec<PairDof>,
+    sigma: f64,
+    source: NoiseSource,
+    mut warnings: Vec<Warning>,
+    excluded: &[(usize, usize)],
+) -> Result<ModelDraft> {
+    let nb = seg.n_bodies();
+    let tree = kinetree_structure::spanning_tree_without(nb, &pairs, excluded)
+        .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
+    // Model numbering: tree (breadth-first) order.
+    let order = tree.order.clone();
+    let mut new_id = vec![0usize; nb];
+    for (k, &b) in order.iter().enumerate() {
+        new_id[b] = k;
+    }
+    let renumber_pair = |p: &PairDof| -> PairDof {
+        let mut q = p.clone();
+        q.a = p.a.map(|a| new_id[a]);
+        q.b = new_id[p.b];
+        q
+    };
+    let statics = kinetree_structure::static_bodies(nb, &pairs);
+    if !tree.root_is_static {
+        warnings.push(Warning::NoStaticBody {
+            root: new_id[tree.root],
+        });
+    }
+    let input = DofInput {
+        poses,
+        noise_sigma_m: sigma,
+    };
+    let mut joints = Vec::new();
+    for &child in &order {
+        let Some(parent) = tree.parent[child] else {
+            continue;
+        };
+        let pair = pipeline.dof.test_pair(&input, Some(parent), child)?;
+        let (positions, reference) = kinetree_structure::joint_positions(poses, &pair);
+        let reference_frame = reference.unwrap_or(pair.reference_frame);
+        let cam_parent = cam_from(poses, Some(parent), reference_frame);
+        // Single-DoF joints: averaged over all frames; others (multi-DoF, whose child is
+        // posed freely; URDF export still needs a pose): the reference frame's.
+        let reference_pose = reference
+            .and_then(|r| kinetree_structure::joint_reference(poses, &pair, &positions, r))
+            .or_else(|| {
+                kinetree_core::geom::relative_poses(poses, Some(parent), child)
+                    .get(reference_frame)
+                    .copied()
+                    .flatten()
+            })
+            .map(|x| RigidTransform {
+                rotation_xyzw: [x.rotation.i, x.rotation.j, x.rotation.k, x.rotation.w],
+                translation: [x.translation.x, x.translation.y, x.translation.z],
+            });
+        let (axis_p, point_p) = match &pair.joint {
+            JointKind::Revolute { axis, pivot } => (Some(*axis), Some(*pivot)),
+            JointKind::Prismatic { axis } => (Some(*axis), None),
+            _ => (None, None),
+        };
+        let arr = |v: kinetree_core::nalgebra::Vector3<f64>| [v.x, v.y, v.z];
+        if !pair.joint.is_single_dof() {
+            warnings.push(Warning::MultiDofJoint {
+                parent: new_id[parent],
+                child: new_id[child],
+                dof: pair.dof,
+            });
+        }
+        joints.push(Joint {
+            parent: new_id[parent],
+            child: new_id[child],
+            joint_type: pair.joint.name().into(),
+            axis: match (axis_p, cam_parent) {
+                (Some(a), Some(c)) => Some(arr(c.rotation * a)),
+                _ => None,
+            },
+            point: match (point_p, cam_parent) {
+                (Some(p), Some(c)) => Some(arr((c * p).coords)),
+                _ => None,
+            },
+            axis_in_parent: axis_p.map(arr),
+            point_in_parent: point_p.map(|p| arr(p.coords)),
+            reference_frame,
+            reference_pose,
+            positions,
+            // Set with the positions by `kinetree_structure::fit_model_positions`.
+            position_std: Vec::new(),
+            smoothed_positions: Vec::new(),
+            smoothed_std: Vec::new(),
+            range: None,
+            dof: pair.dof,
+            ranks: Ranks {
+                translation: pair.translation.rank,
+                rotation: pair.rotation.rank,
+                centre: pair.centre.rank,
+                sliding: pair.sliding.rank,
+            },
+            fit_ratio: pair.fit_ratio,
+        });
+    }
+    for &b in &order {
+        let missing = poses.n_frames - poses.bodies[b].n_registered();
+        if missing > 0 {
+            warnings.push(Warning::FramesUnregistered {
+                body: new_id[b],
+                frames: missing,
+            });
+        }
+    }
+    let bodies = order
+        .iter()
+        .map(|&b| Body {
+            id: new_id[b],
+            points: poses.bodies[b].points.clone(),
+            is_static: statics.contains(&b),
+            parent: tree.parent[b].map(|p| new_id[p]),
+            frames_registered: poses.bodies[b].n_registered(),
+            median_residual_m: poses.bodies[b].median_residual_m(),
+            shape: poses.bodies[b]
+                .shape
+                .iter()
+                .zip(&poses.bodies[b].placed)
+                .map(|(p, &ok)| ok.then_some([p.x, p.y, p.z]))
+                .collect(),
+            internal_dissimilarity: None,
+        })
+        .collect();
+    let point_body = seg
+        .labels()
+        .iter()
+        .map(|l| l.map_or(-1, |b| new_id[b] as i64))
+        .collect();
+    let mut model_pairs: Vec<PairDof> = pairs.iter().map(renumber_pair).collect();
+    for p in &mut model_pairs {
+        if let Some(a) = p.a
+            && a > p.b
+        {
+            // Keep a < b in the new numbering; the ranks do not depend on the order.
+            p.a = Some(p.b);
+            p.b = a;
+        }
+    }
+    model_pairs.sort_by_key(|p| (p.a.map_or(0, |a| a + 1), p.b));
+    let chain =
+        kinetree_structure::paper_chain(nb, &pairs).map(|c| c.iter().map(|&b| new_id[b]).collect());
+    let model = Model {
+        schema_version: SCHEMA_VERSION,
+        generator: format!("kinetree {}", env!("CARGO_PKG_VERSION")),
+        n_frames: tracks.n_frames(),
+        n_points: tracks.n_points(),
+        point_labels: tracks.labels().map(<[String]>::to_vec),
+        noise: NoiseInfo {
+            sigma_m: sigma,
+            distance_variance_m2: 2.0 * sigma * sigma,
+            source,
+        },
+        stages: StageNames {
+            dissimilarity: pipeline.dissimilarity.name().into(),
+            clustering: pipeline.clustering.name().into(),
+            pose: pipeline.pose.name().into(),
+            dof: pipeline.dof.name().into(),
+        },
+        point_body,
+        point_confidence: Vec::new(),
+        static_body: statics.first().map(|&s| new_id[s]),
+        root_body: new_id[tree.root],
+        bodies,
+        joints,
+        chain,
+        pairs: model_pairs,
+        reprediction_rms_in_sigma: None,
+        warnings,
+        trace: Vec::new(),
+    };
+    Ok(ModelDraft {
+        model,
+        body_order: order,
+        fitted: None,
+        history: Vec::new(),
+    })
+}

@@ -1,0 +1,391 @@
+//! The built-in repairs, one file each, and their configuration (`[pipeline.repairs.<name>]`).
+//!
+//! Adding a repair: a file here with a params struct (`Default`, serde with
+//! `deny_unknown_fields`, `validate()`) and the [`Repair`] impl, a field in [`RepairsConfig`]
+//! and a line in [`RepairsConfig::build`], and a line in `tests/tests/conformance.rs`
+//! ([`crate::conformance::check_repair`]).
+
+mod attach;
+mod drop_unposed;
+mod eject_points;
+mod hinge_groups;
+mod hinges;
+mod joint_spoilers;
+mod merge;
+mod move_points;
+mod noise_refinement;
+mod regroup;
+mod retest;
+mod split;
+mod tree_ties;
+
+pub use attach::{Attach, AttachParams};
+pub use drop_unposed::{DropUnposed, DropUnposedParams};
+pub use eject_points::{EjectPoints, EjectPointsParams};
+pub use hinge_groups::{HingeGroups, HingeGroupsParams};
+pub use hinges::{HingeBounds, Hinges, HingesParams};
+pub use joint_spoilers::{JointSpoilers, JointSpoilersParams};
+pub use merge::{Merge, MergeParams};
+pub use move_points::{MovePoints, MovePointsParams};
+pub use noise_refinement::{NoiseRefinement, NoiseRefinementParams};
+pub use regroup::{Regroup, RegroupParams};
+pub use retest::{Retest, RetestParams};
+pub use split::{Split, SplitParams};
+pub use tree_ties::{TreeTies, TreeTiesParams};
+
+use kinetree_core::{
+    BodyPoses, BodyTrack, ClusteringInput, DissimilarityMatrix, Error, Model, PoseInput, Repair,
+    RepairContext, Result, Segmentation, Tracks,
+};
+use serde::{Deserialize, Serialize};
+
+/// Every built-in repair's parameters, in the order the runner asks them within a phase.
+/// Each has `enabled` and the thresholds it uses; defaults are the documented values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct RepairsConfig {
+    /// Grouping: the estimated noise level refined inside the bodies found.
+    pub noise_refinement: NoiseRefinementParams,
+    /// Bodies: bodies registered in few frames posed through a hinge.
+    pub hinges: HingesParams,
+    /// Bodies: bodies registered in too few frames dropped.
+    pub drop_unposed: DropUnposedParams,
+    /// Bodies: bodies that mix points of several bodies split in two.
+    pub split: SplitParams,
+    /// Bodies: points on no body attached where one body's poses explain them.
+    pub attach: AttachParams,
+    /// Bodies: unassigned points that move as one rigid body made one.
+    pub regroup: RegroupParams,
+    /// Bodies: unassigned points that turn together on a hinge made a body.
+    pub hinge_groups: HingeGroupsParams,
+    /// Bodies: bodies that move rigidly together merged.
+    pub merge: MergeParams,
+    /// Tree: near-tied tree edges settled by whole-tree fits.
+    pub tree_ties: TreeTiesParams,
+    /// Points: points another body's fitted motion explains better moved there.
+    pub move_points: MovePointsParams,
+    /// Points: points that fit no body's motion left on none.
+    pub eject_points: EjectPointsParams,
+    /// Points: a keypoint that alone makes a joint multi-DoF left on none.
+    pub joint_spoilers: JointSpoilersParams,
+    /// Model: pair tests redone on the whole-tree fit's poses.
+    pub retest: RetestParams,
+}
+
+impl RepairsConfig {
+    /// Checks every repair's parameters.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming `pipeline.repairs.<name>.<parameter>`.
+    pub fn validate(&self) -> Result<()> {
+        self.noise_refinement.validate()?;
+        self.hinges.validate()?;
+        self.drop_unposed.validate()?;
+        self.split.validate()?;
+        self.attach.validate()?;
+        self.regroup.validate()?;
+        self.hinge_groups.validate()?;
+        self.merge.validate()?;
+        self.tree_ties.validate()?;
+        self.move_points.validate()?;
+        self.eject_points.validate()?;
+        self.joint_spoilers.validate()?;
+        self.retest.validate()
+    }
+
+    /// The enabled repairs, in order.
+    ///
+    /// # Errors
+    /// As [`RepairsConfig::validate`].
+    pub fn build(&self) -> Result<Vec<Box<dyn Repair>>> {
+        self.validate()?;
+        let all: Vec<(bool, Box<dyn Repair>)> = vec![
+            (
+                self.noise_refinement.enabled,
+                Box::new(NoiseRefinement::new(self.noise_refinement)?),
+            ),
+            (self.hinges.enabled, Box::new(Hinges::new(self.hinges)?)),
+            (
+                self.drop_unposed.enabled,
+                Box::new(DropUnposed::new(self.drop_unposed)?),
+            ),
+            (self.split.enabled, Box::new(Split::new(self.split)?)),
+            (self.attach.enabled, Box::new(Attach::new(self.attach)?)),
+            (self.regroup.enabled, Box::new(Regroup::new(self.regroup)?)),
+            (
+                self.hinge_groups.enabled,
+                Box::new(HingeGroups::new(self.hinge_groups)?),
+            ),
+            (self.merge.enabled, Box::new(Merge::new(self.merge)?)),
+            (
+                self.tree_ties.enabled,
+                Box::new(TreeTies::new(self.tree_ties)?),
+            ),
+            (
+                self.move_points.enabled,
+                Box::new(MovePoints::new(self.move_points)?),
+            ),
+            (
+                self.eject_points.enabled,
+                Box::new(EjectPoints::new(self.eject_points)?),
+            ),
+            (
+                self.joint_spoilers.enabled,
+                Box::new(JointSpoilers::new(self.joint_spoilers)?),
+            ),
+            (self.retest.enabled, Box::new(Retest::new(self.retest)?)),
+        ];
+        Ok(all
+            .into_iter()
+            .filter_map(|(on, r)| on.then_some(r))
+            .collect())
+    }
+
+    /// Every repair turned off.
+    pub fn all_off() -> Self {
+        let mut c = Self::default();
+        c.noise_refinement.enabled = false;
+        c.hinges.enabled = false;
+        c.drop_unposed.enabled = false;
+        c.split.enabled = false;
+        c.attach.enabled = false;
+        c.regroup.enabled = false;
+        c.hinge_groups.enabled = false;
+        c.merge.enabled = false;
+        c.tree_ties.enabled = false;
+        c.move_points.enabled = false;
+        c.eject_points.enabled = false;
+        c.joint_spoilers.enabled = false;
+        c.retest.enabled = false;
+        c
+    }
+}
+
+/// The error for a parameter `name` of repair `repair` outside its range.
+pub(crate) fn invalid(repair: &str, name: &str, message: impl Into<String>) -> Error {
+    Error::InvalidParameter {
+        name: format!("pipeline.repairs.{repair}.{name}"),
+        message: message.into(),
+    }
+}
+
+/// Checks that `value` is finite and within `[min, max]`.
+pub(crate) fn in_range(repair: &str, name: &str, value: f64, min: f64, max: f64) -> Result<()> {
+    if value.is_finite() && (min..=max).contains(&value) {
+        Ok(())
+    } else {
+        Err(invalid(
+            repair,
+            name,
+            format!("must be within [{min}, {max}], got {value}"),
+        ))
+    }
+}
+
+/// Checks that a count is within `[min, max]`.
+pub(crate) fn count_in_range(
+    repair: &str,
+    name: &str,
+    value: usize,
+    min: usize,
+    max: usize,
+) -> Result<()> {
+    if (min..=max).contains(&value) {
+        Ok(())
+    } else {
+        Err(invalid(
+            repair,
+            name,
+            format!("must be within [{min}, {max}], got {value}"),
+        ))
+    }
+}
+
+/// The draft's poses, or a typed error naming the repair that needed them.
+pub(crate) fn poses_of<'a>(repair: &str, poses: Option<&'a BodyPoses>) -> Result<&'a BodyPoses> {
+    poses.ok_or_else(|| Error::Degenerate(format!("repair `{repair}` needs the draft's poses")))
+}
+
+/// The dissimilarities among `points` (unknown pairs NaN), with the matrix's cut and measure.
+fn sub_matrix(dmat: &DissimilarityMatrix, points: &[usize]) -> DissimilarityMatrix {
+    let mut values = Vec::with_capacity(kinetree_core::n_pairs(points.len()));
+    for (x, &i) in points.iter().enumerate() {
+        for &j in &points[x + 1..] {
+            values.push(dmat.get(i, j).unwrap_or(f64::NAN));
+        }
+    }
+    DissimilarityMatrix {
+        n_points: points.len(),
+        values,
+        suggested_cut: dmat.suggested_cut,
+        measure: dmat.measure.clone(),
+    }
+}
+
+/// The two halves of `points` by the `halves` slot on their own sub-matrix (each of at least
+/// three points; fewer halves when a side is smaller).
+pub(crate) fn halves(ctx: &RepairContext<'_>, points: &[usize]) -> Result<Vec<Vec<usize>>> {
+    let parts = ctx.stages.halves.cluster(&ClusteringInput {
+        dissimilarity: &sub_matrix(ctx.dissimilarity, points),
+        seed: 0,
+    })?;
+    Ok(parts
+        .members()
+        .iter()
+        .map(|m| m.iter().map(|&x| points[x]).collect())
+        .collect())
+}
+
+/// Mean dissimilarity over the observed pairs between two groups of points; `None` when no
+/// pair was observed.
+pub(crate) fn mean_cross(m: &DissimilarityMatrix, a: &[usize], b: &[usize]) -> Option<f64> {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for &i in a {
+        for &j in b {
+            if let Some(d) = m.get(i, j) {
+                sum += d;
+                count += 1;
+            }
+        }
+    }
+    (count > 0).then(|| sum / count as f64)
+}
+
+/// `points` posed by the pose slot as one body by themselves; `None` when the stage returns
+/// no body.
+pub(crate) fn posed_as_one(ctx: &RepairContext<'_>, points: &[usize]) -> Result<Option<BodyTrack>> {
+    let mut raw = vec![None; ctx.tracks.n_points()];
+    for &p in points {
+        raw[p] = Some(0);
+    }
+    let fitted = ctx.stages.pose.estimate(&PoseInput {
+        tracks: ctx.tracks,
+        segmentation: &Segmentation::from_raw(&raw, 1),
+        noise_sigma_m: ctx.noise_sigma_m,
+    })?;
+    Ok(fitted.bodies.into_iter().next())
+}
+
+/// Whether `points` fit as one rigid body: their median pose residual, posed alone, is at most
+/// `residual_in_sigma` noise std-devs.
+pub(crate) fn points_fit_as_one(
+    ctx: &RepairContext<'_>,
+    points: &[usize],
+    residual_in_sigma: f64,
+) -> Result<bool> {
+    Ok(posed_as_one(ctx, points)?
+        .as_ref()
+        .and_then(BodyTrack::median_residual_m)
+        .is_some_and(|r| r <= residual_in_sigma * ctx.noise_sigma_m))
+}
+
+/// Whether the pairwise measure keeps the two halves of `points` apart: the mean
+/// dissimilarity across the halves of [`halves`] (a side under three points being the rest) is
+/// above the measure's cut. `false` when no half has three points.
+///
+/// The pose fit of a group alone misses points of two bodies that are seldom seen together:
+/// its median residual comes from the frames that show one body's points only (see
+/// `docs/decisions.md`, `regroup`).
+pub(crate) fn halves_apart(ctx: &RepairContext<'_>, points: &[usize]) -> Result<bool> {
+    let parts = halves(ctx, points)?;
+    let (a, b) = match parts.as_slice() {
+        [a, b] => (a.clone(), b.clone()),
+        [a] => {
+            let rest = points.iter().filter(|p| !a.contains(p)).copied().collect();
+            (a.clone(), rest)
+        }
+        _ => return Ok(false),
+    };
+    let dmat = ctx.dissimilarity;
+    Ok(mean_cross(dmat, &a, &b).is_some_and(|d| d > dmat.suggested_cut))
+}
+
+/// `seg` with each of `groups` (points on no body) made a body of its own.
+pub(crate) fn with_new_bodies(seg: &Segmentation, groups: &[Vec<usize>]) -> Segmentation {
+    let mut labels = seg.labels().to_vec();
+    for (k, g) in groups.iter().enumerate() {
+        for &p in g {
+            labels[p] = Some(seg.n_bodies() + k);
+        }
+    }
+    let grouped: Vec<usize> = groups.iter().flatten().copied().collect();
+    let mut out = Segmentation::from_raw(&labels, 1);
+    out.discarded_groups = seg.discarded_groups_without(&grouped);
+    out
+}
+
+/// The groups of `points` (ascending) that `accept` takes: a group it refuses is split in two
+/// by the `halves` slot and each part tried, down to `min_points`. Sorted.
+pub(crate) fn accepted_groups(
+    ctx: &RepairContext<'_>,
+    points: Vec<usize>,
+    min_points: usize,
+    mut accept: impl FnMut(&[usize]) -> Result<bool>,
+) -> Result<Vec<Vec<usize>>> {
+    let mut stack = vec![points];
+    let mut out = Vec::new();
+    while let Some(group) = stack.pop() {
+        if group.len() < min_points {
+            continue;
+        }
+        if accept(&group)? {
+            out.push(group);
+            continue;
+        }
+        let parts = halves(ctx, &group)?;
+        if parts.len() == 1 && parts[0].len() == group.len() {
+            continue;
+        }
+        stack.extend(parts);
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Points on no body that are seen in at least `min_visible` frames.
+pub(crate) fn unassigned_points(
+    tracks: &Tracks,
+    seg: &Segmentation,
+    min_visible: usize,
+) -> Vec<usize> {
+    (0..tracks.n_points())
+        .filter(|&i| seg.body_of(i).is_none() && tracks.visible_count(i) >= min_visible)
+        .collect()
+}
+
+/// Joints of `m` typed multi-DoF.
+pub(crate) fn multi_dof_joints(m: &Model) -> usize {
+    m.joints
+        .iter()
+        .filter(|j| j.joint_type == "multi_dof")
+        .count()
+}
+
+/// Joints of `m` its whole-tree fit typed (a `joint_typed_by_fit` warning).
+pub(crate) fn typed_by_fit(m: &Model) -> usize {
+    m.warnings
+        .iter()
+        .filter(|w| matches!(w, kinetree_core::Warning::JointTypedByFit { .. }))
+        .count()
+}
+
+/// The joints of `model` its whole-tree fit does not follow (named by a `joint_not_followed`
+/// warning), as `(parent, child)` model body ids.
+pub(crate) fn not_followed(model: &Model) -> Vec<(usize, usize)> {
+    model
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            kinetree_core::Warning::JointNotFollowed { parent, child, .. } => {
+                Some((*parent, *child))
+            }
+            _ => None,
+        })
+        .filter(|&(p, c)| model.joints.iter().any(|j| j.parent == p && j.child == c))
+        .collect()
+}
+
+/// Joints of `m` that are multi-DoF, not followed by its whole-tree fit, or typed by it.
+pub(crate) fn doubtful_joints(m: &Model) -> usize {
+    multi_dof_joints(m) + not_followed(m).len() + typed_by_fit(m)
+}

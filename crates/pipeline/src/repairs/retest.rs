@@ -1,0 +1,146 @@
+//! When the model has doubtful joints (multi-DoF, not followed by its whole-tree fit, or typed
+//! by it), every pair is tested again on the poses of its whole-tree fit, which pose a small
+//! body through its joint and every keypoint below it rather than from its own few points,
+//! and the model is rebuilt on them; the rebuilt model replaces it when it has fewer doubtful
+//! joints.
+//!
+//! A body hidden by its neighbours in nine frames of ten shares a handful of frames with each
+//! other body; over ten frames two siblings turning about one anchor can pass for a hinge with
+//! a better fit ratio than their true joints with the base over a hundred, and the tree takes
+//! them. The fit then frees those joints, but the tree stays (`docs/decisions.md`, `retest`).
+
+use super::{doubtful_joints, multi_dof_joints, not_followed, typed_by_fit};
+use crate::runner::all_pairs;
+use kinetree_core::{
+    Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result, Warning,
+};
+use kinetree_structure::FittedMotions;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`Retest`] (`[pipeline.repairs.retest]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RetestParams {
+    /// Whether the repair runs.
+    pub enabled: bool,
+}
+
+impl Default for RetestParams {
+    fn default() -> Self {
+        Self { enabled: true }
+    }
+}
+
+impl RetestParams {
+    /// Checks the ranges (there are none).
+    ///
+    /// # Errors
+    /// Never.
+    pub fn validate(&self) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// Rebuilds the model on pair tests of its whole-tree fit's poses.
+#[derive(Debug, Clone)]
+pub struct Retest {
+    _params: RetestParams,
+}
+
+impl Retest {
+    /// The repair.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: RetestParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { _params: params })
+    }
+}
+
+impl Repair for Retest {
+    fn name(&self) -> &str {
+        "retest"
+    }
+
+    fn phase(&self) -> RepairPhase {
+        RepairPhase::Model
+    }
+
+    fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
+        let (Some(models), Some(found), Some(poses)) =
+            (ctx.models, draft.model.as_ref(), draft.poses.as_ref())
+        else {
+            return Err(Error::Degenerate(
+                "repair `retest` needs a model and its poses".into(),
+            ));
+        };
+        // A joint typed by the fit was multi-DoF or not followed as its pair test typed it: a
+        // hinge and a slide in series on a wrong tree edge can pass for one slide, so it
+        // counts as doubtful here too.
+        let before = doubtful_joints(&found.model);
+        if before == 0 {
+            return Ok(None);
+        }
+        // Joints typed by the fit are left free for these poses: posed through such a joint,
+        // a child would test as exactly that joint.
+        let typed: Vec<(usize, usize)> = found
+            .model
+            .warnings
+            .iter()
+            .filter_map(|w| match w {
+                Warning::JointTypedByFit { parent, child, .. } => Some((*parent, *child)),
+                _ => None,
+            })
+            .collect();
+        let motions = if typed.is_empty() {
+            let fitted = found.fitted.clone().ok_or_else(|| {
+                Error::Degenerate("repair `retest` needs the model's whole-tree fit".into())
+            })?;
+            FittedMotions::from_fitted(fitted)
+        } else {
+            FittedMotions::freeing(&found.model, ctx.tracks, &typed)?
+        };
+        let fitted = motions.onto_body_poses(poses, &found.body_order)?;
+        let pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m)?;
+        // The rebuilt model costs as much as the first: build it only if its tree has fewer
+        // multi-DoF edges or gives a joint the fit did not follow another parent.
+        let tree = kinetree_structure::spanning_tree(draft.segmentation.n_bodies(), &pairs)
+            .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
+        let multi_edges = (0..tree.parent.len())
+            .filter_map(|child| Some((tree.parent[child]?, child)))
+            .filter(|&(p, c)| {
+                !kinetree_structure::find_pair(&pairs, Some(p), c)
+                    .is_some_and(|q| q.joint.is_single_dof())
+            })
+            .count();
+        let order = &found.body_order;
+        let reattached =
+            not_followed(&found.model)
+                .iter()
+                .any(|&(p, c)| match (order.get(c), order.get(p)) {
+                    (Some(&c), Some(&p)) => tree.parent.get(c) != Some(&Some(p)),
+                    _ => false,
+                });
+        if multi_edges >= multi_dof_joints(&found.model) + typed_by_fit(&found.model) && !reattached
+        {
+            return Ok(None);
+        }
+        let mut again = models.make(&draft.segmentation, &fitted, &pairs, &found.history)?;
+        let after = doubtful_joints(&again.model);
+        if after >= before {
+            return Ok(None);
+        }
+        again.model.warnings.push(Warning::PairsRetested {
+            multi_dof_before: before,
+            multi_dof_after: after,
+        });
+        Ok(Some(Proposal::new(
+            Edit::Model {
+                model: Box::new(again),
+                poses: fitted,
+            },
+            format!("model rebuilt on the fitted poses: {before} -> {after} doubtful joints"),
+        )))
+    }
+}

@@ -1,0 +1,252 @@
+//! Bodies that mix points of bodies that move apart split in two.
+//!
+//! A body is split when its median fit residual is over `residual_in_sigma`, when its two
+//! halves (the `halves` clustering slot on the body's own sub-matrix; a side of fewer than
+//! three points is left on no body) are apart on average in the pairwise measure, or when the
+//! halves, posed as bodies of their own, fit its points far better than the body does
+//! ([`Split::halves_fit_better`]). One point of each part goes into the `cannot_link`
+//! constraints so that the merge does not rejoin them (a part with poor poses can "test
+//! rigid" against a body it moves against), and the body's points into `undone_bodies`, so
+//! that the attachment does not remake it.
+
+use super::{count_in_range, halves, in_range, mean_cross, poses_of};
+use kinetree_core::{
+    BodyTrack, Constraints, Draft, Edit, PoseInput, PoseQuality, Proposal, Repair, RepairContext,
+    RepairLimit, RepairPhase, Result, Segmentation, Warning,
+};
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`Split`] (`[pipeline.repairs.split]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SplitParams {
+    /// Whether the repair runs.
+    pub enabled: bool,
+    /// A body whose median fit residual exceeds this many noise std-devs is split (default
+    /// 2.5; `docs/decisions.md`, `split.residual_in_sigma`).
+    pub residual_in_sigma: f64,
+    /// Slack on the chi-square bound of the halves' likelihood ratio (default 1.6) for the
+    /// approximations behind it (reference shapes from the same frames, an estimated noise
+    /// level).
+    pub lr_slack: f64,
+    /// Std-devs of that chi-square bound (default 4.0).
+    pub lr_bound_in_std: f64,
+    /// Least share of the body's registered frames in which both halves are posed for the
+    /// likelihood ratio to count (default 0.25; `docs/decisions.md`, `split.min_frame_share`).
+    pub min_frame_share: f64,
+    /// Least number of such frames (default 10, `kinetree_structure::MIN_FRAMES`).
+    pub min_frames: usize,
+    /// Splits per bodies phase (default 8): a body that is not rigid would otherwise be split
+    /// forever.
+    pub max_rounds: usize,
+}
+
+impl Default for SplitParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            residual_in_sigma: 2.5,
+            lr_slack: 1.6,
+            lr_bound_in_std: 4.0,
+            min_frame_share: 0.25,
+            min_frames: kinetree_structure::MIN_FRAMES,
+            max_rounds: 8,
+        }
+    }
+}
+
+impl SplitParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming the parameter.
+    pub fn validate(&self) -> Result<()> {
+        const NAME: &str = "split";
+        in_range(NAME, "residual_in_sigma", self.residual_in_sigma, 0.1, 1e6)?;
+        in_range(NAME, "lr_slack", self.lr_slack, 0.1, 100.0)?;
+        in_range(NAME, "lr_bound_in_std", self.lr_bound_in_std, 0.0, 20.0)?;
+        in_range(NAME, "min_frame_share", self.min_frame_share, 0.0, 1.0)?;
+        count_in_range(NAME, "min_frames", self.min_frames, 1, 1_000_000)?;
+        count_in_range(NAME, "max_rounds", self.max_rounds, 0, 1000)
+    }
+}
+
+/// Splits bodies whose points do not move as one.
+#[derive(Debug, Clone)]
+pub struct Split {
+    params: SplitParams,
+}
+
+impl Split {
+    /// The repair.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: SplitParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+
+    /// Whether a body's two halves, each posed as a rigid body, explain its points better than
+    /// the body's own poses by more than two extra poses could: over the frames where all
+    /// three are posed, the drop in the sum of squared residuals, in noise variances, against
+    /// the chi-square bound with 6 degrees of freedom per frame (the second half's pose) at
+    /// `lr_bound_in_std` standard deviations, times `lr_slack`.
+    ///
+    /// A small slider merged with the link that turns on it can fit as one at a median 1.5
+    /// sigma, with the halves' mean dissimilarity under the cut, while the halves' fits lower
+    /// the residual by about 3 times the 6 variances per frame an extra pose buys
+    /// (`docs/decisions.md`, `split.lr_slack`).
+    fn halves_fit_better(
+        &self,
+        union: &BodyTrack,
+        first: &BodyTrack,
+        second: &BodyTrack,
+        sigma: f64,
+    ) -> bool {
+        let sse = |q: &PoseQuality| q.rms_residual_m.powi(2) * q.n_visible as f64;
+        let (mut drop, mut frames) = (0.0, 0usize);
+        for t in 0..union.quality.len() {
+            let (Some(u), Some(a), Some(b)) = (
+                union.quality[t],
+                first.quality.get(t).copied().flatten(),
+                second.quality.get(t).copied().flatten(),
+            ) else {
+                continue;
+            };
+            if u.n_visible != a.n_visible + b.n_visible {
+                continue;
+            }
+            drop += sse(&u) - sse(&a) - sse(&b);
+            frames += 1;
+        }
+        let share = frames as f64 / union.n_registered().max(1) as f64;
+        if frames < self.params.min_frames || share < self.params.min_frame_share || sigma <= 0.0 {
+            return false;
+        }
+        let k = 6.0 * frames as f64;
+        drop / (sigma * sigma) / k
+            > self.params.lr_slack
+                * kinetree_core::stats::chi2_per_dof_quantile(k, self.params.lr_bound_in_std)
+    }
+}
+
+impl Repair for Split {
+    fn name(&self) -> &str {
+        "split"
+    }
+
+    fn phase(&self) -> RepairPhase {
+        RepairPhase::Bodies
+    }
+
+    fn limit(&self) -> RepairLimit {
+        RepairLimit::Edits(self.params.max_rounds)
+    }
+
+    fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
+        let poses = poses_of(self.name(), draft.poses.as_ref())?;
+        let (seg, dmat, sigma) = (&draft.segmentation, ctx.dissimilarity, ctx.noise_sigma_m);
+        // (body, residual in sigma, halves, whether to split)
+        let mut candidates: Vec<(usize, f64, Vec<Vec<usize>>, bool)> = Vec::new();
+        for (b, track) in poses.bodies.iter().enumerate() {
+            let Some(residual) = track.median_residual_m() else {
+                continue;
+            };
+            let ratio = residual / sigma;
+            if track.points.len() < 4 {
+                continue;
+            }
+            let parts = halves(ctx, &track.points)?;
+            if parts.is_empty() {
+                continue;
+            }
+            // The pairwise measure keeps the two parts apart, as the merge guard would.
+            let apart = match &parts[..] {
+                [first, second] => {
+                    mean_cross(dmat, first, second).is_some_and(|d| d > dmat.suggested_cut)
+                }
+                _ => false,
+            };
+            let split = ratio > self.params.residual_in_sigma || apart;
+            candidates.push((b, ratio, parts, split));
+        }
+        // The halves of the other bodies, posed as bodies of their own, all in one call.
+        let undecided: Vec<usize> = (0..candidates.len())
+            .filter(|&c| !candidates[c].3 && candidates[c].2.len() == 2)
+            .collect();
+        if !undecided.is_empty() {
+            let mut half_labels: Vec<Option<usize>> = vec![None; seg.n_points()];
+            for (k, &c) in undecided.iter().enumerate() {
+                for (h, part) in candidates[c].2.iter().enumerate() {
+                    for &i in part {
+                        half_labels[i] = Some(2 * k + h);
+                    }
+                }
+            }
+            let half_poses = ctx.stages.pose.estimate(&PoseInput {
+                tracks: ctx.tracks,
+                segmentation: &Segmentation::from_raw(&half_labels, 1),
+                noise_sigma_m: sigma,
+            })?;
+            let index_of = |point: usize| {
+                half_poses
+                    .bodies
+                    .iter()
+                    .position(|t| t.points.binary_search(&point).is_ok())
+            };
+            for &c in &undecided {
+                let (b, _, parts, _) = &candidates[c];
+                let (Some(ia), Some(ib)) = (index_of(parts[0][0]), index_of(parts[1][0])) else {
+                    continue;
+                };
+                let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
+                if self.halves_fit_better(&poses.bodies[*b], first, second, sigma) {
+                    candidates[c].3 = true;
+                }
+            }
+        }
+        let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
+        let mut next_id = seg.n_bodies();
+        let mut p = Proposal::new(Edit::Segmentation(seg.clone()), "");
+        let mut constraints = Constraints::default();
+        for (b, ratio, parts, split) in candidates {
+            if !split {
+                continue;
+            }
+            let pts = &poses.bodies[b].points;
+            p.warnings.push(Warning::BodySplit {
+                points: pts.clone(),
+                residual_in_sigma: ratio,
+            });
+            constraints.undone_bodies.push(pts.clone());
+            constraints.split_origins.push(pts.clone());
+            p.points.extend(pts);
+            // A side under three points is left unassigned.
+            for &i in pts {
+                labels[i] = None;
+            }
+            for (k, part) in parts.iter().enumerate() {
+                for &i in part {
+                    labels[i] = Some(if k == 0 { b } else { next_id });
+                }
+            }
+            if let [first, second] = &parts[..] {
+                constraints.cannot_link.push((first[0], second[0]));
+            }
+            next_id += 1;
+        }
+        if p.warnings.is_empty() {
+            return Ok(None);
+        }
+        let mut out = Segmentation::from_raw(&labels, kinetree_core::MIN_BODY_POINTS);
+        out.discarded_groups
+            .extend(seg.discarded_groups.iter().cloned());
+        out.discarded_groups.sort();
+        p.summary = format!("{} body(ies) split in two", p.warnings.len());
+        p.points.sort_unstable();
+        p.edit = Edit::Segmentation(out);
+        p.constraints = constraints;
+        Ok(Some(p))
+    }
+}

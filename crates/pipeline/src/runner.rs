@@ -1,0 +1,628 @@
+//! The runner: owns the loop over the repairs (their order, limits, restarts and reverts),
+//! redoes what each edit invalidates, and records every change in a trace.
+//!
+//! Phases, in order (see [`RepairPhase`]): grouping (after each clustering), bodies (after
+//! each pose estimate), then models made over passes: each model's tree repairs, then its
+//! points repairs (at most `model_passes` passes, each redoing the bodies and the model, and
+//! reverted unless its edits stand), then its model repairs when no point moved.
+
+use crate::Pipeline;
+use kinetree_core::model::NoiseSource;
+use kinetree_core::{
+    BodyPoses, BodyTrack, ClusteringInput, DissimilarityInput, DissimilarityMatrix, DofInput,
+    DofTester, Draft, Edit, Error, ModelDraft, ModelMaker, PairDof, PairStats, PoseInput, Proposal,
+    Repair, RepairContext, RepairLimit, RepairPhase, Result, Segmentation, StageSlots, TraceEntry,
+    Tracks, Warning,
+};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::Mutex;
+
+/// The runner's own limits (`[pipeline.runner]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunnerParams {
+    /// Passes in which the points repairs may move points and the bodies and model are redone
+    /// (default 2).
+    pub model_passes: usize,
+    /// Observed pairs a point needs with a body to be judged against it by the point-by-point
+    /// check after each clustering ([`kinetree_clustering::reassign_points`], default 2).
+    pub reassign_min_pairs: usize,
+}
+
+impl Default for RunnerParams {
+    fn default() -> Self {
+        Self {
+            model_passes: 2,
+            reassign_min_pairs: 2,
+        }
+    }
+}
+
+impl RunnerParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming `pipeline.runner.<parameter>`.
+    pub fn validate(&self) -> Result<()> {
+        let check = |name: &str, v: usize, max: usize| {
+            if v <= max {
+                Ok(())
+            } else {
+                Err(Error::InvalidParameter {
+                    name: format!("pipeline.runner.{name}"),
+                    message: format!("must be at most {max}, got {v}"),
+                })
+            }
+        };
+        check("model_passes", self.model_passes, 100)?;
+        check("reassign_min_pairs", self.reassign_min_pairs, 1_000_000)
+    }
+}
+
+/// The error for a repair that proposes an edit its phase does not take.
+fn wrong_edit(repair: &dyn Repair, edit: &Edit) -> Error {
+    Error::Config(format!(
+        "repair `{}` proposed a `{}` edit in the {:?} phase, which does not take it",
+        repair.name(),
+        edit.kind(),
+        repair.phase()
+    ))
+}
+
+/// How poorly a body is posed, and how far it travels: the median over its registered frames
+/// of its rotation's standard deviation per unit noise (infinite when never registered), and
+/// the path length of its origin over its registered frames. Both depend on the body's
+/// keypoints, their visibility and motion, not on how the bodies or points are numbered, where
+/// the camera is, or which way time runs.
+pub(crate) fn pose_spread(track: &BodyTrack) -> (f64, f64) {
+    let Some(spread) = track.median_quality(|q| q.rot_std_per_sigma) else {
+        return (f64::INFINITY, 0.0);
+    };
+    let origins: Vec<_> = track
+        .cam_from_body
+        .iter()
+        .flatten()
+        .map(|p| p.translation.vector)
+        .collect();
+    let travel = origins.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+    (spread, travel)
+}
+
+/// The pair of bodies `i`, `j` as `(frame, moving)`: `j` is the frame when it is better
+/// posed, or equally well posed (within rounding) and travels less; else `i`. Exact ties keep
+/// `i` (identical bodies moving identically).
+pub(crate) fn frame_and_moving(spread: &[(f64, f64)], i: usize, j: usize) -> (usize, usize) {
+    let differs = |a: f64, b: f64| (a - b).abs() > 1e-9 * a.abs().max(b.abs());
+    let ((si, ti), (sj, tj)) = (spread[i], spread[j]);
+    let j_first = if differs(si, sj) {
+        sj < si
+    } else if differs(ti, tj) {
+        tj < ti
+    } else {
+        false
+    };
+    if j_first { (j, i) } else { (i, j) }
+}
+
+/// Every pair's DoF test: each body against the camera frame, and each pair of bodies with the
+/// better-posed one as the frame ([`frame_and_moving`]). The test of `b` in `a`'s frame is not
+/// that of `a` in `b`'s (the frame's rotation noise acts at the lever arm of the other's
+/// origin), so the direction must not follow the body numbering, which follows the order of
+/// the points. Pairs never registered together are left out.
+///
+/// # Errors
+/// The DoF stage's errors other than [`Error::Degenerate`].
+pub fn all_pairs(dof: &dyn DofTester, poses: &BodyPoses, sigma: f64) -> Result<Vec<PairDof>> {
+    let input = DofInput {
+        poses,
+        noise_sigma_m: sigma,
+    };
+    let n = poses.bodies.len();
+    let spread: Vec<(f64, f64)> = poses.bodies.iter().map(pose_spread).collect();
+    let mut pairs: Vec<(Option<usize>, usize)> = (0..n).map(|b| (None, b)).collect();
+    for i in 0..n {
+        for j in i + 1..n {
+            let (frame, moving) = frame_and_moving(&spread, i, j);
+            pairs.push((Some(frame), moving));
+        }
+    }
+    // The tests are independent: run in parallel, kept in this order.
+    let tested: Vec<Result<Option<PairDof>>> = pairs
+        .par_iter()
+        .map(|&(a, b)| match dof.test_pair(&input, a, b) {
+            Ok(p) => Ok(Some(p)),
+            Err(Error::Degenerate(_)) => Ok(None),
+            Err(e) => Err(e),
+        })
+        .collect();
+    let mut out = Vec::new();
+    for t in tested {
+        out.extend(t?);
+    }
+    Ok(out)
+}
+
+/// The configured stages as repair slots.
+fn slots(p: &Pipeline) -> StageSlots<'_> {
+    StageSlots {
+        dissimilarity: p.dissimilarity.as_ref(),
+        clustering: p.clustering.as_ref(),
+        halves: p.halves.as_ref(),
+        pose: p.pose.as_ref(),
+        dof: p.dof.as_ref(),
+    }
+}
+
+/// The dissimilarity at `sigma` and the clustering, with the point-by-point check.
+pub(crate) fn segment(
+    p: &Pipeline,
+    tracks: &Tracks,
+    stats: &PairStats,
+    sigma: f64,
+) -> Result<(DissimilarityMatrix, Segmentation)> {
+    let d = p.dissimilarity.compute(&DissimilarityInput {
+        tracks,
+        stats,
+        noise_sigma_m: sigma,
+    })?;
+    let s = p.clustering.cluster(&ClusteringInput {
+        dissimilarity: &d,
+        seed: p.seed,
+    })?;
+    let s =
+        kinetree_clustering::reassign_points(&d, &s, d.suggested_cut, p.runner.reassign_min_pairs);
+    Ok((d, s))
+}
+
+/// A trace entry for `proposal` of `repair`.
+fn entry(repair: &dyn Repair, pass: usize, outcome: &str, proposal: &Proposal) -> TraceEntry {
+    TraceEntry {
+        repair: repair.name().to_owned(),
+        phase: repair.phase(),
+        pass,
+        outcome: outcome.to_owned(),
+        edit: proposal.edit.kind().to_owned(),
+        summary: proposal.summary.clone(),
+        points: proposal.points.clone(),
+    }
+}
+
+/// Whether a repair may be asked again, given how often it was asked and how many edits it
+/// made in this run of its phase.
+fn may_ask(repair: &dyn Repair, asked: usize, edits: usize) -> bool {
+    match repair.limit() {
+        RepairLimit::Always => true,
+        RepairLimit::Once => asked == 0,
+        RepairLimit::Edits(n) => edits < n,
+    }
+}
+
+/// The grouping phase: the clustering at `sigma`, then the grouping repairs, which may change
+/// the noise level (the clustering is then redone). Returns the final level, matrix,
+/// segmentation and trace.
+pub(crate) fn grouping(
+    p: &Pipeline,
+    tracks: &Tracks,
+    stats: &PairStats,
+    mut sigma: f64,
+    first_guess: Option<f64>,
+) -> Result<(f64, DissimilarityMatrix, Segmentation, Vec<TraceEntry>)> {
+    let (mut dmat, mut seg) = segment(p, tracks, stats, sigma)?;
+    let mut trace = Vec::new();
+    let phase: Vec<&dyn Repair> = p
+        .repairs
+        .iter()
+        .map(AsRef::as_ref)
+        .filter(|r| r.phase() == RepairPhase::Grouping)
+        .collect();
+    let (mut asked, mut edits) = (vec![0usize; phase.len()], vec![0usize; phase.len()]);
+    'phase: loop {
+        for (k, &r) in phase.iter().enumerate() {
+            if !may_ask(r, asked[k], edits[k]) {
+                continue;
+            }
+            asked[k] += 1;
+            let ctx = RepairContext {
+                tracks,
+                stats,
+                dissimilarity: &dmat,
+                noise_sigma_m: sigma,
+                estimated_noise_sigma_m: first_guess,
+                stages: slots(p),
+                models: None,
+                seed: p.seed,
+            };
+            let Some(proposal) = r.propose(&ctx, &Draft::new(seg.clone()))? else {
+                continue;
+            };
+            edits[k] += 1;
+            trace.push(entry(r, 0, "applied", &proposal));
+            let Edit::NoiseLevel {
+                sigma_m,
+                redo_clustering,
+            } = proposal.edit
+            else {
+                return Err(wrong_edit(r, &proposal.edit));
+            };
+            if !(sigma_m.is_finite() && sigma_m > 0.0) {
+                return Err(Error::Numerical(format!(
+                    "repair `{}` proposed the noise level {sigma_m}",
+                    r.name()
+                )));
+            }
+            sigma = sigma_m;
+            if !redo_clustering {
+                break 'phase;
+            }
+            (dmat, seg) = segment(p, tracks, stats, sigma)?;
+            continue 'phase;
+        }
+        break;
+    }
+    Ok((sigma, dmat, seg, trace))
+}
+
+/// The edits of one points pass, with the repairs that proposed them.
+type PassEdits<'r> = Vec<(&'r dyn Repair, Edit)>;
+
+/// One discovery's state shared by the phases after the grouping.
+#[derive(Debug)]
+pub(crate) struct Runner<'a> {
+    pipeline: &'a Pipeline,
+    tracks: &'a Tracks,
+    stats: &'a PairStats,
+    dmat: &'a DissimilarityMatrix,
+    sigma: f64,
+    source: NoiseSource,
+    first_guess: Option<f64>,
+    /// The trace so far and the current pass.
+    trace: Mutex<(Vec<TraceEntry>, usize)>,
+}
+
+impl<'a> Runner<'a> {
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn new(
+        pipeline: &'a Pipeline,
+        tracks: &'a Tracks,
+        stats: &'a PairStats,
+        dmat: &'a DissimilarityMatrix,
+        sigma: f64,
+        source: NoiseSource,
+        first_guess: Option<f64>,
+        trace: Vec<TraceEntry>,
+    ) -> Self {
+        Self {
+            pipeline,
+            tracks,
+            stats,
+            dmat,
+            sigma,
+            source,
+            first_guess,
+            trace: Mutex::new((trace, 0)),
+        }
+    }
+
+    pub(crate) fn context(&self) -> RepairContext<'_> {
+        RepairContext {
+            tracks: self.tracks,
+            stats: self.stats,
+            dissimilarity: self.dmat,
+            noise_sigma_m: self.sigma,
+            estimated_noise_sigma_m: self.first_guess,
+            stages: slots(self.pipeline),
+            models: Some(self),
+            seed: self.pipeline.seed,
+        }
+    }
+
+    fn record(&self, repair: &dyn Repair, outcome: &str, proposal: &Proposal) {
+        if let Ok(mut t) = self.trace.lock() {
+            let pass = t.1;
+            t.0.push(entry(repair, pass, outcome, proposal));
+        }
+    }
+
+    fn set_pass(&self, pass: usize) {
+        if let Ok(mut t) = self.trace.lock() {
+            t.1 = pass;
+        }
+    }
+
+    fn phase(&self, phase: RepairPhase) -> Vec<&'a dyn Repair> {
+        self.pipeline
+            .repairs
+            .iter()
+            .map(AsRef::as_ref)
+            .filter(|r| r.phase() == phase)
+            .collect()
+    }
+
+    /// Tests every pair on the draft's poses.
+    fn test_pairs(&self, draft: &mut Draft) -> Result<()> {
+        if draft.segmentation.n_bodies() == 0 {
+            return Err(Error::Degenerate(
+                "no rigid body of three or more points could be found and registered".into(),
+            ));
+        }
+        let poses = crate::repairs::poses_of("runner", draft.poses.as_ref())?;
+        draft.pairs = Some(all_pairs(self.pipeline.dof.as_ref(), poses, self.sigma)?);
+        Ok(())
+    }
+
+    /// The bodies phase on `draft`: poses, then the bodies repairs in order, the poses redone
+    /// after every segmentation edit; ends with the draft's poses and pair tests. Segmentation
+    /// edits' warnings go to `history`; the warnings of the final poses' edits are returned.
+    fn bodies(&self, draft: &mut Draft, history: &mut Vec<Warning>) -> Result<Vec<Warning>> {
+        draft.constraints.start_bodies_phase();
+        let phase = self.phase(RepairPhase::Bodies);
+        let (mut asked, mut edits) = (vec![0usize; phase.len()], vec![0usize; phase.len()]);
+        let ctx = self.context();
+        let mut pose_warnings = Vec::new();
+        'poses: loop {
+            draft.poses = Some(self.pipeline.pose.estimate(&PoseInput {
+                tracks: self.tracks,
+                segmentation: &draft.segmentation,
+                noise_sigma_m: self.sigma,
+            })?);
+            draft.pairs = None;
+            pose_warnings.clear();
+            for (k, &r) in phase.iter().enumerate() {
+                if !may_ask(r, asked[k], edits[k]) {
+                    continue;
+                }
+                if r.needs_pair_tests() && draft.pairs.is_none() {
+                    self.test_pairs(draft)?;
+                }
+                asked[k] += 1;
+                let Some(proposal) = r.propose(&ctx, draft)? else {
+                    continue;
+                };
+                edits[k] += 1;
+                self.record(r, "applied", &proposal);
+                draft.constraints.extend(&proposal.constraints);
+                match proposal.edit {
+                    Edit::Poses(poses) => {
+                        draft.poses = Some(poses);
+                        draft.pairs = None;
+                        pose_warnings = proposal.warnings;
+                    }
+                    Edit::Segmentation(seg) => {
+                        history.extend(proposal.warnings);
+                        draft.segmentation = seg;
+                        for (j, other) in phase.iter().enumerate() {
+                            if other.reopened_by().contains(&r.name()) {
+                                asked[j] = 0;
+                            }
+                        }
+                        continue 'poses;
+                    }
+                    edit => return Err(wrong_edit(r, &edit)),
+                }
+            }
+            break;
+        }
+        if draft.pairs.is_none() {
+            self.test_pairs(draft)?;
+        }
+        Ok(pose_warnings)
+    }
+
+    /// The model's whole-tree fit, into `model.fitted`.
+    fn fit(&self, model: &mut ModelDraft) -> Result<()> {
+        if model.fitted.is_none() {
+            let motions = kinetree_structure::FittedMotions::new(&model.model, self.tracks)?;
+            model.fitted = Some(motions.fitted().clone());
+        }
+        Ok(())
+    }
+
+    /// Asks the points repairs (those `only` admits) on `draft`, each seeing the edits of the
+    /// ones before it.
+    fn ask_points(
+        &self,
+        draft: &mut Draft,
+        only: impl Fn(&dyn Repair) -> bool,
+    ) -> Result<Vec<(&'a dyn Repair, Proposal)>> {
+        let ctx = self.context();
+        let mut out = Vec::new();
+        draft.pending.clear();
+        for r in self.phase(RepairPhase::Points) {
+            if !only(r) {
+                continue;
+            }
+            if let Some(p) = r.propose(&ctx, draft)? {
+                let Edit::Points(moves) = &p.edit else {
+                    return Err(wrong_edit(r, &p.edit));
+                };
+                draft.pending.extend(moves.iter().copied());
+                out.push((r, p));
+            }
+        }
+        draft.pending.clear();
+        Ok(out)
+    }
+
+    /// The whole run after the grouping: bodies, model, and passes of point edits.
+    pub(crate) fn run(
+        &self,
+        seg: Segmentation,
+        mut history: Vec<Warning>,
+    ) -> Result<(Draft, Vec<TraceEntry>)> {
+        let ctx = self.context();
+        let passes = self.pipeline.runner.model_passes;
+        let mut draft = Draft::new(seg);
+        let mut previous: Option<(Draft, PassEdits<'_>)> = None;
+        let mut pass = 0;
+        let last = loop {
+            self.set_pass(pass);
+            let pose_warnings = self.bodies(&mut draft, &mut history)?;
+            let hist: Vec<Warning> = history.iter().cloned().chain(pose_warnings).collect();
+            let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
+                return Err(Error::Degenerate("the bodies phase left no poses".into()));
+            };
+            let mut model = self.make(&draft.segmentation, poses, pairs, &hist)?;
+            self.fit(&mut model)?;
+            draft.model = Some(model);
+            // The previous pass's edits must stand on this model, or the pass is undone.
+            if let Some((before, edits)) = previous.take() {
+                let mut undone = None;
+                for (r, e) in &edits {
+                    if !r.stands(&ctx, e, &before, &draft)? {
+                        undone = Some(*r);
+                        break;
+                    }
+                }
+                if let Some(r) = undone {
+                    let mut note = Proposal::new(
+                        Edit::Points(Vec::new()),
+                        "the previous pass undone: its edit did not stand",
+                    );
+                    note.points = Vec::new();
+                    self.record(r, "reverted", &note);
+                    break before;
+                }
+            }
+            let mut proposals = if pass < passes {
+                self.ask_points(&mut draft, |_| true)?
+            } else {
+                Vec::new()
+            };
+            if proposals.is_empty() {
+                for r in self.phase(RepairPhase::Model) {
+                    let Some(p) = r.propose(&ctx, &draft)? else {
+                        continue;
+                    };
+                    self.record(r, "applied", &p);
+                    let Edit::Model { model, poses } = p.edit else {
+                        return Err(wrong_edit(r, &p.edit));
+                    };
+                    draft.poses = Some(poses);
+                    draft.pairs = None;
+                    draft.model = Some(*model);
+                    if pass < passes {
+                        if let Some(m) = draft.model.as_mut() {
+                            self.fit(m)?;
+                        }
+                        proposals = self.ask_points(&mut draft, |r| r.asked_on_replaced_model())?;
+                    }
+                    if !proposals.is_empty() {
+                        break;
+                    }
+                }
+            }
+            if proposals.is_empty() {
+                break draft;
+            }
+            let mut labels = draft.segmentation.labels().to_vec();
+            let mut edits = Vec::new();
+            for (r, p) in proposals {
+                let Edit::Points(moves) = &p.edit else {
+                    return Err(wrong_edit(r, &p.edit));
+                };
+                for &(point, body) in moves {
+                    if let Some(l) = labels.get_mut(point) {
+                        *l = body;
+                    }
+                }
+                self.record(r, "applied", &p);
+                history.extend(p.warnings.iter().cloned());
+                draft.constraints.extend(&p.constraints);
+                edits.push((r, p.edit));
+            }
+            let mut seg = Segmentation::from_raw(&labels, 1);
+            seg.discarded_groups = draft.segmentation.discarded_groups.clone();
+            let mut next = Draft::new(seg);
+            next.constraints = draft.constraints.clone();
+            previous = Some((std::mem::replace(&mut draft, next), edits));
+            pass += 1;
+        };
+        let trace = self
+            .trace
+            .lock()
+            .map(|mut t| std::mem::take(&mut t.0))
+            .unwrap_or_default();
+        Ok((last, trace))
+    }
+
+    /// Finishes an assembled model: point confidence, bodies' internal dissimilarity, and the
+    /// whole-tree fit (positions, their precision, the re-prediction).
+    fn finish(&self, seg: &Segmentation, mut m: ModelDraft) -> Result<ModelDraft> {
+        let diag = kinetree_clustering::diagnostics(self.dmat, seg);
+        m.model.point_confidence = diag.point_margin.clone();
+        for body in &mut m.model.bodies {
+            body.internal_dissimilarity = diag.body_spread[m.body_order[body.id]];
+        }
+        m.model.reprediction_rms_in_sigma =
+            kinetree_structure::fit_model_positions(&mut m.model, self.tracks)?;
+        Ok(m)
+    }
+}
+
+impl ModelMaker for Runner<'_> {
+    fn assemble(
+        &self,
+        segmentation: &Segmentation,
+        poses: &BodyPoses,
+        pairs: &[PairDof],
+        excluded: &[(usize, usize)],
+        history: &[Warning],
+    ) -> Result<ModelDraft> {
+        let mut m = crate::assemble::assemble(
+            self.pipeline,
+            self.tracks,
+            segmentation,
+            poses,
+            pairs.to_vec(),
+            self.sigma,
+            self.source,
+            history.to_vec(),
+            excluded,
+        )?;
+        m.history = history.to_vec();
+        Ok(m)
+    }
+
+    fn make(
+        &self,
+        segmentation: &Segmentation,
+        poses: &BodyPoses,
+        pairs: &[PairDof],
+        history: &[Warning],
+    ) -> Result<ModelDraft> {
+        let ctx = self.context();
+        let first = self.assemble(segmentation, poses, pairs, &[], history)?;
+        let mut draft = Draft::new(segmentation.clone());
+        draft.poses = Some(poses.clone());
+        draft.pairs = Some(pairs.to_vec());
+        draft.model = Some(first);
+        let mut alternatives = Vec::new();
+        for r in self.phase(RepairPhase::Tree) {
+            if let Some(p) = r.propose(&ctx, &draft)? {
+                let Edit::Tree(excluded) = &p.edit else {
+                    return Err(wrong_edit(r, &p.edit));
+                };
+                let alt = self.assemble(segmentation, poses, pairs, excluded, history)?;
+                alternatives.push((r, p, alt));
+            }
+        }
+        let Some(first) = draft.model.take() else {
+            return Err(Error::Degenerate("no model to finish".into()));
+        };
+        draft.model = Some(self.finish(segmentation, first)?);
+        for (r, p, alt) in alternatives {
+            let mut after = draft.clone();
+            after.model = Some(self.finish(segmentation, alt)?);
+            if r.stands(&ctx, &p.edit, &draft, &after)? {
+                self.record(r, "kept", &p);
+                draft = after;
+            } else {
+                self.record(r, "discarded", &p);
+            }
+        }
+        draft
+            .model
+            .ok_or_else(|| Error::Degenerate("no model was made".into()))
+    }
+}
