@@ -343,7 +343,7 @@ impl ExperimentConfig {
     /// # Errors
     /// [`Error::Config`] with the parser's message (line and key).
     pub fn from_toml(text: &str) -> Result<Self> {
-        toml::from_str(text).map_err(|e| Error::Config(e.to_string()))
+        parse_naming_key(text, "")
     }
 
     /// The config with every default filled in, as TOML.
@@ -364,5 +364,21 @@ pub const PAPER_EXPERIMENT_TOML: &str =
 /// # Errors
 /// [`Error::Config`] with the parser's message; unknown keys are errors.
 pub fn pipeline_from_toml(text: &str) -> Result<PipelineConfig> {
-    toml::from_str(text).map_err(|e| Error::Config(e.to_string()))
+    parse_naming_key(text, "pipeline.")
+}
+
+/// Parses TOML into `T`; an error names the dotted key it is about (found by
+/// `serde_path_to_error`, prefixed with `prefix`) before the parser's message (line and key).
+fn parse_naming_key<T: serde::de::DeserializeOwned>(text: &str, prefix: &str) -> Result<T> {
+    toml::from_str(text).map_err(|e| {
+        let path = toml::from_str::<toml::Value>(text)
+            .ok()
+            .and_then(|v| serde_path_to_error::deserialize::<_, T>(v).err())
+            .map(|pe| pe.path().to_string())
+            .filter(|p| p != ".");
+        match path {
+            Some(p) => Error::Config(format!("in `{prefix}{p}`: {e}")),
+            None => Error::Config(e.to_string()),
+        }
+    })
 }

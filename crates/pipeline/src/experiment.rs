@@ -91,8 +91,8 @@ in the paper. See experiments/paper-table1/README.md.
 ";
 
 /// Writes `resolved.toml`, `model.json`, `table.md` (with the paper's printed Table I for the
-/// paper arm), `figures/` ([`kinetree_figures::write_figures`]) and, for synthetic data,
-/// `evaluation.json` under `dir`.
+/// paper arm), `figures/` (with the `figures` feature, `kinetree_figures::write_figures`)
+/// and, for synthetic data, `evaluation.json` under `dir`.
 ///
 /// # Errors
 /// I/O errors, naming the file.
@@ -124,6 +124,15 @@ pub fn write_results(
     if let Some(e) = &outcome.evaluation {
         kinetree_io::write_json(&dir.join("evaluation.json"), e)?;
     }
+    #[cfg(feature = "figures")]
+    write_figures(outcome, dir)?;
+    Ok(())
+}
+
+/// The experiment's figures under `dir/figures`.
+#[cfg(feature = "figures")]
+fn write_figures(outcome: &ExperimentOutcome, dir: &Path) -> Result<()> {
+    let model = &outcome.discovery.model;
     let std_m: Vec<f64> = outcome
         .discovery
         .stats
@@ -157,6 +166,7 @@ pub fn write_results(
     Ok(())
 }
 
+#[cfg(feature = "figures")]
 /// The true positions of the joint that carries the true body holding most of `j.child`'s
 /// points (`map`, from [`kinetree_eval::body_map`]), put on the estimate's sign and offset.
 fn true_joint_positions(

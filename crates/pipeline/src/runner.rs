@@ -22,17 +22,21 @@ use std::sync::Mutex;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RunnerParams {
+    /// Whether each clustering is followed by the point-by-point check on observed pairs
+    /// ([`kinetree_clustering::reassign_points`]; default on).
+    pub point_check: bool,
     /// Passes in which the points repairs may move points and the bodies and model are redone
     /// (default 2).
     pub model_passes: usize,
     /// Observed pairs a point needs with a body to be judged against it by the point-by-point
-    /// check after each clustering ([`kinetree_clustering::reassign_points`], default 2).
+    /// check (default 2).
     pub reassign_min_pairs: usize,
 }
 
 impl Default for RunnerParams {
     fn default() -> Self {
         Self {
+            point_check: true,
             model_passes: 2,
             reassign_min_pairs: 2,
         }
@@ -170,6 +174,9 @@ pub(crate) fn segment(
         dissimilarity: &d,
         seed: p.seed,
     })?;
+    if !p.runner.point_check {
+        return Ok((d, s));
+    }
     let s =
         kinetree_clustering::reassign_points(&d, &s, d.suggested_cut, p.runner.reassign_min_pairs);
     Ok((d, s))

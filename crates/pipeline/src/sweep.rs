@@ -56,6 +56,11 @@ pub struct SweepSpec {
     /// Dotted path -> values; the runs are the Cartesian product (keys in sorted order).
     #[serde(default)]
     pub grid: toml::Table,
+    /// Records each run's wall time (a `seconds` column in `runs.csv`, its median and sum per
+    /// grid point in `table.md`). Times depend on the machine and its load (runs go in
+    /// parallel), so such files differ between sittings; compare them within one.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub timing: bool,
 }
 
 /// Seeds of a sweep.
@@ -110,6 +115,8 @@ pub struct SweepRun {
     pub max_prismatic_smoothed_rms_m: Option<f64>,
     /// Bodies found.
     pub bodies: Option<usize>,
+    /// Wall time of the run, seconds (with `[sweep] timing = true`).
+    pub seconds: Option<f64>,
 }
 
 /// A parsed sweep: the base config (without `[sweep]`), the spec and the expanded grid.
@@ -310,6 +317,7 @@ impl Sweep {
                 ]),
                 seed_keys: Vec::new(),
                 grid: toml::Table::new(),
+                timing: false,
             },
         };
         let mut preset: Vec<(String, toml::Value)> = spec
@@ -447,11 +455,16 @@ impl Sweep {
             max_revolute_smoothed_rms_rad: None,
             max_prismatic_smoothed_rms_m: None,
             bodies: None,
+            seconds: None,
         };
+        let started = std::time::Instant::now();
         let outcome = self.config(p, seed).and_then(|c| {
             let sigma = crate::experiment::scenario(&c.data).map(|s| s.noise_sigma_m);
             run_experiment(&c, base_dir).map(|o| (o, sigma))
         });
+        if self.spec.timing {
+            run.seconds = Some(started.elapsed().as_secs_f64());
+        }
         match outcome {
             Err(e) => run.error = Some(e.to_string()),
             Ok((o, sigma)) => {
@@ -510,13 +523,14 @@ pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
         s.push_str(&csv_field(k));
         s.push(',');
     }
-    s.push_str("seed,error,bodies,ari,identifiable_ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m,max_revolute_smoothed_rms_rad,max_prismatic_smoothed_rms_m\n");
+    s.push_str("seed,error,bodies,ari,identifiable_ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m,max_revolute_smoothed_rms_rad,max_prismatic_smoothed_rms_m");
+    s.push_str(if sweep.spec.timing { ",seconds\n" } else { "\n" });
     for r in runs {
         for v in &r.values {
             s.push_str(&csv_field(v));
             s.push(',');
         }
-        let _ = writeln!(
+        let _ = write!(
             s,
             "{},{},{},{},{},{},{},{},{},{},{},{}",
             r.seed,
@@ -532,6 +546,10 @@ pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
             opt(r.max_revolute_smoothed_rms_rad),
             opt(r.max_prismatic_smoothed_rms_m),
         );
+        if sweep.spec.timing {
+            let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
+        }
+        s.push('\n');
     }
     s
 }
@@ -554,11 +572,13 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
     let _ = writeln!(
         s,
-        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) |",
+        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) |{}",
         head.join(" | "),
-        if head.is_empty() { "" } else { " | " }
+        if head.is_empty() { "" } else { " | " },
+        if sweep.spec.timing { " median s | total s |" } else { "" }
     );
-    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 11));
+    let timing_cols = if sweep.spec.timing { 2 } else { 0 };
+    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 11 + timing_cols));
     for p in 0..sweep.points.len() {
         let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
         let n = rs.len();
@@ -575,7 +595,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         let aris: Vec<f64> = rs.iter().filter_map(|r| r.ari).collect();
         let mean_ari = (!aris.is_empty()).then(|| aris.iter().sum::<f64>() / aris.len() as f64);
         let values: Vec<String> = sweep.points[p].iter().map(|v| format!("`{v}`")).collect();
-        let _ = writeln!(
+        let _ = write!(
             s,
             "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             values.join(" | "),
@@ -614,6 +634,12 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
                 1e3
             ),
         );
+        if sweep.spec.timing {
+            let times: Vec<f64> = rs.iter().filter_map(|r| r.seconds).collect();
+            let total: f64 = times.iter().sum();
+            let _ = write!(s, " {} | {total:.1} |", fmt(median(times), 1.0));
+        }
+        s.push('\n');
     }
     s
 }
