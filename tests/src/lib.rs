@@ -130,3 +130,80 @@ pub fn warned(
 ) -> bool {
     model.warnings.iter().any(matches)
 }
+
+/// Hand-built mechanisms: box bodies, joints, sine trajectories, a fixed scene.
+pub mod build {
+    /// A box body of `points` interior keypoints.
+    pub fn body(centre: [f64; 3], half: [f64; 3], points: usize) -> kinetree_synth::BodySpec {
+        kinetree_synth::BodySpec {
+            name: String::new(),
+            shape: kinetree_synth::BoxShape {
+                centre,
+                half_extents: half,
+            },
+            skip_corners: (0..8).collect(),
+            extra_points: 0,
+            interior_points: points,
+        }
+    }
+
+    /// A revolute (or prismatic) joint from `parent` to `child`.
+    pub fn joint(
+        parent: usize,
+        child: usize,
+        revolute: bool,
+        axis: [f64; 3],
+        anchor: [f64; 3],
+    ) -> kinetree_synth::JointSpec {
+        kinetree_synth::JointSpec {
+            parent,
+            child,
+            joint_type: if revolute {
+                kinetree_synth::JointType::Revolute
+            } else {
+                kinetree_synth::JointType::Prismatic
+            },
+            axis,
+            anchor,
+        }
+    }
+
+    /// A sine trajectory about zero.
+    pub fn sine(amplitude: f64, frequency_hz: f64, phase_rad: f64) -> kinetree_synth::Trajectory {
+        kinetree_synth::Trajectory::Sine {
+            offset: 0.0,
+            amplitude,
+            frequency_hz,
+            phase_rad,
+        }
+    }
+
+    /// 200 frames at 30 Hz, a fixed camera, 10 % dropout, seed 3.
+    pub fn scenario(
+        mechanism: kinetree_synth::Mechanism,
+        trajectories: Vec<kinetree_synth::Trajectory>,
+        noise: f64,
+    ) -> kinetree_synth::Scenario {
+        kinetree_synth::Scenario {
+            mechanism,
+            trajectories,
+            n_frames: 200,
+            frame_rate_hz: 30.0,
+            camera: kinetree_synth::Camera::looking_at(
+                [1.6, -1.8, 1.4],
+                [0.0, 0.0, 0.2],
+                90.0,
+                80.0,
+            ),
+            noise_sigma_m: noise,
+            dropout: 0.1,
+            seed: 3,
+            self_occlusion: false,
+        }
+    }
+
+    /// A static 8-point base slab under the origin.
+    pub fn base() -> kinetree_synth::BodySpec {
+        body([0.0, 0.0, -0.05], [0.25, 0.25, 0.05], 8)
+    }
+}

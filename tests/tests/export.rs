@@ -69,7 +69,7 @@ fn check_urdf(d: &Discovery, median: (f64, f64), p95: (f64, f64)) -> usize {
                 continue;
             };
             let fitted = cp.inverse() * cc;
-            let motion = if j.joint_type == "prismatic" {
+            let motion = if j.joint_type == kinetree_core::model::JointType::Prismatic {
                 Isometry3::from_parts(Translation3::from(axis * q), UnitQuaternion::identity())
             } else {
                 Isometry3::from_parts(
@@ -132,14 +132,18 @@ fn urdf_of_random_mechanisms_with_prismatic_joints() {
     for _ in 0..12 {
         let spec = strategy.new_tree(&mut runner).expect("draw").current();
         let d = discover(&spec.scenario());
-        if d.model.joints.iter().any(|j| j.joint_type == "multi_dof") {
+        if d.model
+            .joints
+            .iter()
+            .any(|j| j.joint_type == kinetree_core::model::JointType::MultiDof)
+        {
             continue;
         }
         prismatic += d
             .model
             .joints
             .iter()
-            .filter(|j| j.joint_type == "prismatic")
+            .filter(|j| j.joint_type == kinetree_core::model::JointType::Prismatic)
             .count();
         // Translations: bodies up to 50 cm carry their rotation noise to their origins.
         check_urdf(&d, (1.5, 0.005), (3.0, 0.02));

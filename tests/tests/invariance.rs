@@ -13,7 +13,7 @@ use kinetree_tests::{cases, rate_draw};
 #[derive(Debug, Clone, PartialEq, Eq)]
 struct Structure {
     bodies: Vec<Vec<usize>>,
-    joints: Vec<(Vec<usize>, Vec<usize>, String)>,
+    joints: Vec<(Vec<usize>, Vec<usize>, kinetree_core::model::JointType)>,
     static_body: Option<Vec<usize>>,
 }
 
@@ -30,10 +30,10 @@ fn structure(m: &Model, original_index: &[usize]) -> Structure {
     };
     let mut bodies: Vec<Vec<usize>> = (0..m.bodies.len()).map(points).collect();
     bodies.sort();
-    let mut joints: Vec<(Vec<usize>, Vec<usize>, String)> = m
+    let mut joints: Vec<(Vec<usize>, Vec<usize>, kinetree_core::model::JointType)> = m
         .joints
         .iter()
-        .map(|j| (points(j.parent), points(j.child), j.joint_type.clone()))
+        .map(|j| (points(j.parent), points(j.child), j.joint_type))
         .collect();
     joints.sort();
     Structure {
@@ -152,7 +152,7 @@ fn reversing_time_gives_the_same_structure() {
 
 /// Seed 3 failed here from session 1 to session 8: at T = 100 a point of the last link seen
 /// in 16 frames was clustered with the first link, whose fitted poses it spoiled so that no
-/// move was allowed (see `kinetree_structure::OUTLIER_RATIO`), and three points seen in 6-7
+/// move was allowed (see `kinetree_fit::OUTLIER_RATIO`), and three points seen in 6-7
 /// frames were never placed (`MIN_FRAMES_TO_PLACE`).
 #[test]
 fn dropping_every_other_frame_gives_the_same_structure() {
@@ -200,14 +200,14 @@ fn a_moving_camera_gives_the_same_joints_and_no_static_body() {
         );
         // Same joints up to direction (the root may be another body now).
         let undirected = |s: &Structure| {
-            let mut j: Vec<(Vec<usize>, Vec<usize>, String)> = s
+            let mut j: Vec<(Vec<usize>, Vec<usize>, kinetree_core::model::JointType)> = s
                 .joints
                 .iter()
                 .map(|(a, b, t)| {
                     if a < b {
-                        (a.clone(), b.clone(), t.clone())
+                        (a.clone(), b.clone(), *t)
                     } else {
-                        (b.clone(), a.clone(), t.clone())
+                        (b.clone(), a.clone(), *t)
                     }
                 })
                 .collect();

@@ -4,8 +4,8 @@ use kinetree_core::geom::unwrap_angles;
 use kinetree_core::nalgebra::Point3;
 use kinetree_core::{Error, Warning};
 use kinetree_eval::aligned_rms;
+use kinetree_fit::Observer;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
-use kinetree_structure::Observer;
 use kinetree_synth::{paper_arm, simulate};
 
 fn config() -> PipelineConfig {
@@ -76,7 +76,7 @@ fn observing_the_training_frames_reproduces_the_batch_positions() {
     let revolute: Vec<bool> = model
         .joints
         .iter()
-        .map(|j| j.joint_type == "revolute")
+        .map(|j| j.joint_type == kinetree_core::model::JointType::Revolute)
         .collect();
     let cols = observe_all(&observer, &data.tracks, &revolute);
     for (j, c) in model.joints.iter().zip(&cols) {
@@ -246,10 +246,10 @@ fn a_joint_the_model_gets_wrong_is_freed() {
         .collect();
     assert!(before.iter().all(|&r| r < 0.01), "{before:?}");
     let mut wrong = model.clone();
-    wrong.joints[1].joint_type = "prismatic".into();
+    wrong.joints[1].joint_type = kinetree_core::model::JointType::Prismatic;
     wrong.joints[1].ranks.rotation = 2;
     wrong.warnings.clear();
-    kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
+    kinetree_fit::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
     let freed: Vec<(usize, usize)> = wrong
         .warnings
         .iter()
@@ -299,14 +299,17 @@ fn a_hinge_typed_as_a_slide_is_typed_back_by_the_fit() {
         model.joints[1].ranks
     );
     let mut wrong = model.clone();
-    wrong.joints[1].joint_type = "prismatic".into();
+    wrong.joints[1].joint_type = kinetree_core::model::JointType::Prismatic;
     wrong.warnings.clear();
-    kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
-    assert_eq!(wrong.joints[1].joint_type, "revolute");
+    kinetree_fit::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
+    assert_eq!(
+        wrong.joints[1].joint_type,
+        kinetree_core::model::JointType::Revolute
+    );
     assert!(
         wrong.warnings.iter().any(|w| matches!(
             w,
-            Warning::JointTypedByFit { joint_type, .. } if joint_type == "revolute"
+            Warning::JointTypedByFit { joint_type, .. } if *joint_type == kinetree_core::model::JointType::Revolute
         )),
         "{:?}",
         wrong.warnings
@@ -327,7 +330,7 @@ fn a_joint_with_a_wrong_pivot_is_refined_back() {
     let p = wrong.joints[1].point_in_parent.expect("pivot");
     wrong.joints[1].point_in_parent = Some([p[0] + 0.08, p[1], p[2]]);
     wrong.warnings.clear();
-    kinetree_structure::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
+    kinetree_fit::fit_model_positions(&mut wrong, &data.tracks).expect("fit");
     assert!(!any_joint_freed(&wrong), "{:?}", wrong.warnings);
     let axis =
         kinetree_core::nalgebra::Vector3::from(model.joints[1].axis_in_parent.expect("axis"));
@@ -379,7 +382,7 @@ fn bad_fit_input_gets_typed_errors() {
 #[test]
 fn fitted_motions_of_another_model_are_a_typed_error() {
     let (data, model) = discovered_arm(5);
-    let motions = kinetree_structure::FittedMotions::new(&model, &data.tracks).expect("fit");
+    let motions = kinetree_fit::FittedMotions::new(&model, &data.tracks).expect("fit");
     assert!(motions.points_settled(&model, &data.tracks, &[0]).is_ok());
     let mut other = model.clone();
     other.bodies.push(other.bodies[0].clone());
@@ -403,7 +406,7 @@ fn fitted_motions_onto_per_body_poses() {
         .expect("pipeline")
         .run(&data.tracks)
         .expect("run");
-    let motions = kinetree_structure::FittedMotions::new(&d.model, &data.tracks).expect("fit");
+    let motions = kinetree_fit::FittedMotions::new(&d.model, &data.tracks).expect("fit");
     let fitted = motions
         .onto_body_poses(&d.poses, &d.body_order)
         .expect("onto");

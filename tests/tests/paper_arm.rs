@@ -36,7 +36,12 @@ fn check_paper_structure(model: &Model, truth: &kinetree_synth::GroundTruth) {
         let rms = j.position_rms.expect("positions");
         assert!(rms < 0.05, "joint {} RMS {rms} rad", j.joint);
     }
-    assert!(model.joints.iter().all(|j| j.joint_type == "revolute"));
+    assert!(
+        model
+            .joints
+            .iter()
+            .all(|j| j.joint_type == kinetree_core::model::JointType::Revolute)
+    );
 }
 
 #[test]

@@ -78,7 +78,13 @@ fn real_recordings_segment_into_their_labelled_segments() {
         "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
     );
     for o in &outcomes {
-        let count = |t: &str| o.model.joints.iter().filter(|j| j.joint_type == t).count();
+        let count = |t: &str| {
+            o.model
+                .joints
+                .iter()
+                .filter(|j| j.joint_type.as_str() == t)
+                .count()
+        };
         let _ = writeln!(
             table,
             "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} | {} |",
@@ -128,7 +134,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
     });
     let joint =
         joint.unwrap_or_else(|| panic!("no joint between wheel {wheel:?} and chair {chair:?}"));
-    assert_eq!(joint.joint_type, "revolute");
+    assert_eq!(joint.joint_type, kinetree_core::model::JointType::Revolute);
     let [lo, hi] = joint.range.expect("range");
     assert!(hi - lo > 30.0, "the wheel turned {} rad", hi - lo);
     for o in &outcomes {
@@ -161,7 +167,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
             .model
             .joints
             .iter()
-            .filter(|j| !matches!(j.joint_type.as_str(), "revolute" | "prismatic"))
+            .filter(|j| !j.joint_type.is_single_dof())
             .count();
         assert_eq!(
             urdf.matches("type=\"floating\"").count(),

@@ -79,19 +79,28 @@ fn split_separates_two_links_clustered_as_one() {
     let mixed = labels(&data, |l| l2.iter().for_each(|&p| l[p] = Some(1)));
     let on = run(&data.tracks, &mixed, &config()).expect("discover");
     assert!(traced(&on, "split"), "trace: {:?}", on.model.trace);
-    assert!(one_body(&on, &l1) && one_body(&on, &l2), "{:?}", on.model.point_body);
+    assert!(
+        one_body(&on, &l1) && one_body(&on, &l2),
+        "{:?}",
+        on.model.point_body
+    );
     let mut c = config();
     c.repairs.split.enabled = false;
     let off = run(&data.tracks, &mixed, &c).expect("discover");
     assert!(!traced(&off, "split"));
-    assert!(!one_body(&off, &l2), "without the split the links stay one body");
+    assert!(
+        !one_body(&off, &l2),
+        "without the split the links stay one body"
+    );
 }
 
 #[test]
 fn merge_joins_the_halves_of_a_link_clustered_as_two() {
     let data = arm();
     let l2 = points_of(&data, 2);
-    let halves = labels(&data, |l| l2.iter().step_by(2).for_each(|&p| l[p] = Some(3)));
+    let halves = labels(&data, |l| {
+        l2.iter().step_by(2).for_each(|&p| l[p] = Some(3))
+    });
     let on = run(&data.tracks, &halves, &config()).expect("discover");
     assert!(traced(&on, "merge"));
     assert!(one_body(&on, &l2), "{:?}", on.model.point_body);
@@ -99,7 +108,11 @@ fn merge_joins_the_halves_of_a_link_clustered_as_two() {
     let mut c = config();
     c.repairs.merge.enabled = false;
     let off = run(&data.tracks, &halves, &c).expect("discover");
-    assert_eq!(off.model.bodies.len(), 4, "without the merge the halves stay apart");
+    assert_eq!(
+        off.model.bodies.len(),
+        4,
+        "without the merge the halves stay apart"
+    );
 }
 
 #[test]
@@ -120,7 +133,10 @@ fn attach_gives_points_on_no_body_to_the_body_whose_poses_explain_them() {
     assert!(one_body(&on, &l1), "{:?}", on.model.point_body);
     c.repairs.attach.enabled = false;
     let off = run(&data.tracks, &left, &c).expect("discover");
-    assert!(!one_body(&off, &l1), "without the attachment the two points stay off link 1");
+    assert!(
+        !one_body(&off, &l1),
+        "without the attachment the two points stay off link 1"
+    );
 }
 
 #[test]
@@ -253,14 +269,17 @@ fn eject_points_leaves_a_keypoint_that_fits_no_body_on_none() {
     let l1 = points_of(&data, 1);
     let n = data.tracks.n_points();
     // An extra keypoint that rides on link 1 with a 2 cm wobble: rigid to nothing.
-    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..data.tracks.n_frames())
-        .map(|t| {
-            let mut row: Vec<_> = (0..n).map(|i| data.tracks.get(t, i)).collect();
-            let wobble = 0.02 * (t as f64 * 0.7).sin();
-            row.push(data.tracks.get(t, l1[0]).map(|p| p + kinetree_core::nalgebra::Vector3::new(wobble, -wobble, 0.5 * wobble)));
-            row
-        })
-        .collect();
+    let frames: Vec<Vec<Option<Point3<f64>>>> =
+        (0..data.tracks.n_frames())
+            .map(|t| {
+                let mut row: Vec<_> = (0..n).map(|i| data.tracks.get(t, i)).collect();
+                let wobble = 0.02 * (t as f64 * 0.7).sin();
+                row.push(data.tracks.get(t, l1[0]).map(|p| {
+                    p + kinetree_core::nalgebra::Vector3::new(wobble, -wobble, 0.5 * wobble)
+                }));
+                row
+            })
+            .collect();
     let tracks = Tracks::from_points(&frames).expect("tracks");
     let mut with = labels(&data, |_| {});
     with.push(Some(1));
@@ -301,13 +320,21 @@ fn noise_refinement_refines_an_estimated_noise_level() {
     assert_ne!(on.noise_sigma_m, off.noise_sigma_m);
     let limit = estimated.repairs.noise_refinement.limit;
     assert!((on.noise_sigma_m / off.noise_sigma_m - 1.0).abs() <= limit + 1e-12);
-    assert!((on.noise_sigma_m / 0.001 - 1.0).abs() < 0.05, "{}", on.noise_sigma_m);
+    assert!(
+        (on.noise_sigma_m / 0.001 - 1.0).abs() < 0.05,
+        "{}",
+        on.noise_sigma_m
+    );
 }
 
 #[test]
 fn every_built_in_repair_conforms() {
     let repairs = RepairsConfig::default().build().expect("repairs");
-    assert_eq!(repairs.len(), 13, "one conformance line per built-in repair");
+    assert_eq!(
+        repairs.len(),
+        13,
+        "one conformance line per built-in repair"
+    );
     for r in &repairs {
         let v = check_repair(r.as_ref());
         assert!(v.is_empty(), "{}: {v:?}", r.name());
@@ -354,29 +381,89 @@ fn all_repairs_off_leaves_the_clustering_as_it_is() {
 #[test]
 fn repair_parameter_rules_name_the_key() {
     let rows: &[(&str, &str)] = &[
-        ("[repairs.split]\nresidual_in_sigma = -1.0", "pipeline.repairs.split.residual_in_sigma"),
-        ("[repairs.split]\nmax_rounds = 100000", "pipeline.repairs.split.max_rounds"),
-        ("[repairs.split]\nmin_frame_share = 1.5", "pipeline.repairs.split.min_frame_share"),
-        ("[repairs.split]\nlr_slack = nan", "pipeline.repairs.split.lr_slack"),
-        ("[repairs.merge]\nmax_rounds = 5000", "pipeline.repairs.merge.max_rounds"),
-        ("[repairs.merge]\nresidual_in_sigma = inf", "pipeline.repairs.merge.residual_in_sigma"),
-        ("[repairs.hinges]\nmax_reposed_share = 2.0", "pipeline.repairs.hinges.max_reposed_share"),
-        ("[repairs.hinges]\nmin_repose_gain = 0.5", "pipeline.repairs.hinges.min_repose_gain"),
-        ("[repairs.hinges]\nslack = 0.0", "pipeline.repairs.hinges.slack"),
-        ("[repairs.hinge_groups]\nmin_frames = 1", "pipeline.repairs.hinge_groups.min_frames"),
-        ("[repairs.hinge_groups]\nmax_rms_in_sigma = -3.0", "pipeline.repairs.hinge_groups.max_rms_in_sigma"),
-        ("[repairs.regroup]\nresidual_in_sigma = 0.0", "pipeline.repairs.regroup.residual_in_sigma"),
-        ("[repairs.drop_unposed]\nmin_frames = 0", "pipeline.repairs.drop_unposed.min_frames"),
-        ("[repairs.tree_ties]\ngain = 1.0", "pipeline.repairs.tree_ties.gain"),
-        ("[repairs.tree_ties]\nmax_alternatives = 1000", "pipeline.repairs.tree_ties.max_alternatives"),
-        ("[repairs.noise_refinement]\nlimit = 0.95", "pipeline.repairs.noise_refinement.limit"),
-        ("[repairs.noise_refinement]\nrounds = 1000", "pipeline.repairs.noise_refinement.rounds"),
-        ("[runner]\nmodel_passes = 1000", "pipeline.runner.model_passes"),
-        ("halves = { kind = \"hierarchical\" }", "pipeline.halves.n_clusters"),
+        (
+            "[repairs.split]\nresidual_in_sigma = -1.0",
+            "pipeline.repairs.split.residual_in_sigma",
+        ),
+        (
+            "[repairs.split]\nmax_rounds = 100000",
+            "pipeline.repairs.split.max_rounds",
+        ),
+        (
+            "[repairs.split]\nmin_frame_share = 1.5",
+            "pipeline.repairs.split.min_frame_share",
+        ),
+        (
+            "[repairs.split]\nlr_slack = nan",
+            "pipeline.repairs.split.lr_slack",
+        ),
+        (
+            "[repairs.merge]\nmax_rounds = 5000",
+            "pipeline.repairs.merge.max_rounds",
+        ),
+        (
+            "[repairs.merge]\nresidual_in_sigma = inf",
+            "pipeline.repairs.merge.residual_in_sigma",
+        ),
+        (
+            "[repairs.hinges]\nmax_reposed_share = 2.0",
+            "pipeline.repairs.hinges.max_reposed_share",
+        ),
+        (
+            "[repairs.hinges]\nmin_repose_gain = 0.5",
+            "pipeline.repairs.hinges.min_repose_gain",
+        ),
+        (
+            "[repairs.hinges]\nslack = 0.0",
+            "pipeline.repairs.hinges.slack",
+        ),
+        (
+            "[repairs.hinge_groups]\nmin_frames = 1",
+            "pipeline.repairs.hinge_groups.min_frames",
+        ),
+        (
+            "[repairs.hinge_groups]\nmax_rms_in_sigma = -3.0",
+            "pipeline.repairs.hinge_groups.max_rms_in_sigma",
+        ),
+        (
+            "[repairs.regroup]\nresidual_in_sigma = 0.0",
+            "pipeline.repairs.regroup.residual_in_sigma",
+        ),
+        (
+            "[repairs.drop_unposed]\nmin_frames = 0",
+            "pipeline.repairs.drop_unposed.min_frames",
+        ),
+        (
+            "[repairs.tree_ties]\ngain = 1.0",
+            "pipeline.repairs.tree_ties.gain",
+        ),
+        (
+            "[repairs.tree_ties]\nmax_alternatives = 1000",
+            "pipeline.repairs.tree_ties.max_alternatives",
+        ),
+        (
+            "[repairs.noise_refinement]\nlimit = 0.95",
+            "pipeline.repairs.noise_refinement.limit",
+        ),
+        (
+            "[repairs.noise_refinement]\nrounds = 1000",
+            "pipeline.repairs.noise_refinement.rounds",
+        ),
+        (
+            "[runner]\nmodel_passes = 1000",
+            "pipeline.runner.model_passes",
+        ),
+        (
+            "halves = { kind = \"hierarchical\" }",
+            "pipeline.halves.n_clusters",
+        ),
         // Unknown keys and the replaced key are refused by the parser, naming where.
         ("[repairs.split]\nbogus = 1", "pipeline.repairs.split"),
         ("[repairs.bogus]\nenabled = false", "pipeline.repairs"),
-        ("[repairs.attach]\nenabled = 3", "pipeline.repairs.attach.enabled"),
+        (
+            "[repairs.attach]\nenabled = 3",
+            "pipeline.repairs.attach.enabled",
+        ),
         ("[runner]\nbogus = 1", "pipeline.runner"),
         ("hinged_bodies = false", "pipeline.repairs.hinges.enabled"),
     ];
@@ -385,7 +472,10 @@ fn repair_parameter_rules_name_the_key() {
             .and_then(|c| Pipeline::from_config(&c))
             .expect_err(text)
             .to_string();
-        assert!(err.contains(key), "`{text}`: the error `{err}` does not name `{key}`");
+        assert!(
+            err.contains(key),
+            "`{text}`: the error `{err}` does not name `{key}`"
+        );
     }
     // And every default is valid and round-trips through the resolved TOML.
     let c = PipelineConfig::default();
@@ -393,4 +483,61 @@ fn repair_parameter_rules_name_the_key() {
     let text = toml::to_string(&c).expect("serialise");
     assert!(text.contains("[repairs.split]") && text.contains("residual_in_sigma = 2.5"));
     assert_eq!(pipeline_from_toml(&text).expect("parse"), c);
+}
+
+/// Two links turning on the base about axes `tilt_deg` apart through one anchor.
+fn siblings_on_one_anchor(tilt_deg: f64, seed: u64) -> SynthData {
+    use kinetree_tests::build::{base, body, joint, scenario, sine};
+    let t = tilt_deg.to_radians();
+    let mechanism = kinetree_synth::Mechanism {
+        bodies: vec![
+            base(),
+            body([0.15, 0.0, 0.12], [0.12, 0.03, 0.03], 8),
+            body([-0.12, 0.06, 0.16], [0.1, 0.03, 0.03], 8),
+        ],
+        joints: vec![
+            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.1]),
+            joint(0, 2, true, [t.sin(), 0.0, t.cos()], [0.0, 0.0, 0.1]),
+        ],
+    };
+    let mut s = scenario(
+        mechanism,
+        vec![sine(0.8, 0.2, 0.0), sine(0.9, 0.33, 1.0)],
+        0.001,
+    );
+    s.seed = seed;
+    simulate(&s).expect("simulate")
+}
+
+#[test]
+#[ignore = "probe"]
+fn probe_tree_ties() {
+    for tilt in [2.0, 3.0, 5.0] {
+        for seed in 0..6 {
+            let data = siblings_on_one_anchor(tilt, seed);
+            let run = |on: bool| {
+                let mut c = PipelineConfig::default();
+                c.repairs.tree_ties.enabled = on;
+                let m = Pipeline::from_config(&c)
+                    .expect("p")
+                    .run(&data.tracks)
+                    .expect("d")
+                    .model;
+                let e = kinetree_eval::evaluate(&m, &data.truth);
+                (
+                    e.joints_exact,
+                    m.trace
+                        .iter()
+                        .filter(|x| x.repair == "tree_ties")
+                        .map(|x| x.outcome.clone())
+                        .collect::<Vec<_>>(),
+                )
+            };
+            println!(
+                "tilt {tilt} seed {seed}: on {:?} off {:?}",
+                run(true),
+                run(false)
+            );
+        }
+    }
 }

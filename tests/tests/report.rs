@@ -106,7 +106,7 @@ mechanisms are the easiest case: a translation without rotation is unmistakable.
 
 {hinges}
 The same revolute trees with and without posing links seen too few keypoints at a time
-through a hinge on a posed body (`pipeline.hinged_bodies`; README, occlusion policy): a link
+through a hinge on a posed body (the repairs `hinges` and `hinge_groups`; docs/method.md): a link
 that never shows three keypoints at once gets poses from one visible keypoint off its axis,
 and one registered in few frames gets the others.
 

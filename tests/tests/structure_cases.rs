@@ -3,71 +3,9 @@
 
 use kinetree_eval::evaluate;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
-use kinetree_synth::{
-    BodySpec, BoxShape, Camera, JointSpec, JointType, Mechanism, Scenario, SynthData, Trajectory,
-    simulate,
-};
+use kinetree_synth::{Mechanism, Scenario, SynthData, Trajectory, simulate};
+use kinetree_tests::build::{base, body, joint, scenario, sine};
 use kinetree_tests::rate_draw;
-
-fn body(centre: [f64; 3], half: [f64; 3], points: usize) -> BodySpec {
-    BodySpec {
-        name: String::new(),
-        shape: BoxShape {
-            centre,
-            half_extents: half,
-        },
-        skip_corners: (0..8).collect(),
-        extra_points: 0,
-        interior_points: points,
-    }
-}
-
-fn joint(
-    parent: usize,
-    child: usize,
-    revolute: bool,
-    axis: [f64; 3],
-    anchor: [f64; 3],
-) -> JointSpec {
-    JointSpec {
-        parent,
-        child,
-        joint_type: if revolute {
-            JointType::Revolute
-        } else {
-            JointType::Prismatic
-        },
-        axis,
-        anchor,
-    }
-}
-
-fn sine(amplitude: f64, frequency_hz: f64, phase_rad: f64) -> Trajectory {
-    Trajectory::Sine {
-        offset: 0.0,
-        amplitude,
-        frequency_hz,
-        phase_rad,
-    }
-}
-
-fn scenario(mechanism: Mechanism, trajectories: Vec<Trajectory>, noise: f64) -> Scenario {
-    Scenario {
-        mechanism,
-        trajectories,
-        n_frames: 200,
-        frame_rate_hz: 30.0,
-        camera: Camera::looking_at([1.6, -1.8, 1.4], [0.0, 0.0, 0.2], 90.0, 80.0),
-        noise_sigma_m: noise,
-        dropout: 0.1,
-        seed: 3,
-        self_occlusion: false,
-    }
-}
-
-fn base() -> BodySpec {
-    body([0.0, 0.0, -0.05], [0.25, 0.25, 0.05], 8)
-}
 
 /// Base, an 8-point link on a revolute joint (points 8-15), and a second 8-point link
 /// (points 16-23) on a revolute or prismatic joint.
@@ -430,7 +368,7 @@ fn hinges_the_pair_test_mistyped_are_typed_by_the_fit() {
     assert!(
         warnings.iter().any(|w| matches!(
             w,
-            kinetree_core::Warning::JointTypedByFit { joint_type, .. } if joint_type == "revolute"
+            kinetree_core::Warning::JointTypedByFit { joint_type, .. } if *joint_type == kinetree_core::model::JointType::Revolute
         )),
         "no joint typed by the fit: {warnings:?}"
     );

@@ -386,7 +386,7 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -
             model.n_points
         );
     }
-    let observer = kinetree_structure::Observer::new(&model)?;
+    let observer = kinetree_fit::Observer::new(&model)?;
     // Each frame's fit starts from the frames before it, so revolute columns come out
     // unwrapped.
     let fits = observer.fit_sequence(&tracks)?;
@@ -397,7 +397,7 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -
         for (k, column) in columns.iter_mut().enumerate() {
             let std: Vec<Option<f64>> = fits.iter().map(|f| f.std[k]).collect();
             (*column, _) =
-                kinetree_structure::smooth_fitted_positions(column, &std, observer.is_revolute(k))?;
+                kinetree_fit::smooth_fitted_positions(column, &std, observer.is_revolute(k))?;
         }
     }
     let mut w = std::io::BufWriter::new(

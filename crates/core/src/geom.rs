@@ -97,7 +97,7 @@ pub fn centroid(p: &[Point3<f64>]) -> Point3<f64> {
 /// The rigid transform `T` minimising `sum |T src_i - dst_i|^2` (rotation with det +1).
 ///
 /// Returns `None` with fewer than three pairs or when the SVD fails. Degenerate (collinear)
-/// sets give an arbitrary rotation about their line; check with [`spread`] first.
+/// sets give an arbitrary rotation about their line; check with `spread` first.
 ///
 /// Reference: Kabsch (1976), Umeyama (1991), without scale.
 pub fn kabsch(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Isometry3<f64>> {

@@ -1,6 +1,6 @@
 //! Core data types, stage traits and the error type of kinetree.
 //!
-//! No algorithms live here; the stage crates implement the traits in [`stage`], and
+//! No algorithms live here; the stage crates implement the stage traits (re-exported here), and
 //! `kinetree-pipeline` wires them together.
 
 mod error;

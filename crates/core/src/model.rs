@@ -93,6 +93,43 @@ pub struct Ranks {
     pub sliding: usize,
 }
 
+/// A joint's type, written in the model as `rigid`, `revolute`, `prismatic` or `multi_dof`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JointType {
+    /// No relative motion.
+    Rigid,
+    /// One rotation about a fixed axis through a fixed pivot.
+    Revolute,
+    /// One translation along a fixed axis.
+    Prismatic,
+    /// More than one degree of freedom (the ranks tell more).
+    MultiDof,
+}
+
+impl JointType {
+    /// The name the model writes.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Rigid => "rigid",
+            Self::Revolute => "revolute",
+            Self::Prismatic => "prismatic",
+            Self::MultiDof => "multi_dof",
+        }
+    }
+
+    /// Whether the joint has exactly one degree of freedom.
+    pub fn is_single_dof(self) -> bool {
+        matches!(self, Self::Revolute | Self::Prismatic)
+    }
+}
+
+impl std::fmt::Display for JointType {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// One joint of the kinematic tree.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Joint {
@@ -102,7 +139,7 @@ pub struct Joint {
     pub child: usize,
     /// `revolute`, `prismatic` or `multi_dof` (with the ranks telling more).
     #[serde(rename = "type")]
-    pub joint_type: String,
+    pub joint_type: JointType,
     /// Unit axis in the camera frame at `reference_frame` (null for `multi_dof`).
     pub axis: Option<[f64; 3]>,
     /// A point on the axis in the camera frame at `reference_frame`, metres (revolute only).
@@ -130,7 +167,7 @@ pub struct Joint {
     /// multi-DoF joint). Weights for anyone averaging or smoothing the positions.
     #[serde(default)]
     pub position_std: Vec<Option<f64>>,
-    /// The positions smoothed over time (`kinetree_structure::smooth_positions`: a
+    /// The positions smoothed over time (`kinetree_fit::smooth_positions`: a
     /// constant-velocity Kalman smoother weighting each position by `position_std`, its
     /// process noise chosen by maximum likelihood), from the first to the last frame with a
     /// position and a standard deviation, gaps bridged; null outside, where the smoothed
@@ -190,7 +227,7 @@ pub struct Model {
     pub pairs: Vec<PairDof>,
     /// RMS distance between observed keypoints and their positions predicted by the model
     /// fitted to each frame (the root's pose and every joint position; see
-    /// `kinetree_structure::Observer::fit`), in units of `noise.sigma_m`: 1.2-1.6 from
+    /// `kinetree_fit::Observer::fit`), in units of `noise.sigma_m`: 1.2-1.6 from
     /// per-body poses alone, a little more from the model (1.6 on the paper arm, with axis
     /// errors of 0.3 and 0.7 deg over sweeps of 3-6 rad), far more with a wrong joint.
     #[serde(default)]

@@ -192,11 +192,17 @@ impl JointKind {
 
     /// Short name: `rigid`, `revolute`, `prismatic`, `multi_dof`.
     pub fn name(&self) -> &'static str {
+        self.joint_type().as_str()
+    }
+
+    /// The model's joint type of this kind.
+    pub fn joint_type(&self) -> crate::model::JointType {
+        use crate::model::JointType;
         match self {
-            JointKind::Rigid => "rigid",
-            JointKind::Revolute { .. } => "revolute",
-            JointKind::Prismatic { .. } => "prismatic",
-            JointKind::MultiDof => "multi_dof",
+            JointKind::Rigid => JointType::Rigid,
+            JointKind::Revolute { .. } => JointType::Revolute,
+            JointKind::Prismatic { .. } => JointType::Prismatic,
+            JointKind::MultiDof => JointType::MultiDof,
         }
     }
 }

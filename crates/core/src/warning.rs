@@ -146,7 +146,7 @@ pub enum Warning {
         /// Child body (output numbering).
         child: usize,
         /// `revolute` or `prismatic`.
-        joint_type: String,
+        joint_type: crate::model::JointType,
         /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
         excess_in_sigma2: f64,
     },

@@ -107,7 +107,7 @@ fn chi2_lower_quartile_over_dof(d: f64) -> f64 {
 /// so their 25th percentile estimates it. Moving pairs in a wrongly merged body only add
 /// variance, so the estimate holds with up to 75 % of such pairs (the median, for
 /// comparison, was measured 10-14 % high on 20-body scenes with merged bodies). The pairs
-/// within [`POOL_Z`] standard deviations of that value are then pooled, each weighted by its
+/// within `POOL_Z` standard deviations of that value are then pooled, each weighted by its
 /// degrees of freedom, for the final estimate: on the issue-4 draw of 640 mechanisms (1 mm,
 /// 30 % occlusion) its spread fell from 1.32 % to 1.02 % (mean 0.999 of the truth). Returns
 /// `None` when no body has a usable pair.

@@ -149,8 +149,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
         };
         if let Some(j) = found {
             let expected = match spec.joint_type {
-                JointType::Revolute => "revolute",
-                JointType::Prismatic => "prismatic",
+                JointType::Revolute => kinetree_core::model::JointType::Revolute,
+                JointType::Prismatic => kinetree_core::model::JointType::Prismatic,
             };
             e.type_ok = j.joint_type == expected;
             let true_axis = truth.axis_in_camera(k, j.reference_frame);

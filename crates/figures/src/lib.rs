@@ -5,6 +5,7 @@
 //! plotters is built without its system font stack (`ab_glyph` with DejaVu Sans from the
 //! `dejavu` crate), so a machine without fontconfig or freetype renders them.
 
+use kinetree_core::model::JointType;
 use kinetree_core::{Error, Model, Result, Tracks};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -288,11 +289,11 @@ where
     }
     for j in &model.joints {
         let label = match j.range {
-            Some([lo, hi]) if j.joint_type == "prismatic" => {
+            Some([lo, hi]) if j.joint_type == JointType::Prismatic => {
                 format!("prismatic {:.0} mm", (hi - lo) * 1e3)
             }
             Some([lo, hi]) => format!("{} {:.2} rad", j.joint_type, hi - lo),
-            None => j.joint_type.clone(),
+            None => j.joint_type.to_string(),
         };
         edge(pos[j.parent], pos[j.child], &label, false)?;
     }
@@ -353,7 +354,7 @@ where
         } else {
             (-1.0, 1.0)
         };
-        let unit = if j.joint_type == "prismatic" {
+        let unit = if j.joint_type == JointType::Prismatic {
             "m"
         } else {
             "rad"

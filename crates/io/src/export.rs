@@ -1,6 +1,6 @@
 //! Exports of a discovered model: URDF for robotics tools and DOT for graph viewers.
 
-use kinetree_core::model::{Joint, Model, RigidTransform};
+use kinetree_core::model::{Joint, JointType, Model, RigidTransform};
 use kinetree_core::nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
 use kinetree_core::{Error, Result};
 use std::fmt::Write as _;
@@ -61,8 +61,8 @@ fn joint_frame(j: &Joint) -> Result<JointFrame> {
     let r = rotation(&reference)?;
     let t = Vector3::from(reference.translation);
     // Revolute: the joint frame sits on the axis, so the rotation is about its origin.
-    let origin = match (j.joint_type.as_str(), j.point_in_parent) {
-        ("revolute", Some(p)) => Vector3::from(p),
+    let origin = match (j.joint_type, j.point_in_parent) {
+        (JointType::Revolute, Some(p)) => Vector3::from(p),
         _ => t,
     };
     Ok(JointFrame {
@@ -177,11 +177,11 @@ pub fn to_urdf(model: &Model) -> Result<String> {
         let axis_parent = j.axis_in_parent.map(Vector3::from);
         let axis = axis_parent.map(|a| f.rotation.inverse() * a.normalize());
         let span = j.range.map(|r| r[1] - r[0]);
-        let kind = match j.joint_type.as_str() {
-            "revolute" if span.is_some_and(|d| d > std::f64::consts::TAU) => "continuous",
-            "revolute" => "revolute",
-            "prismatic" => "prismatic",
-            _ => "floating",
+        let kind = match j.joint_type {
+            JointType::Revolute if span.is_some_and(|d| d > std::f64::consts::TAU) => "continuous",
+            JointType::Revolute => "revolute",
+            JointType::Prismatic => "prismatic",
+            JointType::Rigid | JointType::MultiDof => "floating",
         };
         let _ = writeln!(
             s,
@@ -261,19 +261,19 @@ pub fn to_dot(model: &Model) -> String {
         );
     }
     for j in &model.joints {
-        let mut label = dot_text(&j.joint_type);
+        let mut label = dot_text(j.joint_type.as_str());
         if let Some(a) = j.axis_in_parent {
             let _ = write!(label, "\\naxis [{:.3}, {:.3}, {:.3}]", a[0], a[1], a[2]);
         }
         if let Some([lo, hi]) = j.range {
-            let unit = if j.joint_type == "prismatic" {
+            let unit = if j.joint_type == JointType::Prismatic {
                 "m"
             } else {
                 "rad"
             };
             let _ = write!(label, "\\nrange [{lo:.3}, {hi:.3}] {unit}");
         }
-        if j.joint_type == "multi_dof" {
+        if j.joint_type == JointType::MultiDof {
             let _ = write!(label, "\\n{} DoF", j.dof);
         }
         let _ = writeln!(

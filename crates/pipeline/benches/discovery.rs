@@ -93,6 +93,6 @@ fn fit_model_positions_9_joints_80_points_150_frames(bencher: divan::Bencher) {
     bencher
         .with_inputs(|| model.clone())
         .bench_local_values(|mut m| {
-            kinetree_structure::fit_model_positions(&mut m, divan::black_box(&tracks))
+            kinetree_fit::fit_model_positions(&mut m, divan::black_box(&tracks))
         });
 }

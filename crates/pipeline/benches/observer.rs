@@ -5,8 +5,8 @@
 mod common;
 
 use kinetree_core::nalgebra::Point3;
+use kinetree_fit::Observer;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
-use kinetree_structure::Observer;
 
 fn main() {
     divan::main();

@@ -94,7 +94,7 @@ pub(crate) fn assemble(
         joints.push(Joint {
             parent: new_id[parent],
             child: new_id[child],
-            joint_type: pair.joint.name().into(),
+            joint_type: pair.joint.joint_type(),
             axis: match (axis_p, cam_parent) {
                 (Some(a), Some(c)) => Some(arr(c.rotation * a)),
                 _ => None,
@@ -108,7 +108,7 @@ pub(crate) fn assemble(
             reference_frame,
             reference_pose,
             positions,
-            // Set with the positions by `kinetree_structure::fit_model_positions`.
+            // Set with the positions by `kinetree_fit::fit_model_positions`.
             position_std: Vec::new(),
             smoothed_positions: Vec::new(),
             smoothed_std: Vec::new(),

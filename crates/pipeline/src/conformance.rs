@@ -54,7 +54,7 @@ fn clean_draft(
             runner.make(&seg, &poses, &pairs, &[])?
         };
         if matches!(phase, RepairPhase::Points | RepairPhase::Model) {
-            let motions = kinetree_structure::FittedMotions::new(&model.model, &fx.tracks)?;
+            let motions = kinetree_fit::FittedMotions::new(&model.model, &fx.tracks)?;
             model.fitted = Some(motions.fitted().clone());
         }
         draft.model = Some(model);

@@ -110,7 +110,7 @@ pub(crate) fn frame_and_moving(spread: &[(f64, f64)], i: usize, j: usize) -> (us
 }
 
 /// Every pair's DoF test: each body against the camera frame, and each pair of bodies with the
-/// better-posed one as the frame ([`frame_and_moving`]). The test of `b` in `a`'s frame is not
+/// better-posed one as the frame (`frame_and_moving`). The test of `b` in `a`'s frame is not
 /// that of `a` in `b`'s (the frame's rotation noise acts at the lever arm of the other's
 /// origin), so the direction must not follow the body numbering, which follows the order of
 /// the points. Pairs never registered together are left out.
@@ -419,7 +419,7 @@ impl<'a> Runner<'a> {
     /// The model's whole-tree fit, into `model.fitted`.
     fn fit(&self, model: &mut ModelDraft) -> Result<()> {
         if model.fitted.is_none() {
-            let motions = kinetree_structure::FittedMotions::new(&model.model, self.tracks)?;
+            let motions = kinetree_fit::FittedMotions::new(&model.model, self.tracks)?;
             model.fitted = Some(motions.fitted().clone());
         }
         Ok(())
@@ -562,7 +562,7 @@ impl<'a> Runner<'a> {
             body.internal_dissimilarity = diag.body_spread[m.body_order[body.id]];
         }
         m.model.reprediction_rms_in_sigma =
-            kinetree_structure::fit_model_positions(&mut m.model, self.tracks)?;
+            kinetree_fit::fit_model_positions(&mut m.model, self.tracks)?;
         Ok(m)
     }
 }

@@ -524,7 +524,11 @@ pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
         s.push(',');
     }
     s.push_str("seed,error,bodies,ari,identifiable_ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m,max_revolute_smoothed_rms_rad,max_prismatic_smoothed_rms_m");
-    s.push_str(if sweep.spec.timing { ",seconds\n" } else { "\n" });
+    s.push_str(if sweep.spec.timing {
+        ",seconds\n"
+    } else {
+        "\n"
+    });
     for r in runs {
         for v in &r.values {
             s.push_str(&csv_field(v));
@@ -575,7 +579,11 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) |{}",
         head.join(" | "),
         if head.is_empty() { "" } else { " | " },
-        if sweep.spec.timing { " median s | total s |" } else { "" }
+        if sweep.spec.timing {
+            " median s | total s |"
+        } else {
+            ""
+        }
     );
     let timing_cols = if sweep.spec.timing { 2 } else { 0 };
     let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 11 + timing_cols));

@@ -303,7 +303,7 @@ pub fn group_rigidity(tracks: &Tracks, points: &[usize], sigma: f64) -> (f64, f6
 /// the keypoints' phases, their offsets from frames where two are seen together. Then the
 /// shape (keypoints at angle 0) and the angles are refined in turn, each exactly for the
 /// other (the angle of a frame by a 2D Procrustes fit), and last everything together by
-/// Gauss-Newton ([`refine`]; measured on three hidden links of the mechanisms sweep: axis
+/// Gauss-Newton (`refine`; measured on three hidden links of the mechanisms sweep: axis
 /// errors 0.13-0.25 deg from the first estimate, 0.13-0.25 after, the squared residual a
 /// little lower). Each frame's stated precision holds the angle's, the parent pose's and
 /// the axis line's own error (the last shared by every frame).

@@ -24,7 +24,7 @@ pub struct KabschParams {
     pub min_spread_in_sigma: f64,
     /// Robust fitting: the point with the largest residual, if above this many noise
     /// std-devs (per coordinate, so `sqrt 3` of them is typical), is left out of its frame's
-    /// fit and of the shape, and the frame is refitted, up to [`ROBUST_ROUNDS`] points per
+    /// fit and of the shape, and the frame is refitted, up to `ROBUST_ROUNDS` points per
     /// frame. `None` (the default) fits every visible point. Survives mistracked keypoints as
     /// long as three good, non-collinear points remain in the frame.
     pub outlier_in_sigma: Option<f64>,

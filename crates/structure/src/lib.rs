@@ -1,25 +1,6 @@
 //! Kinematic structure: the DoF graph over bodies and the camera, the paper's chain
 //! extraction, a spanning tree rooted at the static body, joints and their positions.
 
-mod bundle;
-mod observer;
-mod reassign;
-mod refine;
-mod smooth;
-mod tree_cholesky;
-
-pub use observer::{
-    FrameFit, MAX_JOINT_EXCESS, MAX_STD_M, MAX_STD_RAD, Observer, fit_model_positions,
-};
-pub use reassign::{
-    FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
-    OUTLIER_RATIO,
-};
-pub use smooth::{
-    MIN_SMOOTHED_FRAMES, PositionColumn, SmoothedPositions, smooth_fitted_positions,
-    smooth_positions,
-};
-
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{
     Isometry3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3, Vector4,
@@ -142,7 +123,7 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 
 /// Spanning tree over bodies rooted at the static body (the lowest-numbered one if several);
 /// without a static body, at the body whose motion relative to the camera is smallest.
-/// Prefers single-DoF edges with the best fit (minimum spanning tree on [`edge_cost`]-style
+/// Prefers single-DoF edges with the best fit (minimum spanning tree on `edge_cost`-style
 /// costs, computed by petgraph's Kruskal).
 pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
     spanning_tree_without(n_bodies, pairs, &[])

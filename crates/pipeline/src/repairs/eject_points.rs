@@ -1,6 +1,6 @@
 //! Points that fit no body's fitted motion (far off their own) left on no body, and kept off
 //! the attachment for the rest of the run
-//! ([`kinetree_structure::FittedMotions::points_fitting_no_body`]).
+//! ([`kinetree_fit::FittedMotions::points_fitting_no_body`]).
 
 use super::move_points::{fitted_model, points_settle};
 use kinetree_core::{

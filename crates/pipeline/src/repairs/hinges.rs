@@ -14,7 +14,7 @@ use kinetree_core::{
 use kinetree_pose::Hinge;
 use serde::{Deserialize, Serialize};
 
-/// When a group of keypoints is taken to turn on a hinge ([`best_hinge`]); used by [`Hinges`]
+/// When a group of keypoints is taken to turn on a hinge (`best_hinge`); used by [`Hinges`]
 /// and [`super::HingeGroups`], each with these four parameters in its own config section.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HingeBounds {

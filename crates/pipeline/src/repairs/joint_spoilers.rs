@@ -88,7 +88,7 @@ impl Repair for JointSpoilers {
             .model
             .joints
             .iter()
-            .filter(|j| j.joint_type == "multi_dof")
+            .filter(|j| j.joint_type == kinetree_core::model::JointType::MultiDof)
         {
             let (Some(&p), Some(&c)) = (order.get(joint.parent), order.get(joint.child)) else {
                 continue;

@@ -357,7 +357,7 @@ pub(crate) fn unassigned_points(
 pub(crate) fn multi_dof_joints(m: &Model) -> usize {
     m.joints
         .iter()
-        .filter(|j| j.joint_type == "multi_dof")
+        .filter(|j| j.joint_type == kinetree_core::model::JointType::MultiDof)
         .count()
 }
 

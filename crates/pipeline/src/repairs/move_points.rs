@@ -1,14 +1,14 @@
 //! Points that another body's fitted motion explains better moved there: points of well fitted
-//! bodies and points on no body ([`kinetree_structure::FittedMotions::points_fitting_another_body`]),
+//! bodies and points on no body ([`kinetree_fit::FittedMotions::points_fitting_another_body`]),
 //! and points of bodies born of a split that fit another body better
-//! ([`kinetree_structure::FittedMotions::points_leaving_mixed_bodies`]). The edit stands when
+//! ([`kinetree_fit::FittedMotions::points_leaving_mixed_bodies`]). The edit stands when
 //! the moved points then fit their new bodies best (a point moved wrongly fitted its new body
 //! at `chi^2 / dof` 4.3 against 2.9 for its old one).
 
 use kinetree_core::{
     Draft, Edit, Error, ModelDraft, Proposal, Repair, RepairContext, RepairPhase, Result, Warning,
 };
-use kinetree_structure::FittedMotions;
+use kinetree_fit::FittedMotions;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`MovePoints`] (`[pipeline.repairs.move_points]`).

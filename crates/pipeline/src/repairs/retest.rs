@@ -14,7 +14,7 @@ use crate::runner::all_pairs;
 use kinetree_core::{
     Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result, Warning,
 };
-use kinetree_structure::FittedMotions;
+use kinetree_fit::FittedMotions;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`Retest`] (`[pipeline.repairs.retest]`).

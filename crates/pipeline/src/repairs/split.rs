@@ -34,7 +34,7 @@ pub struct SplitParams {
     /// Least share of the body's registered frames in which both halves are posed for the
     /// likelihood ratio to count (default 0.25; `docs/decisions.md`, `split.min_frame_share`).
     pub min_frame_share: f64,
-    /// Least number of such frames (default 10, `kinetree_structure::MIN_FRAMES`).
+    /// Least number of such frames (default 10, `kinetree_fit::MIN_FRAMES`).
     pub min_frames: usize,
     /// Splits per bodies phase (default 8): a body that is not rigid would otherwise be split
     /// forever.
@@ -49,7 +49,7 @@ impl Default for SplitParams {
             lr_slack: 1.6,
             lr_bound_in_std: 4.0,
             min_frame_share: 0.25,
-            min_frames: kinetree_structure::MIN_FRAMES,
+            min_frames: kinetree_fit::MIN_FRAMES,
             max_rounds: 8,
         }
     }

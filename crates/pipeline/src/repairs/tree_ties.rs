@@ -79,7 +79,7 @@ impl TreeTies {
 
 /// The keypoints' squared residual of a plain whole-tree fit of every frame.
 fn plain_sse(model: &Model, tracks: &Tracks) -> Result<f64> {
-    let fits = kinetree_structure::Observer::new(model)?.fit_sequence(tracks)?;
+    let fits = kinetree_fit::Observer::new(model)?.fit_sequence(tracks)?;
     Ok(fits.iter().map(|f| f.sum_sq_m2).sum())
 }
 

@@ -21,7 +21,7 @@
 //! has two entries, the measurement is one number with its own variance in every frame, and
 //! the choice of `q` needs the innovations' likelihood, which that crate does not expose.
 
-use crate::{MAX_STD_M, MAX_STD_RAD};
+use crate::solver::{MAX_STD_M, MAX_STD_RAD};
 use kinetree_core::nalgebra::{Matrix2, Vector2};
 use kinetree_core::{Error, Result};
 

@@ -9,7 +9,7 @@
 //! the joint's parameters shared by all frames, one position per frame (eliminated by a
 //! Schur complement, as in bundle adjustment), damped Gauss-Newton.
 
-use crate::observer::{Measure, ObservedJoint};
+use crate::solver::{Measure, ObservedJoint};
 use kinetree_core::geom::perpendicular_basis;
 use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3,
@@ -124,7 +124,7 @@ impl JointParams {
         }
     }
 
-    /// The closed-form best position of one frame (see [`crate::observer::best_position`]):
+    /// The closed-form best position of one frame (see [`crate::solver::best_position`]):
     /// the observations are already in the parent's frame.
     fn best_position(&self, points: &[(Point3<f64>, Point3<f64>)]) -> Option<f64> {
         let j = ObservedJoint {
@@ -133,7 +133,7 @@ impl JointParams {
             measure: self.measure(),
             reference: self.reference,
         };
-        crate::observer::best_position(&j, &Isometry3::identity(), points, 0.0)
+        crate::solver::best_position(&j, &Isometry3::identity(), points, 0.0)
     }
 }
 

@@ -6,7 +6,7 @@
 //! whole-tree fit poses every body through the joints and all keypoints, far more precisely;
 //! against those poses the point's own track tells the two bodies apart.
 
-use crate::observer::{Observer, Scratch};
+use crate::solver::{Observer, Scratch};
 use kinetree_core::nalgebra::{Isometry3, Vector3};
 use kinetree_core::stats::chi2_per_dof_quantile;
 use kinetree_core::{BodyPoses, Error, FittedPoses, MIN_BODY_POINTS, Model, Result, Tracks};
@@ -19,7 +19,7 @@ pub const MIN_FRAMES: usize = 10;
 /// Fewest frames in which a point must be seen with a body's fitted pose to be placed on it
 /// or moved to it ([`FittedMotions::points_fitting_another_body`]). A wrong body's motion
 /// seldom matches a point's over 5 frames, and the margin over the next body is then 0.82
-/// of `chi^2 / k` (see [`margin`]). Measured: three unassigned points seen in 6-7 frames
+/// of `chi^2 / k` (see `margin`). Measured: three unassigned points seen in 6-7 frames
 /// (seed 3 of the invariance suite with every other frame dropped) fitted their true bodies
 /// at 0.9-1.0 and every other at 15 or more; on the mechanisms sweep a point seen in 8
 /// frames, clustered with the link below its own, fitted its body at 0.69 against 1.80.
@@ -29,7 +29,7 @@ pub const MIN_FRAMES_TO_PLACE: usize = 5;
 
 /// How much better (in `chi^2 / k`) another body must explain a point than its own: at least
 /// this, and a gain in `chi^2` of two standard deviations of `chi^2`, `2 sqrt(2 k)`, or
-/// [`MIN_CHI2_GAIN`], whichever is smaller (see [`margin`]).
+/// [`MIN_CHI2_GAIN`], whichever is smaller (see `margin`).
 ///
 /// Measured on the 200 mechanisms of the rate test (one model each, every assigned point
 /// scored): margins over 0.05 picked 9 points, all misassigned and all moving to their true
@@ -209,7 +209,7 @@ impl FittedMotions {
     /// body frame; a registered pose keeps its per-body quality (the fitted pose is at least
     /// as precise, so tests on these poses are calibrated conservatively). Frames the per-body
     /// estimator left unposed get the fitted pose with the fit's own precision
-    /// ([`Observer::pose_qualities`]).
+    /// (`Observer::pose_qualities`).
     ///
     /// # Errors
     /// [`Error::Shape`] when `per_body` or `body_order` do not match these motions.

@@ -17,8 +17,8 @@
 //! against the observer's per-subtree information matrices: a frame's contribution costs one
 //! twist per joint parameter, not a pass over the points.
 
-use crate::observer::{Descent, Observer, Scratch, Visible};
 use crate::refine::JointParams;
+use crate::solver::{Descent, Observer, Scratch, Visible};
 use kinetree_core::geom::perpendicular_basis;
 use kinetree_core::nalgebra::{DMatrix, DVector, Isometry3, Matrix6xX, Point3, Vector6};
 use kinetree_core::{Result, Tracks};

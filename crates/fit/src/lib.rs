@@ -1,0 +1,29 @@
+//! The whole-tree fit of a discovered model: every frame's root pose and joint positions
+//! fitted to its visible keypoints ([`Observer`], `solver.rs`, factored along the tree by
+//! `tree_cholesky.rs`), the joints' parameters bundle-adjusted over all frames (`bundle.rs`),
+//! one joint refined alone (`refine.rs`), the policy that frees, readmits and types joints by
+//! the fit ([`fit_model_positions`], `policy.rs`), the positions smoothed over time
+//! (`smooth.rs`), and the fitted motions that judge points against every body
+//! ([`FittedMotions`], `motions.rs`).
+//!
+//! Module dependencies run one way: `tree_cholesky` <- `solver` <- `refine` <- `bundle` <-
+//! `policy`; `smooth` and `motions` use `solver` only.
+
+mod bundle;
+mod motions;
+mod policy;
+mod refine;
+mod smooth;
+mod solver;
+mod tree_cholesky;
+
+pub use motions::{
+    FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
+    OUTLIER_RATIO,
+};
+pub use policy::{MAX_JOINT_EXCESS, fit_model_positions};
+pub use smooth::{
+    MIN_SMOOTHED_FRAMES, PositionColumn, SmoothedPositions, smooth_fitted_positions,
+    smooth_positions,
+};
+pub use solver::{FrameFit, MAX_STD_M, MAX_STD_RAD, Observer};
