@@ -253,9 +253,9 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
 fn heavy_occlusion_keeps_most_mechanisms_right() {
     use proptest::strategy::{Just, Strategy, ValueTree};
     use proptest::test_runner::TestRunner;
-    // Issue 3's occlusion regime: 50 % and 60 % of observations hidden in bursts. Measured in
-    // session 1: 35/40 chains of 2-5 joints with every joint right at both levels, and 16/20
-    // on the first 20 used here. The bound (one fewer) catches a regression without depending
+    // Issue 3's occlusion regime: 50 % and 60 % of observations hidden in bursts. Measured:
+    // 35/40 chains of 2-5 joints with every joint right at both levels, and 16/20 on the
+    // first 20 used here. The bound (one fewer) catches a regression without depending
     // on any one mechanism.
     const N: usize = 20;
     const MIN_RIGHT: usize = 15;

@@ -34,12 +34,13 @@ fn noise_estimate_within_ten_percent_from_a_tenth_to_ten_millimetres() {
     }
 }
 
-/// The noise level of small scenes: the issue-4 setting (1 mm, 30 % occlusion) on the first 64
-/// mechanisms of the rate-test draw and on case 623, a single 31 cm slider with 6 keypoints
-/// on an 8-keypoint base. Its pairs inside bodies, a few dozen sharing 14 keypoints' noise,
-/// put their lower quartile 8 % low; the F-test then split the slider in two (mean q 0.87
-/// across the halves). Pooling the pairs that agree with the quartile brought it to 0.2 %
-/// high; over the 640 draws the estimate's spread went from 1.32 % to 1.02 % (mean 0.999).
+/// The noise level of small scenes at 1 mm and 30 % occlusion: the first 64 mechanisms of the
+/// rate-test draw and this draw's single 31 cm slider with 6 keypoints on an 8-keypoint base.
+/// The slider's pairs inside bodies, a few dozen sharing 14 keypoints' noise, put their lower
+/// quartile 8 % low, and at that level the F-test splits the slider in two (mean q 0.87
+/// across the halves); the pooled pairs that agree with the quartile put it 0.2 % high. Over
+/// 640 draws the pooled estimate's spread is 1.02 % (mean 0.999), against 1.32 % for the
+/// quartile alone (`docs/decisions.md`, `kinetree_dissimilarity::POOL_Z`).
 #[test]
 fn the_noise_level_of_small_scenes_is_within_five_percent() {
     let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
@@ -97,8 +98,9 @@ fn discovered(
 #[test]
 fn noise_free_data_keeps_its_bodies() {
     use kinetree_synth::{JointDraw, MechanismSpec};
-    // Found by the property suite: without noise, rigid pairs have exactly zero variance and
-    // the estimate used to come from moving pairs (13 mm here), merging every body into one.
+    // Found by the property suite: without noise, rigid pairs have exactly zero variance, and
+    // an estimate from the moving pairs (13 mm here) would merge every body into one; the
+    // estimate is then a floor of 1e-6 of the exact pairs' distances.
     let joint = |parent_pick: f64| JointDraw {
         parent_pick,
         revolute: false,

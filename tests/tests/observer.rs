@@ -165,8 +165,7 @@ fn keypoints_are_re_predicted_from_the_joints() {
     let (data, model) = discovered_arm(6);
     let r = model.reprediction_rms_in_sigma.expect("reprediction");
     // Per-body fitted poses alone give about 1.45 sigma here. The whole-tree fit has fewer
-    // free parameters per frame and carries the axes' errors (0.3 and 0.7 deg): 1.63
-    // measured (session 4; 4.0 when the root pose was carried down by per-body positions).
+    // free parameters per frame and carries the axes' errors (0.3 and 0.7 deg): 1.63 measured.
     assert!(r > 1.0 && r < 2.5, "right model: {r} sigma");
     // Tilt the second joint's axis by about 10 degrees: the re-predicted keypoints drift.
     let mut wrong = model.clone();

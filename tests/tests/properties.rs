@@ -197,8 +197,7 @@ proptest! {
     /// occlusion) the pipeline never panics, and a model it returns is consistent: labels name
     /// existing bodies, bodies partition the labelled points, parents form a tree rooted at
     /// `root_body`, every joint has one position slot per frame. (That the model is *right* is
-    /// measured, not yet asserted: 190/200 of these mechanisms get every joint right, see the
-    /// issue notes.)
+    /// a rate, measured by `most_mechanisms_are_recovered`, not asserted per mechanism.)
     #[test]
     fn any_mechanism_gives_a_consistent_model(spec in strategies::any_mechanism()) {
         let data = simulate(&spec.scenario()).expect("simulate");
@@ -306,22 +305,10 @@ fn recovery_failure(spec: &kinetree_synth::MechanismSpec) -> Option<String> {
 /// deterministic runner (the same draw on every run and machine). Each is judged by
 /// [`recovery_failure`]; the test requires the measured rate, with a margin of two cases
 /// per 64 for platform rounding: 64 of the first 64 are recovered (637 of 640; the deep
-/// pass needs 620). Before: 167 of 200 before joint positions came from the
-/// whole-tree fit, 182 before a rotation hidden by the chi-square slack could make a joint
-/// revolute, 185 before points near a joint axis were moved by the model's fit, 193 (605 of
-/// 640) before session 6 (models with multi-DoF joints retested on their fitted poses, the
-/// hidden-rotation rule asking for a residual over the noise, pair tests with the
-/// better-posed body as the frame and a time-symmetric reference frame, unassigned points
-/// regrouped by their poses), 614 of 640 before session 7 (joints bundle-adjusted, retests
-/// of joints the fit does not follow, tree edges weighed by the frames their tests saw,
-/// unassigned points given to the body whose fitted motion explains them, bodies split when
-/// their halves' rigid fits are far better), 632 before session 8 (joints typed by the
-/// whole-tree fit where the pair test found one rotation direction but another type), 634
-/// before session 9 (near-tied tree edges settled by whole-tree fits), 636 before session 11
-/// (a keypoint that alone makes a joint multi-DoF taken off its body: case 83). The 3
-/// failures left in 640 are all joints not exact (wrong trees at 2.3-3.8 mm: cases 340, 372,
-/// and 441, whose link 2 holds a base keypoint and tests rigid to the base). The failures are printed,
-/// and `any_mechanism_is_recovered` (ignored) shrinks one to a minimal mechanism.
+/// pass needs 620). The 3 failures in 640 are all joints not exact: wrong trees at
+/// 2.3-3.8 mm of noise, one of them where link 2 holds a base keypoint and tests rigid to
+/// the base. The failures are printed, and `any_mechanism_is_recovered` (ignored) shrinks
+/// one to a minimal mechanism.
 #[test]
 fn most_mechanisms_are_recovered() {
     let n = cases() as usize;
@@ -391,21 +378,15 @@ fn tally(
 /// deviations, so they are checked against the truth too: the errors in their units have
 /// an RMS near 1 over all joints, and under 2 for nearly every joint (a higher one means
 /// the joint's parameters are off). Joints of a model that is not structure-exact are not
-/// scored. Measured when this was written (session 5): on the 64 default draws, 64
-/// models structure-exact, 258 of 262 axes, all 161 pivots and 252 of 262 positions within
-/// the targets. With the joints bundle-adjusted (session 7): 64 models, 261 of 262 axes, 161
-/// pivots; on 640 draws, 638 models, 2847 of 2850 axes, 1830 of 1830 pivots. Session 8
-/// (limits as now): on 64 draws 64 models, 261 of 262 axes, 161 pivots, 261 of 262 positions
-/// within their limit (246 under the flat figure), 260 of 262 with honest deviations, errors
-/// 1.02 deviations; on 640 draws 639 models, 2851 of 2854 axes, 1834 of 1834 pivots, 2850 of
-/// 2854 positions (2654 under the flat figure), 2850 of 2854 honest, 1.02. Required: about
-/// the measured rates less a point or two (every miss is printed). The positions smoothed
-/// over time (`Joint::smoothed_positions`, session 13) are held to the flat figure itself:
-/// on 64 draws 258 of 262 joints within it, errors 0.94 of their stated deviations; on 640
-/// draws 2828 of 2854, 0.93. Required: 97 % of the joints, errors 0.7-1.25 deviations. With
-/// the pooled noise level (session 13) case 623 is right too: on 640 draws 640 models, 2851
-/// of 2855 axes, 1834 pivots, 2851 of 2855 positions (2655 under the flat figure, 2829
-/// smoothed).
+/// scored. Measured on the 64 default draws: 64 models structure-exact, 261 of 262 axes,
+/// 161 of 161 pivots, 261 of 262 positions within their limit (246 under the flat figure),
+/// 260 of 262 with honest deviations, errors 1.02 deviations; on 640 draws, 640 models, 2851
+/// of 2855 axes, 1834 of 1834 pivots, 2851 of 2855 positions (2655 under the flat figure).
+/// Required: about the measured rates less a point or two (every miss is printed). The
+/// positions smoothed over time (`Joint::smoothed_positions`) are held to the flat figure
+/// itself: on 64 draws 258 of 262 joints within it, errors 0.94 of their stated deviations;
+/// on 640 draws 2829 of 2855, 0.93. Required: 97 % of the joints, errors 0.7-1.25
+/// deviations.
 #[test]
 fn issue_four_targets_at_one_millimetre() {
     let n = cases() as usize;

@@ -65,22 +65,13 @@ fn random_mechanisms_of(joints: std::ops::RangeInclusive<usize>, n: usize) -> Ve
         .collect()
 }
 
-/// Measured on the first 200 of this draw (release build, session 6): identifiable ARI = 1 on
-/// 196 with every clusterer (hierarchical, spectral, DBSCAN); plain ARI = 1 on 193 each.
-/// Before session 6: 195, 193 and 187. Session 7 (joints bundle-adjusted, unassigned points
-/// given to the body whose fitted motion explains them): 199, 199 and 200 (plain 196, 196,
-/// 197); the one miss, case 91, was a 3 cm body whose points lie within a few millimetres of
-/// its child's axis, merged with that child; with bodies split when their halves' rigid fits
-/// are far better, 200 of 200 each (plain 197), and 595 / 596 / 595 of the first 600;
-/// session 8 (an outlier point may leave its body, points judged from 5 frames, a point moved
-/// on a chi^2 gain of 16): 598 / 599 / 597 of 600 (misses: 350 with every clusterer, a 2 cm
-/// body turning 0.3 deg on its parent, merged with it; 513 hierarchical, a 17.7 cm link
-/// turning 2 deg merged with its 2.5 cm parent; DBSCAN 261 and 511, a few points); session 9
-/// (reference shapes refined by Gauss-Newton, bodies split above 2.5 sigma): 599 / 599 / 598
-/// (513 and 511 fixed). On the 30 used here: 30 each (DBSCAN 28 before it
-/// regrouped its leftovers, which recovers cases 2 and 20: a 4-6 point body DBSCAN broke into
-/// fragments of 1-2 points). The bound leaves room for one miss each; the worst case must
-/// still be close (identifiable ARI above 0.85: a few points, not a body).
+/// Measured on the first 600 of this draw (release build): identifiable ARI = 1 on
+/// 599 / 599 / 598 (hierarchical / spectral / DBSCAN), 200 of the first 200 each. The
+/// misses: with every clusterer, a 2 cm body turning 0.3 deg on its parent, merged with it;
+/// with DBSCAN, a few points of one more mechanism. On the 30 used here: 30 each (DBSCAN 28
+/// without `regroup_leftovers`, where a 4-6 point body breaks into fragments of 1-2 points).
+/// The bound leaves room for one miss each; the worst case must still be close
+/// (identifiable ARI above 0.85: a few points, not a body).
 #[test]
 fn every_clusterer_segments_random_mechanisms() {
     let specs = random_mechanisms(30);
@@ -109,15 +100,13 @@ fn every_clusterer_segments_random_mechanisms() {
 }
 
 /// Issue 3 asks for mechanisms of up to 25 bodies: the same setting with 19-24 joints.
-/// Measured on the first 100 of this draw (release build, session 11): identifiable ARI = 1
-/// on 99 / 99 / 98 (hierarchical / spectral / DBSCAN; plain ARI 96 / 96 / 95). Before the
-/// attachment stopped remaking bodies a split had undone (case 79, below) and keypoints
-/// that alone make a joint multi-DoF were taken off their bodies (DBSCAN 24 and 50): 98 /
-/// 98 / 95. The misses: case 16 with every clusterer, one keypoint near a joint axis on
-/// the child (its distances to the child's keypoints vary by 1.3-1.4 mm, as rigid ones
-/// do); DBSCAN 93, two keypoints of a 4-keypoint link turning little on its parent, in the
-/// parent's neighbourhood. The first 40 at 40 % occlusion: 40 of 40 each; at the draw's
-/// own noise (0-5 mm) and occlusion (0-40 %): 40 / 40 / 39. On the 8 used here: 8 of 8.
+/// Measured on the first 100 of this draw (release build): identifiable ARI = 1 on
+/// 99 / 99 / 98 (hierarchical / spectral / DBSCAN; plain ARI 96 / 96 / 95). The misses: with
+/// every clusterer, one mechanism's keypoint near a joint axis on the child (its distances
+/// to the child's keypoints vary by 1.3-1.4 mm, as rigid ones do); with DBSCAN also two
+/// keypoints of a 4-keypoint link turning little on its parent, in the parent's
+/// neighbourhood. The first 40 at 40 % occlusion: 40 of 40 each; at the draw's own noise
+/// (0-5 mm) and occlusion (0-40 %): 40 / 40 / 39. On the 8 used here: 8 of 8.
 #[test]
 fn every_clusterer_segments_mechanisms_of_twenty_to_twenty_five_bodies() {
     let specs = random_mechanisms_of(19..=24, 8);
@@ -133,12 +122,12 @@ fn every_clusterer_segments_mechanisms_of_twenty_to_twenty_five_bodies() {
     }
 }
 
-/// Case 79 of the draw of 20-25 bodies: the pairwise measure breaks a 4-keypoint slider
-/// (keypoints 88-91) into two pairs, both too small to be bodies. One pair fits the poorly
-/// determined poses of a small 4-keypoint link and is attached to it; the split takes it
-/// off again (residual 29 sigma), the attachment puts it back, eight times over, and the
-/// slider was never found. The attachment may not remake a body a split undid: the four
-/// keypoints, left on no body, move as one and become the slider.
+/// A mechanism of the draw of 20-25 bodies whose 4-keypoint slider (keypoints 88-91) the
+/// pairwise measure breaks into two pairs, both too small to be bodies. One pair fits the
+/// poorly determined poses of a small 4-keypoint link and is attached to it; the split takes
+/// it off again (residual 29 sigma), and an attachment free to put it back did so eight
+/// times over, the slider never found. The attachment may not remake a body a split undid:
+/// the four keypoints, left on no body, move as one and become the slider.
 #[test]
 fn a_small_body_broken_into_pairs_is_made_whole() {
     let spec = random_mechanisms_of(19..=24, 80).pop().expect("case 79");
@@ -191,7 +180,7 @@ fn set_amplitude(s: &mut Scenario, joint: usize, value: f64) {
 /// Each hard case on three seeds (noise, occlusion and keypoint placement), every clusterer.
 ///
 /// The 5 deg swing is of the 30 cm first link (+-2.5 deg about its rest pose). Measured limit
-/// (session 2, default pipeline): the 15 cm, 6-point last link with its keypoints close to
+/// (default pipeline): the 15 cm, 6-point last link with its keypoints close to
 /// its axis is found on 0/5 seeds at +-2.5 deg and 2/5 at +-5 deg (4/5 with `log_p_value`);
 /// its tip moves a few millimetres, near the noise. DBSCAN alone merges four of the swinging
 /// link's points into the base (their cross pairs with it have `q` 0.77-0.88, many under the
@@ -366,8 +355,8 @@ fn every_clusterer_cuts_to_a_given_number_of_bodies() {
 /// 0.3-4.8 mm of noise) where one point near a joint axis landed on the neighbouring body:
 /// pairwise it is rigid to both, and against per-body poses it fits both. The model's
 /// whole-tree fit tells them apart, the point is moved back (a `points_reassigned` warning)
-/// and every identifiable point ends on its body. Before the move existed, the first seven had
-/// an identifiable ARI of 0.95-0.98. Case 172 (0.3 mm) needs the pair tests on fitted poses
+/// and every identifiable point ends on its body. Without the move, the first seven had an
+/// identifiable ARI of 0.95-0.98. The one at 0.3 mm needs the pair tests on fitted poses
 /// (a prismatic parent's tree was wrong without them) and a target body whose median misfit,
 /// 2.9 from model error at that noise, is over `MAX_BODY_MEDIAN` but above the point's 1.6.
 #[test]
@@ -399,7 +388,7 @@ fn points_near_a_joint_axis_are_moved_by_the_model_fit() {
     assert!(reassigned >= 6, "{reassigned} of 8 moved points");
 }
 
-/// Case 104 of the draw above: a 28 cm body of 4 points on a 6 cm slide, which average
+/// A mechanism of the draw above: a 28 cm body of 4 points on a 6 cm slide, which average
 /// linkage broke into fragments of 2, 1 and 1 points (each fragment's mean `q` to the rest over
 /// the cut) and DBSCAN and spectral clustering lost in other ways. Its four points still move
 /// as one rigid body, so the pipeline makes them one (an `unassigned_points_grouped`
@@ -436,7 +425,7 @@ fn a_small_body_the_clustering_breaks_apart_is_regrouped() {
 /// most frames show only one link's points, and the made-up body became the parent of six
 /// links. The pairwise measure keeps the two links' points apart, so they are not grouped;
 /// every group made of leftover points is of one true body, and the links' joints with the
-/// base are found (joint 0 was missing before).
+/// base are found (with the made-up body, joint 0 was missing).
 #[test]
 fn leftover_points_of_two_links_are_not_made_one_body() {
     let data = kinetree_tests::revolute_tree(10, 5);
@@ -478,13 +467,13 @@ fn drawn_model(spec: &MechanismSpec) -> (kinetree_core::Model, f64) {
     (model, ari)
 }
 
-/// Two mechanisms of the rate test's draw (cases 218 and 486: 1.3-1.9 mm of noise, 14-34 %
-/// occlusion) where one point seen in 76-125 frames was left unassigned: the attachment
-/// takes a point only when exactly one body's per-body poses fit it within a wide bound, and
-/// these fitted two. Against the whole-tree fit's motions one body explains each clearly
-/// best, and it gets the point: identifiable ARI 1 on both (0.981-0.990 before). (A third,
-/// case 622, has come out with identifiable ARI 1 and no move since the noise level pools
-/// the pairs inside bodies, session 13.)
+/// Two mechanisms of the rate test's draw (1.3-1.9 mm of noise, 14-34 % occlusion) where one
+/// point seen in 76-125 frames was left unassigned: the attachment takes a point only when
+/// exactly one body's per-body poses fit it within a wide bound, and these fitted two.
+/// Against the whole-tree fit's motions one body explains each clearly best, and it gets the
+/// point: identifiable ARI 1 on both (0.981-0.990 with the attachment alone). (With the
+/// noise level pooled from the pairs inside bodies, a third such mechanism comes out with
+/// identifiable ARI 1 and no move.)
 #[test]
 fn an_unassigned_point_goes_to_the_body_whose_fitted_motion_explains_it() {
     segmented_with_moved_points(&kinetree_tests::rate_draw(487), &[218, 486]);
@@ -506,11 +495,12 @@ fn segmented_with_moved_points(specs: &[MechanismSpec], cases: &[usize]) {
     }
 }
 
-/// Case 178 of the rate test's draw (2 mm of noise, 32 % occlusion): a 3.9 cm, 6-point slider
-/// and the 18.5 cm link turning on it by +-0.65 rad came out as one body, whose points fitted
-/// at a median 1.5 sigma (the residual split needs 3) with halves the pairwise measure did not
-/// keep apart. Posed as two bodies, the halves lower the squared residual by about three times
-/// what two poses per frame buy, and the body is split: three bodies, identifiable ARI 1.
+/// A mechanism of the rate test's draw (2 mm of noise, 32 % occlusion): a 3.9 cm, 6-point
+/// slider and the 18.5 cm link turning on it by +-0.65 rad came out as one body, whose points
+/// fitted at a median 1.5 sigma (the residual split needs 2.5) with halves the pairwise
+/// measure did not keep apart. Posed as two bodies, the halves lower the squared residual by
+/// about three times what two poses per frame buy, and the body is split: three bodies,
+/// identifiable ARI 1.
 #[test]
 fn a_small_slider_merged_with_its_link_is_split_by_the_fit_of_its_halves() {
     let (model, ari) = drawn_model(&kinetree_tests::rate_draw(179)[178]);
@@ -539,12 +529,13 @@ fn a_point_seen_in_a_few_frames_does_not_split_its_body() {
     assert!(e.ari > 1.0 - 1e-12, "ARI {}", e.ari);
 }
 
-/// Case 374 of this file's random draw (12 bodies): the split of a 6.4 cm slider merged with
-/// the link turning on it put two points of each in one 4-point half, which then fitted at a
-/// median of 1.79; the moves take no point from a body fitted worse than 1.5, nor leave one
-/// under three points. Points of a body a split made, fitted that poorly, may now leave for
+/// A mechanism of this file's random draw (12 bodies): the split of a 6.4 cm slider merged
+/// with the link turning on it put two points of each in one 4-point half, which then fitted
+/// at a median of 1.79; the moves take no point from a body fitted worse than 1.5, nor leave
+/// one under three points. Points of a body a split made, fitted that poorly, may leave for
 /// well fitted bodies (`FittedMotions::points_leaving_mixed_bodies`): the two left over are
-/// dropped and placed again, and every clusterer reaches identifiable ARI 1 (0.945 before).
+/// dropped and placed again, and every clusterer reaches identifiable ARI 1 (0.945 without
+/// it).
 #[test]
 fn a_split_body_mixing_two_links_gives_its_points_back() {
     let spec = &random_mechanisms(375)[374];
@@ -554,12 +545,12 @@ fn a_split_body_mixing_two_links_gives_its_points_back() {
     }
 }
 
-/// Cases 331 and 450 of this file's random draw (12 and 10 bodies): a point near a hinge,
-/// seen in 91 and 116 frames, was put on the link across the hinge. Against the fitted
-/// motions its true body explained it better by 35 and 41 in `chi^2` (0.13 and 0.12 per
-/// degree of freedom), short of the two standard deviations of `chi^2` (46 and 53) that
-/// moving it asked; now a gain of `MIN_CHI2_GAIN` (16) moves it whatever its number of
-/// frames, and both reach identifiable ARI 1 (0.969 and 0.978 before).
+/// Two mechanisms of this file's random draw (12 and 10 bodies): a point near a hinge, seen
+/// in 91 and 116 frames, was put on the link across the hinge. Against the fitted motions
+/// its true body explains it better by 35 and 41 in `chi^2` (0.13 and 0.12 per degree of
+/// freedom), short of the two standard deviations of `chi^2` (46 and 53) that the rule of
+/// deviations alone asks; a gain of `MIN_CHI2_GAIN` (16) moves it whatever its number of
+/// frames, and both reach identifiable ARI 1 (0.969 and 0.978 with that rule alone).
 #[test]
 fn a_point_near_a_hinge_goes_to_the_body_it_fits_better() {
     segmented_with_moved_points(&random_mechanisms(451), &[331, 450]);
@@ -568,9 +559,9 @@ fn a_point_near_a_hinge_goes_to_the_body_it_fits_better() {
 /// Seed 7 of the mechanisms sweep's 1-joint revolute chains (200 frames, 1 mm): point 17 of
 /// the link, seen in 48 frames near the hinge, was clustered with the base. Against the
 /// fitted motions the link explains it better by 24 in `chi^2` (0.94 against 1.11 per
-/// degree of freedom over 141), under the 34 of two standard deviations and the 25 asked
-/// before session 8; with `MIN_CHI2_GAIN` at 16 it moves to the link. (Point 10, seen in 15
-/// frames, fits both within 0.12 and stays where it is.)
+/// degree of freedom over 141), under the 34 of two standard deviations and a bound of 25
+/// (five deviations of the worst case); with `MIN_CHI2_GAIN` at 16 it moves to the link.
+/// (Point 10, seen in 15 frames, fits both within 0.12 and stays where it is.)
 #[test]
 fn a_link_point_seen_near_its_hinge_leaves_the_base() {
     let data = simulate(&kinetree_synth::random_scenario(
@@ -602,10 +593,10 @@ fn a_link_point_seen_near_its_hinge_leaves_the_base() {
 }
 
 /// Seed 3 of the mechanisms sweep's 5-joint revolute trees (200 frames, 1 mm): point 32, seen
-/// in 8 frames, was clustered with the link its own link turns on, and the fitted motions
-/// judged no point seen in under 10 frames. It fits its own link at 0.69 per degree of
-/// freedom and the other at 1.80; from 5 frames (`MIN_FRAMES_TO_PLACE`) it moves, and every
-/// point seen twice or more is on its body (ARI 0.942 before).
+/// in 8 frames, was clustered with the link its own link turns on. It fits its own link at
+/// 0.69 per degree of freedom and the other at 1.80; the fitted motions judge points seen in
+/// 5 frames or more (`MIN_FRAMES_TO_PLACE`), so it moves, and every point seen twice or more
+/// is on its body (ARI 0.942 with a minimum of 10 frames).
 #[test]
 fn a_point_seen_in_eight_frames_is_moved_to_its_link() {
     let data = kinetree_tests::revolute_tree(5, 3);

@@ -228,8 +228,9 @@ fn a_body_with_three_children_is_a_tree() {
 /// A slender link turning about its own long axis: its rotation is poorly known about that
 /// axis (its points lie within 2 cm of it), so the rotation test's slack can hide a 0.5 rad
 /// swing and the arc of its centroid looks like a line. Every seed must give a revolute
-/// joint, not a prismatic one (the first version of the chi-square tester called seed 1
-/// prismatic; the rotation now stands out against the measured noise level).
+/// joint, not a prismatic one (with the slack alone the chi-square tester called seed 1
+/// prismatic; the hidden-rotation rule, `kinetree_dof::hidden_next_rank`, makes the rotation
+/// stand out against the measured noise level).
 #[test]
 fn a_slender_link_turning_about_its_length_is_revolute() {
     use kinetree_synth::{JointDraw, MechanismSpec};
@@ -324,14 +325,14 @@ fn wrong_joints(spec: &kinetree_synth::MechanismSpec) -> (Vec<kinetree_core::War
 }
 
 /// Three mechanisms of the rate test's deterministic draw (1.1-2.6 mm of noise, 15-37 %
-/// occlusion) where a slide was typed multi-DoF: its parent, a 10-30 cm body of 5 points with
-/// a third of its frames unposed, bends the child's straight path by its pose errors (the
-/// child's translation missed a line at chi2/dof 5.4 against a bound of 4.0 on case 287; off
-/// the line by 14 mm RMS with per-body poses, 1.6 mm with the whole-tree fit's). Tested again
-/// on the fitted poses, every joint comes out with its type (a `pairs_retested` warning).
-/// Before the retest, all three had a joint typed multi-DoF. Since the reference shapes are
-/// refined by Gauss-Newton steps (session 9), case 287's parent is posed well enough for the
-/// first pair tests (no retest needed); cases 159 and 457 still need the retest.
+/// occlusion) where a slide can be typed multi-DoF: its parent, a 10-30 cm body of 5 points
+/// with a third of its frames unposed, bends the child's straight path by its pose errors
+/// (with averaged reference shapes alone, one child's translation missed a line at chi2/dof
+/// 5.4 against a bound of 4.0; off the line by 14 mm RMS with per-body poses, 1.6 mm with
+/// the whole-tree fit's). Tested again on the fitted poses, every joint comes out with its
+/// type (a `pairs_retested` warning). With the reference shapes refined by Gauss-Newton
+/// steps, that one's parent is posed well enough for the first pair tests (no retest
+/// needed); the other two need the retest.
 #[test]
 fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
     let specs = rate_draw(458);
@@ -345,15 +346,15 @@ fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
     }
 }
 
-/// Case 536 of the rate test's draw (4 mm of noise, 29 % occlusion): a 31 cm, 6-point link
-/// turning +-0.24 rad about a hinge on the base. Its pair test found one rotation direction
-/// but centres of rotation off a point by 4.45 per degree of freedom against a bound of 3.33
-/// (rank 1), so the joint was multi-DoF. In the whole-tree fit the child moves as a hinge: a
-/// hinge fitted from the fitted relative poses and refined misses the child's points by 1.0
-/// sigma^2 per point beyond its own pose (a slide, 36), so the fit types it revolute
-/// (`joint_typed_by_fit`).
+/// A mechanism of the rate test's draw at 4 mm of noise and 29 % occlusion: a 31 cm, 6-point
+/// link turning +-0.24 rad about a hinge on the base. Its pair test found one rotation
+/// direction but centres of rotation off a point by 4.45 per degree of freedom against a
+/// bound of 3.33 (rank 1), so the joint was multi-DoF. In the whole-tree fit the child moves
+/// as a hinge: a hinge fitted from the fitted relative poses and refined misses the child's
+/// points by 1.0 sigma^2 per point beyond its own pose (a slide, 36), so the fit types it
+/// revolute (`joint_typed_by_fit`).
 ///
-/// Case 548 (2 mm, 33 %): a 3.9 cm link turning +-0.19 rad on the base showed no rotation in
+/// Another (2 mm, 33 %): a 3.9 cm link turning +-0.19 rad on the base showed no rotation in
 /// its pair test (rotation noise of its 6 points) and a nearly straight path, so it was typed
 /// prismatic, and the fit did not follow it (36 sigma^2 per point). Tried as a hinge by the
 /// fit, it is followed; the model's tree is then retested on the fitted poses and every joint
@@ -374,10 +375,10 @@ fn hinges_the_pair_test_mistyped_are_typed_by_the_fit() {
     );
 }
 
-/// Case 397 of the rate test's draw: a slide whose parent is a 2 cm body of 4 points. Its
-/// rotation residuals were 0.12 at rank 0 and 0.003 at rank 1 (whitened columns of nearly one
-/// direction), and the hidden-rotation rule read the ratio as a rotation, typing the slide
-/// revolute. With rank 0 required over the nominal noise (`kinetree_dof::MIN_EXCESS`) it is
+/// A slide of the rate test's draw whose parent is a 2 cm body of 4 points. Its rotation
+/// residuals were 0.12 at rank 0 and 0.003 at rank 1 (whitened columns of nearly one
+/// direction), and on the ratio alone the hidden-rotation rule types the slide revolute.
+/// With rank 0 required over the nominal noise (`kinetree_dof::MIN_EXCESS`) it is
 /// prismatic.
 #[test]
 fn a_slide_under_a_two_centimetre_parent_stays_prismatic() {
@@ -415,16 +416,16 @@ fn bundle_adjusted_axes_are_within_a_degree() {
     eprintln!("largest axis error {worst:.2} deg");
 }
 
-/// Seven-joint revolute trees of the mechanisms sweep (seeds 5 and 7; seed 1 was one too
-/// until the tree weighed its edges by the frames they were tested over): siblings turn about
+/// Seven-joint revolute trees of the mechanisms sweep (seeds 5 and 7; seed 1 is one too when
+/// the tree does not weigh its edges by the frames they were tested over): siblings turn about
 /// one anchor on the base and hide each other, so one link is registered in 21 of 200 frames.
 /// Over the ten frames it shared with each sibling, their relative motion passed for a hinge
 /// with a better fit ratio than the siblings' true joints with the base over a hundred, and
 /// the tree hung them on it; the fit freed those joints, but the tree stayed. Tested again on
 /// the whole-tree fit's poses, which pose the hidden link through its own joint in most
 /// frames (with their precision), every joint is found. (With the hidden link posed through
-/// its hinge where it lacks poses, seed 5 needs no retest any more: the retest is checked
-/// with the hinges off, and the default must get every joint too.)
+/// its hinge where it lacks poses, seed 5 needs no retest: the retest is checked with the
+/// hinges off, and the default must get every joint too.)
 #[test]
 fn siblings_hidden_by_each_other_get_their_parent_back() {
     for seed in [5, 7] {
@@ -571,13 +572,13 @@ fn an_outlier_leaves_a_body_of_three_keypoints() {
     assert_placed_with(&model, &data, 3, 1);
 }
 
-/// Rate-test case 83 (8-joint chain, 1.5 mm of noise, 34 % occlusion): keypoint 16 of
-/// link 2, near the hinge joining it to the 4-keypoint slider below, was clustered onto the
-/// slider. Seen three keypoints at a time, the slider's poses followed it, so it fitted
-/// them better than its own link's and the model's moves kept it there; the slider's joint
-/// had a rotation (multi-DoF). Without it the pair test finds one slide (without any other
-/// keypoint of the two bodies, still two DoF): it is left on no body, and the next pass's
-/// fitted motions put it on its link.
+/// A mechanism of the rate test's draw (8-joint chain, 1.5 mm of noise, 34 % occlusion):
+/// keypoint 16 of link 2, near the hinge joining it to the 4-keypoint slider below, was
+/// clustered onto the slider. Seen three keypoints at a time, the slider's poses followed
+/// it, so it fitted them better than its own link's and the model's moves kept it there; the
+/// slider's joint had a rotation (multi-DoF). Without it the pair test finds one slide
+/// (without any other keypoint of the two bodies, still two DoF): it is left on no body, and
+/// the next pass's fitted motions put it on its link.
 #[test]
 fn a_keypoint_that_gives_a_slide_a_rotation_leaves_it() {
     let spec = kinetree_tests::rate_draw(84).pop().expect("case 83");

@@ -112,13 +112,12 @@ impl DbscanParams {
 /// 1973, Ertöz et al. 2003): two points of one body see mostly the same body, two points on
 /// either side of an axis see different ones. Non-core points still join as borders.
 ///
-/// Measured (session 3; pipeline defaults otherwise, 200 general-position mechanisms of 2-12
-/// bodies at 1 mm and 30 % occlusion, `ARI = 1`): classic DBSCAN (`shared_fraction = 0`,
-/// `min_points = 4`) 135/200; with the overlap rule and `min_points = 3`: 171, 175, 181, 185
-/// and 185 of 200 at fractions 0.65, 0.7, 0.8, 0.9 and 1.0 (184 with `min_points = 4` at
-/// 0.9). Average linkage gets 192/200; most of DBSCAN's remaining failures are 4-5 point
-/// bodies without enough pairs under the cut to hold a core point. (Session 6, with the
-/// regrouping below: fractions 0.6, 0.75, 0.9 and 1.0 gave 174, 184, 193 and 194.)
+/// Measured on 200 general-position mechanisms of 2-12 bodies at 1 mm and 30 % occlusion
+/// (pipeline defaults otherwise, `ARI = 1`): classic DBSCAN (`shared_fraction = 0`,
+/// `min_points = 4`) 135 of 200, the overlap rule at 0.9 with `min_points = 3` 185, and 193
+/// with the leftovers regrouped (below); average linkage 192 (`docs/decisions.md`,
+/// `clustering.dbscan.shared_fraction`). Without the regrouping, most of DBSCAN's failures
+/// are 4-5 point bodies without enough pairs under the cut to hold a core point.
 ///
 /// Small bodies fall apart under the overlap rule: with the F-test's `q` uniform on rigid
 /// pairs, a 6-point body's points have 3-4 neighbours each, two of them rarely share 90 % of
@@ -127,8 +126,8 @@ impl DbscanParams {
 /// average linkage at `eps` (`regroup_leftovers`): a group of them that is rigid on average
 /// becomes a cluster. Measured on the same 200 mechanisms (with the pipeline's pairwise split
 /// of mixed bodies; identifiable ARI, see `kinetree_eval::identifiable_ari`): 187 without,
-/// 193 with (hierarchical 195, spectral 194). The pipeline's own regrouping of unassigned
-/// points by their poses, added after, brought every clusterer to 196.
+/// 193 with (hierarchical 195, spectral 194); with the pipeline's own regrouping of
+/// unassigned points by their poses, every clusterer gets 196.
 ///
 /// Complexity: O(N^2).
 #[derive(Debug, Clone)]

@@ -90,9 +90,10 @@ impl SpectralParams {
 ///   beyond it. Measured on 200 general-position mechanisms of 2-12 bodies (1 mm, 30 %
 ///   occlusion, ARI = 1): 191/200 at width 0.05 with the zero tail, 191 at 0.01 (192 at 0.05
 ///   without the tail, which fails on large scenes); only the wider step keeps a link that
-///   swings 5 deg apart from the base (tests/tests/segmentation.rs), and 0.2 loses it again. A pair never seen together has no affinity;
-///   the graph's connectivity through third points does the transitive inference that
-///   [`crate::fill_unknown`] does for the hierarchical clusterer.
+///   swings 5 deg apart from the base (tests/tests/segmentation.rs), and 0.2 loses it again.
+///   A pair never seen together has no affinity; the graph's connectivity through third
+///   points does the transitive inference that [`crate::fill_unknown`] does for the
+///   hierarchical clusterer.
 /// - The smallest eigenvalues of the normalised Laplacian `I - D^-1/2 W D^-1/2`: a body is a
 ///   block of the graph, so there are as many eigenvalues near 0 as bodies, and the number of
 ///   clusters is where the gap between consecutive eigenvalues is largest (at most
@@ -305,9 +306,9 @@ fn eigengap(values: &[f64]) -> usize {
     best.0
 }
 
-/// k-means (Lloyd) into `k` clusters of rows of dimension `dim` stored row-major, with k-means++ seeding,
-/// `restarts` runs from a `ChaCha8` stream seeded by `seed`; the lowest inertia wins (ties to
-/// the earliest run). Returns a label per row.
+/// k-means (Lloyd) into `k` clusters of rows of dimension `dim` stored row-major, with
+/// k-means++ seeding, `restarts` runs from a `ChaCha8` stream seeded by `seed`; the lowest
+/// inertia wins (ties to the earliest run). Returns a label per row.
 pub(crate) fn kmeans(rows: &[f64], dim: usize, k: usize, restarts: usize, seed: u64) -> Vec<usize> {
     let n = rows.len() / dim.max(1);
     if k <= 1 || n <= 1 {

@@ -4,6 +4,7 @@
 //! that breaks readers.
 
 use crate::{PairDof, Warning};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 /// Version of the model JSON schema.
@@ -78,6 +79,32 @@ pub struct RigidTransform {
     pub rotation_xyzw: [f64; 4],
     /// Translation, metres.
     pub translation: [f64; 3],
+}
+
+impl RigidTransform {
+    /// The transform of an isometry (the one place the model's transforms are made from
+    /// nalgebra's).
+    pub fn from_isometry(x: &Isometry3<f64>) -> Self {
+        let (r, t) = (x.rotation, x.translation.vector);
+        Self {
+            rotation_xyzw: [r.i, r.j, r.k, r.w],
+            translation: [t.x, t.y, t.z],
+        }
+    }
+
+    /// The isometry (the quaternion normalised); `None` when the rotation is not a usable
+    /// quaternion (a norm that is zero or not finite).
+    pub fn to_isometry(&self) -> Option<Isometry3<f64>> {
+        let [x, y, z, w] = self.rotation_xyzw;
+        let q = Quaternion::new(w, x, y, z);
+        let t = self.translation;
+        (q.norm().is_finite() && q.norm() > 1e-9 && t.iter().all(|v| v.is_finite())).then(|| {
+            Isometry3::from_parts(
+                Translation3::new(t[0], t[1], t[2]),
+                UnitQuaternion::from_quaternion(q),
+            )
+        })
+    }
 }
 
 /// Joint ranks, as decided by the DoF tester.

@@ -24,6 +24,9 @@ pub enum RepairPhase {
     /// After each pose estimate: [`Edit::Segmentation`] (the poses are redone and the phase
     /// restarts) or [`Edit::Poses`] (the poses are replaced and the next repair asked).
     Bodies,
+    /// While each model is finished, after its assembly and first whole-tree fit:
+    /// [`Edit::Fit`], which replaces the model's joints (same bodies, poses and tree).
+    Fit,
     /// After the first model of a segmentation is assembled, before its whole-tree fit:
     /// [`Edit::Tree`]. The alternative is finished like the model and replaces it when
     /// [`Repair::stands`] says so.
@@ -179,7 +182,7 @@ pub trait ModelMaker: Send + Sync + std::fmt::Debug {
 }
 
 /// A model with what it was made from.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct ModelDraft {
     /// The model (bodies in tree order).
     pub model: Model,
@@ -190,6 +193,22 @@ pub struct ModelDraft {
     pub fitted: Option<FittedPoses>,
     /// The warnings of the steps before the model (its own come on top in `model.warnings`).
     pub history: Vec<Warning>,
+    /// An opaque cache of the model's whole-tree fit, shared by the fit repairs (the
+    /// pipeline's store a `kinetree_fit::FitState`); check that it belongs to the model
+    /// before use, and drop it when the model changes.
+    pub cache: Option<std::sync::Arc<dyn std::any::Any + Send + Sync>>,
+}
+
+impl std::fmt::Debug for ModelDraft {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ModelDraft")
+            .field("model", &self.model)
+            .field("body_order", &self.body_order)
+            .field("fitted", &self.fitted.is_some())
+            .field("history", &self.history)
+            .field("cache", &self.cache.is_some())
+            .finish()
+    }
 }
 
 /// The current state of a run, as a repair sees it.
@@ -243,6 +262,8 @@ pub enum Edit {
     Tree(Vec<(usize, usize)>),
     /// Points moved: `(point, new body)` (segmentation numbering; `None`: on no body).
     Points(Vec<(usize, Option<usize>)>),
+    /// The model with its joints refitted (same bodies, poses and tree).
+    Fit(Box<ModelDraft>),
     /// A replacement model, with the poses and segmentation it was made from.
     Model {
         /// The model.
@@ -260,6 +281,7 @@ impl Edit {
             Self::Segmentation(_) => "segmentation",
             Self::Poses(_) => "poses",
             Self::Tree(_) => "tree",
+            Self::Fit(_) => "fit",
             Self::Points(_) => "points",
             Self::Model { .. } => "model",
         }

@@ -26,8 +26,9 @@ fn median(v: &mut [f64]) -> f64 {
 /// of the distance: noise-free data), the estimate is a floor of `1e-6` of their typical
 /// distance instead. The floor sits above the precision of the later stages' iterations
 /// (reference shapes, fits that stop at a step tolerance): at `1e-9`, a noise-free mechanism
-/// of 2 cm slides found by the invariance tests' deep pass gave 3 of its 7 joints as multi-DoF, and
-/// which 3 depended on the order of the points; at `1e-6` all 7 are right in either order.
+/// of 2 cm slides found by the invariance tests' deep pass gave 3 of its 7 joints as
+/// multi-DoF, and which 3 depended on the order of the points; at `1e-6` all 7 are right in
+/// either order.
 ///
 /// This is a first guess; [`refine_noise_sigma`] improves it once bodies are known.
 ///
@@ -108,9 +109,10 @@ fn chi2_lower_quartile_over_dof(d: f64) -> f64 {
 /// variance, so the estimate holds with up to 75 % of such pairs (the median, for
 /// comparison, was measured 10-14 % high on 20-body scenes with merged bodies). The pairs
 /// within `POOL_Z` standard deviations of that value are then pooled, each weighted by its
-/// degrees of freedom, for the final estimate: on the issue-4 draw of 640 mechanisms (1 mm,
-/// 30 % occlusion) its spread fell from 1.32 % to 1.02 % (mean 0.999 of the truth). Returns
-/// `None` when no body has a usable pair.
+/// degrees of freedom, for the final estimate: on a draw of 640 mechanisms at 1 mm and 30 %
+/// occlusion its spread is 1.02 % (mean 0.999 of the truth) against 1.32 % for the robust
+/// value alone (`docs/decisions.md`, `kinetree_dissimilarity::POOL_Z`). Returns `None` when
+/// no body has a usable pair.
 pub fn refine_noise_sigma(stats: &PairStats, segmentation: &Segmentation) -> Option<f64> {
     let n = stats.n_points;
     // (variance, degrees of freedom) of every usable pair inside a body.
@@ -139,8 +141,8 @@ pub fn refine_noise_sigma(stats: &PairStats, segmentation: &Segmentation) -> Opt
         return None;
     }
     // The pairs that agree with the robust value, pooled: a quantile of a few dozen pairs that
-    // share their keypoints' noise is a noisy estimate (14 keypoints, rate-test draw case 623:
-    // 8 % low, and a rigid 6-keypoint body looked like two), the pooled variance of the
+    // share their keypoints' noise is a noisy estimate (a 6-keypoint slider on an 8-keypoint
+    // base: 8 % low, and the rigid slider looked like two), the pooled variance of the
     // consistent pairs a precise one. Moving pairs of a wrongly merged body lie far above
     // and are left out.
     let (mut sum, mut dof) = (0.0, 0.0);

@@ -32,10 +32,9 @@ pub enum RankRule {
 pub use kinetree_core::stats::chi2_per_dof_quantile;
 
 /// Rank `r`'s residual per degree of freedom must exceed this (the nominal noise level) for
-/// [`hidden_next_rank`] to look further. Measured: a slide whose 2 cm, 4-point parent left its
-/// whitened rotations nearly one direction had 0.12 at rank 0 and 0.003 at rank 1, and the
-/// ratio made it revolute; the hidden rotations the rule exists for had 1.4-3.0 at rank 0
-/// (one of them over a rank-1 level of 0.03).
+/// [`hidden_next_rank`] to look further: under it, a tiny rank `r + 1` residual can come from
+/// whitened columns nearly of that rank by construction, and the ratio means nothing
+/// (`docs/decisions.md`, `kinetree_dof::MIN_EXCESS`).
 pub const MIN_EXCESS: f64 = 1.0;
 
 /// Whether a chi-square rank test ([`RankRule::Chi2`] on centred columns of dimension `dim`)
@@ -370,9 +369,9 @@ mod tests {
             4.0
         ));
         assert!(!hidden_next_rank(&chi2_test([3.0, 1.1, 1.0], 150), 3, 4.0));
-        // A rotation over a near-zero rank-1 level (case 457 of the rate test's draw) stands
-        // out; a rank-0 residual under the nominal noise does not, however small rank 1's
-        // (case 397: a slide under a 2 cm, 4-point parent).
+        // A rotation over a near-zero rank-1 level stands out; a rank-0 residual under the
+        // nominal noise does not, however small rank 1's (a slide under a 2 cm, 4-point
+        // parent).
         assert!(hidden_next_rank(
             &chi2_test([1.42, 0.03, 0.01], 120),
             3,

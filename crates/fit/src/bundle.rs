@@ -65,9 +65,9 @@ const DIFF_STEP: f64 = 1e-6;
 const MAX_STEPS: usize = 20;
 /// The adjustment stops when a step lowers the total squared residual by less than this many
 /// noise variances (the parameters then move by well under their standard deviations), or
-/// when the next step's gain, predicted as `g_k^2 / g_(k-1)` from the last two, is. On the
-/// discovery benchmark's arm the steps gained 4580, 0.27 and 1e-5 variances: the prediction
-/// after the second (2e-5) saves the third linearisation, a third of the adjustment's time.
+/// when the next step's gain, predicted as `g_k^2 / g_(k-1)` from the last two, is; the
+/// prediction saves the last linearisation (`docs/decisions.md`,
+/// `kinetree_fit::MIN_GAIN_IN_VARIANCES`).
 const MIN_GAIN_IN_VARIANCES: f64 = 0.1;
 
 /// One frame: its visible points and the converged fit of its own parameters.

@@ -19,9 +19,12 @@ mod tree_cholesky;
 
 pub use motions::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
-    OUTLIER_RATIO,
+    MotionLimits, OUTLIER_RATIO,
 };
-pub use policy::{MAX_JOINT_EXCESS, fit_model_positions};
+pub use policy::{
+    FitState, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,
+    free_unfollowed_joints, readmit_freed_joints, type_joints_by_fit, write_positions,
+};
 pub use smooth::{
     MIN_SMOOTHED_FRAMES, PositionColumn, SmoothedPositions, smooth_fitted_positions,
     smooth_positions,

@@ -11,61 +11,64 @@ use kinetree_core::nalgebra::{Isometry3, Vector3};
 use kinetree_core::stats::chi2_per_dof_quantile;
 use kinetree_core::{BodyPoses, Error, FittedPoses, MIN_BODY_POINTS, Model, Result, Tracks};
 
-/// Fewest frames in which a point must be seen with a body's fitted pose to count in the
-/// body's median misfit ([`MAX_BODY_MEDIAN`]), and for a body's halves to be judged by their
-/// rigid fits (in the pipeline).
+/// Default of [`MotionLimits::min_frames`].
 pub const MIN_FRAMES: usize = 10;
-
-/// Fewest frames in which a point must be seen with a body's fitted pose to be placed on it
-/// or moved to it ([`FittedMotions::points_fitting_another_body`]). A wrong body's motion
-/// seldom matches a point's over 5 frames, and the margin over the next body is then 0.82
-/// of `chi^2 / k` (see `margin`). Measured: three unassigned points seen in 6-7 frames
-/// (seed 3 of the invariance suite with every other frame dropped) fitted their true bodies
-/// at 0.9-1.0 and every other at 15 or more; on the mechanisms sweep a point seen in 8
-/// frames, clustered with the link below its own, fitted its body at 0.69 against 1.80.
-/// Lowered from 10 for moves too: mechanisms sweep +11 structure-exact runs, occlusion sweep
-/// +10, none lost.
+/// Default of [`MotionLimits::min_frames_to_place`] (`docs/decisions.md`,
+/// `kinetree_fit::MIN_FRAMES_TO_PLACE`).
 pub const MIN_FRAMES_TO_PLACE: usize = 5;
-
-/// How much better (in `chi^2 / k`) another body must explain a point than its own: at least
-/// this, and a gain in `chi^2` of two standard deviations of `chi^2`, `2 sqrt(2 k)`, or
-/// [`MIN_CHI2_GAIN`], whichever is smaller (see `margin`).
-///
-/// Measured on the 200 mechanisms of the rate test (one model each, every assigned point
-/// scored): margins over 0.05 picked 9 points, all misassigned and all moving to their true
-/// body; over 0.1, 8; no correctly placed point had another body better by more than 0.05.
+/// Default of [`MotionLimits::min_margin`] (`docs/decisions.md`, `kinetree_fit::MIN_MARGIN`).
 pub const MIN_MARGIN: f64 = 0.05;
-
-/// A gain in `chi^2` that moves a point whatever its number of frames. The two bodies'
-/// `chi^2` of one track differ by the misfit of the motion between them, `s`, plus noise of
-/// about `2 sqrt(s)` that does not grow with the frames; a point placed right shows a gain
-/// over 16 only past 4 such deviations (the worst case, `s = 16`). Two standard deviations
-/// of `chi^2` itself, the rule alone until session 8, asked 46 of a point seen in 90 frames:
-/// in 2 of the segmentation draw's 600 mechanisms a point near a hinge, seen in 91 and 116
-/// frames, fitted its true body better by 35 and 41 and stayed on the other. At 25 (5
-/// deviations) a point of a 1-joint box mechanism seen in 48 frames, better by 24, stayed;
-/// 16 moved it and raised the mechanisms sweep by 4 structure-exact runs, none lost.
+/// Default of [`MotionLimits::min_chi2_gain`] (`docs/decisions.md`,
+/// `kinetree_fit::MIN_CHI2_GAIN`).
 pub const MIN_CHI2_GAIN: f64 = 16.0;
-
-/// A point moves only between bodies that the model fits well: the median of their points'
-/// own `chi^2 / k` at most this. Measured on the 200 mechanisms of the rate test: the bodies
-/// of the 8 points moved there had medians of 0.77-1.22; in a scene where a barely moving
-/// link's joint was poorly determined, the link and the base fitted at medians of 2.0-3.1,
-/// and their points' next-best body was no evidence (moving them lowered the ARI). A target
-/// body over this bound still takes a point that fits it no worse than its median point: at
-/// 0.3 mm of noise, model error alone put a correct body at 2.9, and a near-axis point fitted
-/// it at 1.6 against 5.8 on the body it had been put on.
+/// Default of [`MotionLimits::max_body_median`] (`docs/decisions.md`,
+/// `kinetree_fit::MAX_BODY_MEDIAN`).
 pub const MAX_BODY_MEDIAN: f64 = 1.5;
-
-/// A point whose own `chi^2 / k` exceeds this many times its body's median may leave the body
-/// even when the body fits poorly ([`MAX_BODY_MEDIAN`]): the whole-tree fit poses a body by
-/// least squares over its points, so one point of another link spoils the body's poses in
-/// the frames it is seen and, with them, the fit of its other points. Measured (seed 3 of
-/// the invariance suite's box mechanisms with every other frame dropped): a point of the
-/// last link seen in 16 of 100 frames, put on the first link, fitted it at 373 and the
-/// last link at 2.0; the first link's other points fitted at 12-27, so no move was allowed
-/// and the first link's joint tested as 2-DoF.
+/// Default of [`MotionLimits::outlier_ratio`] (`docs/decisions.md`,
+/// `kinetree_fit::OUTLIER_RATIO`).
 pub const OUTLIER_RATIO: f64 = 5.0;
+
+/// The limits by which points are judged against a model's fitted motions; the pipeline's
+/// points repairs set them from their parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionLimits {
+    /// Fewest frames in which a point must be seen with a body's fitted pose to count in the
+    /// body's median misfit (default 10).
+    pub min_frames: usize,
+    /// Fewest frames in which a point must be seen with a body's fitted pose to be placed on
+    /// it or moved to it (default 5): a wrong body's motion seldom matches a point's over 5
+    /// frames.
+    pub min_frames_to_place: usize,
+    /// How much better (in `chi^2 / k`) another body must explain a point than its own: at
+    /// least this, and a gain in `chi^2` of two standard deviations of `chi^2`,
+    /// `2 sqrt(2 k)`, or `min_chi2_gain`, whichever is smaller (default 0.05).
+    pub min_margin: f64,
+    /// A gain in `chi^2` that moves a point whatever its number of frames (default 16): the
+    /// two bodies' `chi^2` of one track differ by the misfit of the motion between them plus
+    /// noise that does not grow with the frames.
+    pub min_chi2_gain: f64,
+    /// A point moves only between bodies the model fits well, the median of their points'
+    /// own `chi^2 / k` at most this (default 1.5); a target over it still takes a point that
+    /// fits it no worse than its median point.
+    pub max_body_median: f64,
+    /// A point whose own `chi^2 / k` exceeds this many times its body's median may leave the
+    /// body even when the body fits poorly (default 5): one point of another link spoils its
+    /// body's fitted poses, and with them the fit of the body's other points.
+    pub outlier_ratio: f64,
+}
+
+impl Default for MotionLimits {
+    fn default() -> Self {
+        Self {
+            min_frames: MIN_FRAMES,
+            min_frames_to_place: MIN_FRAMES_TO_PLACE,
+            min_margin: MIN_MARGIN,
+            min_chi2_gain: MIN_CHI2_GAIN,
+            max_body_median: MAX_BODY_MEDIAN,
+            outlier_ratio: OUTLIER_RATIO,
+        }
+    }
+}
 
 /// `chi^2 / k` of a point's track in a body's frame about its mean, in units of the noise
 /// variance, and `k = 3 (frames - 1)`: about 1 for a point rigidly attached to the body whose
@@ -98,10 +101,10 @@ fn misfit(
 }
 
 /// How much better than the next body a point's best body must fit it, in `chi^2 / k`:
-/// [`MIN_MARGIN`], or the smaller of two standard deviations and [`MIN_CHI2_GAIN`] when
-/// larger.
-fn margin(k: f64) -> f64 {
-    MIN_MARGIN.max((2.0 * (2.0 * k).sqrt()).min(MIN_CHI2_GAIN) / k)
+/// `min_margin`, or the smaller of two standard deviations and `min_chi2_gain` when larger.
+fn margin(k: f64, l: &MotionLimits) -> f64 {
+    l.min_margin
+        .max((2.0 * (2.0 * k).sqrt()).min(l.min_chi2_gain) / k)
 }
 
 /// The largest `chi^2 / k` of a point on the body it is given to: the Wilson-Hilferty bound at
@@ -117,6 +120,8 @@ fn bound(k: f64) -> f64 {
 pub struct FittedMotions {
     /// The fitted poses and their precision, by model body.
     fitted: FittedPoses,
+    /// The limits points are judged by.
+    limits: MotionLimits,
 }
 
 /// `point`'s `chi^2 / k` on its own body `own`, and the other body whose fitted poses explain
@@ -127,13 +132,12 @@ fn own_and_best_other(
     point: usize,
     own: usize,
     sigma: f64,
+    min_frames: usize,
 ) -> Option<(f64, (f64, f64), usize)> {
-    let (mine, _) = misfit(&body_poses[own], tracks, point, sigma, MIN_FRAMES_TO_PLACE)?;
+    let (mine, _) = misfit(&body_poses[own], tracks, point, sigma, min_frames)?;
     let (best, body) = (0..body_poses.len())
         .filter(|&c| c != own)
-        .filter_map(|c| {
-            misfit(&body_poses[c], tracks, point, sigma, MIN_FRAMES_TO_PLACE).map(|m| (m, c))
-        })
+        .filter_map(|c| misfit(&body_poses[c], tracks, point, sigma, min_frames).map(|m| (m, c)))
         .min_by(|a, b| a.0.0.total_cmp(&b.0.0))?;
     Some((mine, best, body))
 }
@@ -196,7 +200,16 @@ impl FittedMotions {
 
     /// Motions from poses already fitted (as [`FittedMotions::fitted`] gives them).
     pub fn from_fitted(fitted: FittedPoses) -> Self {
-        Self { fitted }
+        Self {
+            fitted,
+            limits: MotionLimits::default(),
+        }
+    }
+
+    /// These motions judging points by `limits` (the defaults otherwise).
+    pub fn with_limits(mut self, limits: MotionLimits) -> Self {
+        self.limits = limits;
+        self
     }
 
     /// The fitted poses and their precision, by model body.
@@ -302,13 +315,14 @@ impl FittedMotions {
         model: &Model,
         tracks: &Tracks,
     ) -> Result<Vec<(usize, usize)>> {
+        let l = &self.limits;
         self.check(model, tracks)?;
         let body_poses = &self.fitted.body_poses;
         let sigma = model.noise.sigma_m;
         let mut left: Vec<usize> = model.bodies.iter().map(|b| b.points.len()).collect();
         let body_median = self.body_medians(model, tracks);
         let mut moves = Vec::new();
-        let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
+        let fitted = |b: usize| body_median[b].is_some_and(|m| m <= l.max_body_median);
         for i in 0..model.point_body.len() {
             let Some(own_body) = body_of(model, tracks, i) else {
                 if let Some(b) = self.body_for_unassigned(model, tracks, i, &body_median) {
@@ -316,18 +330,23 @@ impl FittedMotions {
                 }
                 continue;
             };
-            let Some((own, (other, k), c)) =
-                own_and_best_other(body_poses, tracks, i, own_body, sigma)
-            else {
+            let Some((own, (other, k), c)) = own_and_best_other(
+                body_poses,
+                tracks,
+                i,
+                own_body,
+                sigma,
+                l.min_frames_to_place,
+            ) else {
                 continue;
             };
             let typical = body_median[c].is_some_and(|m| other <= m);
-            let outlier = body_median[own_body].is_some_and(|m| own > OUTLIER_RATIO * m);
+            let outlier = body_median[own_body].is_some_and(|m| own > l.outlier_ratio * m);
             if left[own_body] <= MIN_BODY_POINTS && !outlier {
                 continue;
             }
             if (fitted(own_body) && (fitted(c) || typical) || outlier && fitted(c))
-                && own - other > margin(k)
+                && own - other > margin(k, l)
                 && other <= bound(k)
             {
                 moves.push((i, c));
@@ -343,10 +362,9 @@ impl FittedMotions {
     /// body fitted worse than that bound, and with no floor on the points it keeps (what is
     /// left under three points is dropped by the pipeline and placed again).
     ///
-    /// For bodies a split made: the halves of a split can mix points of two links (case 374
-    /// of the segmentation test's draw: two points of a 6.4 cm slider and two of the link
-    /// turning on it, a median misfit of 1.79), and neither rule of the moves lets such a body
-    /// go. Allowed for every poorly fitted body, it also emptied a 30 cm link swinging
+    /// For bodies a split made: the halves of a split can mix points of two links (two points
+    /// of a 6.4 cm slider and two of the link turning on it, at a median misfit of 1.79), and
+    /// neither rule of the moves lets such a body go. Allowed for every poorly fitted body, it also emptied a 30 cm link swinging
     /// +-2.5 deg into the base, whose poorly determined joint had made it fit poorly.
     ///
     /// # Errors
@@ -357,10 +375,11 @@ impl FittedMotions {
         tracks: &Tracks,
         bodies: &[usize],
     ) -> Result<Vec<(usize, usize)>> {
+        let l = &self.limits;
         self.check(model, tracks)?;
         let sigma = model.noise.sigma_m;
         let body_median = self.body_medians(model, tracks);
-        let fitted = |b: usize| body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN);
+        let fitted = |b: usize| body_median[b].is_some_and(|m| m <= l.max_body_median);
         let mut moves = Vec::new();
         for &b in bodies {
             if b >= model.bodies.len() || fitted(b) {
@@ -370,12 +389,17 @@ impl FittedMotions {
                 if i >= tracks.n_points() {
                     continue;
                 }
-                let Some((own, (other, k), c)) =
-                    own_and_best_other(&self.fitted.body_poses, tracks, i, b, sigma)
-                else {
+                let Some((own, (other, k), c)) = own_and_best_other(
+                    &self.fitted.body_poses,
+                    tracks,
+                    i,
+                    b,
+                    sigma,
+                    l.min_frames_to_place,
+                ) else {
                     continue;
                 };
-                if fitted(c) && own - other > margin(k) && other <= bound(k) {
+                if fitted(c) && own - other > margin(k, l) && other <= bound(k) {
                     moves.push((i, c));
                 }
             }
@@ -401,6 +425,7 @@ impl FittedMotions {
     /// # Errors
     /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
     pub fn points_fitting_no_body(&self, model: &Model, tracks: &Tracks) -> Result<Vec<usize>> {
+        let l = &self.limits;
         self.check(model, tracks)?;
         let sigma = model.noise.sigma_m;
         let body_median = self.body_medians(model, tracks);
@@ -418,11 +443,11 @@ impl FittedMotions {
                 tracks,
                 i,
                 sigma,
-                MIN_FRAMES_TO_PLACE,
+                l.min_frames_to_place,
             ) else {
                 continue;
             };
-            if own <= OUTLIER_RATIO * bound(k).max(median)
+            if own <= l.outlier_ratio * bound(k).max(median)
                 || model.bodies[own_body].points.len() <= MIN_BODY_POINTS
                 || worst[own_body].is_some_and(|(w, _)| w >= own)
             {
@@ -436,7 +461,7 @@ impl FittedMotions {
                         tracks,
                         i,
                         sigma,
-                        MIN_FRAMES_TO_PLACE,
+                        l.min_frames_to_place,
                     )
                 })
                 .any(|(m, kc)| m <= bound(kc));
@@ -452,6 +477,7 @@ impl FittedMotions {
     /// Per body of `model`, the median of its points' own `chi^2 / k` against these motions
     /// (see [`MAX_BODY_MEDIAN`]); `None` for a body with no point to score.
     fn body_medians(&self, model: &Model, tracks: &Tracks) -> Vec<Option<f64>> {
+        let l = &self.limits;
         let sigma = model.noise.sigma_m;
         model
             .bodies
@@ -463,7 +489,7 @@ impl FittedMotions {
                     .iter()
                     .filter(|&&i| i < tracks.n_points())
                     .filter_map(|&i| {
-                        misfit(&self.fitted.body_poses[b], tracks, i, sigma, MIN_FRAMES)
+                        misfit(&self.fitted.body_poses[b], tracks, i, sigma, l.min_frames)
                             .map(|m| m.0)
                     })
                     .collect();
@@ -491,6 +517,7 @@ impl FittedMotions {
         point: usize,
         body_median: &[Option<f64>],
     ) -> Option<usize> {
+        let l = &self.limits;
         if point >= tracks.n_points() || model.point_body.get(point).is_none_or(|&b| b >= 0) {
             return None;
         }
@@ -502,7 +529,7 @@ impl FittedMotions {
                     tracks,
                     point,
                     sigma,
-                    MIN_FRAMES_TO_PLACE,
+                    l.min_frames_to_place,
                 )
                 .map(|m| (m, b))
             })
@@ -511,25 +538,28 @@ impl FittedMotions {
         let &((best, k), b) = scored.first()?;
         let clear = scored
             .get(1)
-            .is_none_or(|&((second, _), _)| second - best > margin(k));
-        let welcome = body_median[b].is_some_and(|m| m <= MAX_BODY_MEDIAN || best <= m);
+            .is_none_or(|&((second, _), _)| second - best > margin(k, l));
+        let welcome = body_median[b].is_some_and(|m| m <= l.max_body_median || best <= m);
         (clear && welcome && best <= bound(k)).then_some(b)
     }
 
-    /// Whether each of `points` fits its own body in `model` at least as well as any other body,
-    /// against the whole-tree fit's poses: the check that points moved by
-    /// [`FittedMotions::points_fitting_another_body`] settled where they went. A point that cannot be scored
-    /// counts as settled.
+    /// Whether each of `points` fits its own body in `model` at least as well as any other
+    /// body, against the whole-tree fit's poses: the check that points moved by
+    /// [`FittedMotions::points_fitting_another_body`] settled where they went. A point that
+    /// cannot be scored counts as settled.
     ///
     /// # Errors
     /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
     pub fn points_settled(&self, model: &Model, tracks: &Tracks, points: &[usize]) -> Result<bool> {
+        let l = &self.limits;
         self.check(model, tracks)?;
         let body_poses = &self.fitted.body_poses;
         let sigma = model.noise.sigma_m;
         Ok(points.iter().all(|&i| {
             body_of(model, tracks, i)
-                .and_then(|own| own_and_best_other(body_poses, tracks, i, own, sigma))
+                .and_then(|own| {
+                    own_and_best_other(body_poses, tracks, i, own, sigma, l.min_frames_to_place)
+                })
                 .is_none_or(|(mine, (other, _), _)| mine <= other)
         }))
     }

@@ -4,34 +4,101 @@
 //! their precision, their smoothing and every joint's range written into the model.
 
 use crate::solver::{FrameFit, Measure, Observer, rms_in_sigma};
-use kinetree_core::model::JointType;
+use kinetree_core::model::{JointType, RigidTransform};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 use kinetree_core::{Model, Result, Tracks, Warning};
 use rayon::prelude::*;
 
+/// A model's whole-tree fit between the steps of the fit's policy: the observer built from the
+/// model (its freed joints included), its fit of every frame, and a fingerprint of the parts
+/// of the model it was made from, so a step can tell whether it is still the model's fit.
+#[derive(Debug, Clone)]
+pub struct FitState {
+    observer: Observer,
+    fits: Vec<FrameFit>,
+    made_from: String,
+}
+
+/// What the fit depends on: the bodies, the joints and the warnings that free joints. Written
+/// with `Debug`, so that a NaN compares equal to itself.
+fn fingerprint(model: &Model) -> String {
+    format!("{:?}{:?}{:?}", model.bodies, model.joints, model.warnings)
+}
+
+impl FitState {
+    /// The whole-tree fit of `model` on `tracks`.
+    ///
+    /// # Errors
+    /// As [`Observer::new`] and [`Observer::fit_sequence`].
+    pub fn new(model: &Model, tracks: &Tracks) -> Result<Self> {
+        let observer = Observer::new(model)?;
+        let fits = observer.fit_sequence(tracks)?;
+        Ok(Self::of(model, observer, fits))
+    }
+
+    fn of(model: &Model, observer: Observer, fits: Vec<FrameFit>) -> Self {
+        Self {
+            observer,
+            fits,
+            made_from: fingerprint(model),
+        }
+    }
+
+    /// Whether this is the fit of `model` as it is now.
+    pub fn is_of(&self, model: &Model) -> bool {
+        self.made_from == fingerprint(model)
+    }
+
+    /// The fit of every frame.
+    pub fn fits(&self) -> &[FrameFit] {
+        &self.fits
+    }
+}
+
 /// Replaces the joint positions of `model` (discovered on `tracks`) with the kinematic fit of
-/// every frame ([`Observer::fit_sequence`]) and returns the fit's RMS residual in units of
-/// the model's noise level (`None` with no usable frame). Joints the fit cannot follow are
-/// freed (a `joint_not_followed` warning); then the axes, pivots and reference poses of the
-/// single-DoF joints the fit follows are bundle-adjusted with every frame's configuration
-/// (`crate::bundle`), and each freed joint is refined against its child's keypoints with the
-/// parent posed by the fit and put back when refined well enough (see the comments inside). Each
-/// joint's reference pose is turned (or slid) to its position at the joint's reference frame,
-/// so the positions stay zero there; every joint's observed range is computed here.
+/// every frame ([`Observer::fit_sequence`]) after the fit's policy at its default limits:
+/// [`free_unfollowed_joints`], [`bundle_adjust`], [`readmit_freed_joints`] and
+/// [`type_joints_by_fit`], then [`write_positions`]. Returns the fit's RMS residual in units of
+/// the model's noise level (`None` with no usable frame). The pipeline runs the same steps as
+/// the repairs `free_joints`, `bundle_adjust`, `readmit_joints` and `type_by_fit`, each of
+/// which can be turned off.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
 pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<f64>> {
-    let mut observer = Observer::new(model)?;
-    let mut fits = observer.fit_sequence(tracks)?;
-    // Joints the model cannot follow are freed one at a time and the sequence refitted. A
-    // wrong joint also spoils the joints above it, which bend to absorb its miss (their
-    // excess can be the larger), so each round tries every joint over the limit and every
-    // joint below one, and frees the one whose freeing leaves the smallest residual.
+    let state = FitState::new(model, tracks)?;
+    let (state, _) = free_unfollowed_joints(model, tracks, state, MAX_JOINT_EXCESS)?;
+    let (state, _) = bundle_adjust(model, tracks, state)?;
+    let (state, _) = readmit_freed_joints(model, tracks, state, READMIT_EXCESS, MAX_JOINT_EXCESS)?;
+    let (state, _) = type_joints_by_fit(model, tracks, state, &TypeByFitLimits::default())?;
+    write_positions(model, &state)
+}
+
+/// Frees, one at a time, the joints of `model` whose [`Observer::joint_excess`] is over
+/// `max_excess` (a `joint_not_followed` warning each), refitting the sequence after each.
+/// A wrong joint also spoils the joints above it, which bend to absorb its miss (their excess
+/// can be the larger), so each round tries every joint over the limit and every joint below
+/// one, and frees the one whose freeing leaves the smallest residual. Returns the new fit and
+/// the joints freed, in order.
+///
+/// # Errors
+/// As [`Observer::fit_sequence`].
+pub fn free_unfollowed_joints(
+    model: &mut Model,
+    tracks: &Tracks,
+    state: FitState,
+    max_excess: f64,
+) -> Result<(FitState, Vec<usize>)> {
+    let FitState {
+        mut observer,
+        mut fits,
+        ..
+    } = state;
+    let mut freed_now = Vec::new();
     loop {
         let excess = observer.joint_excess(tracks, &fits)?;
         let over: Vec<usize> = (0..observer.joints.len())
-            .filter(|&k| excess[k].is_some_and(|e| e > MAX_JOINT_EXCESS))
+            .filter(|&k| excess[k].is_some_and(|e| e > max_excess))
             .collect();
         if over.is_empty() {
             break;
@@ -75,21 +142,53 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             child: j.child,
             excess_in_sigma2: excess[k].unwrap_or(f64::NAN),
         });
+        freed_now.push(k);
     }
-    // The joints the fit follows are bundle-adjusted with every frame's configuration (see
-    // `crate::bundle`), after the freeing so a wrong joint does not bend the others. It
-    // replaced rounds of one-joint refinements (`refine_joint`) against the whole-tree fit's
-    // poses, which stopped when a round raised the tree's residual: on the issue-4 draw of
-    // 640 mechanisms at 1 mm, axes under 1 deg went from 2764 to 2830 of 2837 joints and
-    // positions within their limit from 2642 to 2764, with the same results with or
-    // without those rounds before the adjustment.
-    if let Some(adjusted) = adjust_model(model, &observer, tracks)? {
-        (observer, fits) = adjusted;
+    Ok((FitState::of(model, observer, fits), freed_now))
+}
+
+/// Bundle-adjusts the single-DoF joints the fit follows with every frame's configuration (see
+/// `crate::bundle`), after the freeing so a wrong joint does not bend the others. Returns the
+/// new fit and whether the joints changed.
+///
+/// Measured: it replaced rounds of one-joint refinements against the whole-tree fit's poses;
+/// on a draw of 640 random mechanisms at 1 mm, axes under 1 deg went from 2764 to 2830 of 2837
+/// joints and positions within their limit from 2642 to 2764 (`docs/decisions.md`).
+///
+/// # Errors
+/// As [`Observer::fit_sequence`].
+pub fn bundle_adjust(
+    model: &mut Model,
+    tracks: &Tracks,
+    state: FitState,
+) -> Result<(FitState, bool)> {
+    match adjust_model(model, &state.observer, tracks)? {
+        Some((observer, fits)) => Ok((FitState::of(model, observer, fits), true)),
+        None => Ok((state, false)),
     }
-    // A freed joint may only have had poor parameters (a small parent's noisy poses misled
-    // the tester): each is refined with its parent posed by the fit, in which its child moves
-    // freely, put back into the fit, and kept there when its excess is then within
-    // READMIT_EXCESS and every other joint's within MAX_JOINT_EXCESS.
+}
+
+/// Puts freed joints back into the fit where they only had poor parameters (a small parent's
+/// noisy poses misled the tester): each is refined with its parent posed by the fit, in which
+/// its child moves freely, put back, and kept there when its excess is then within
+/// `max_excess` and every other joint's within `others_max_excess`. Returns the new fit and
+/// the joints put back.
+///
+/// # Errors
+/// As [`Observer::new`] and [`Observer::fit_sequence`].
+pub fn readmit_freed_joints(
+    model: &mut Model,
+    tracks: &Tracks,
+    state: FitState,
+    max_excess: f64,
+    others_max_excess: f64,
+) -> Result<(FitState, Vec<usize>)> {
+    let FitState {
+        mut observer,
+        mut fits,
+        made_from,
+    } = state;
+    let mut readmitted = Vec::new();
     for k in 0..observer.joints.len() {
         if !observer.freed[k] {
             continue;
@@ -105,32 +204,85 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
         let trial = Observer::new(model)?;
         let trial_fits = trial.fit_sequence(tracks)?;
         let excess = trial.joint_excess(tracks, &trial_fits)?;
-        let followed = excess[k].is_some_and(|e| e <= READMIT_EXCESS)
+        let followed = excess[k].is_some_and(|e| e <= max_excess)
             && excess
                 .iter()
-                .all(|e| e.is_none_or(|e| e <= MAX_JOINT_EXCESS));
+                .all(|e| e.is_none_or(|e| e <= others_max_excess));
         if followed {
             (observer, fits) = (trial, trial_fits);
+            readmitted.push(k);
         } else {
             (model.joints, model.warnings) = (joints, warnings);
         }
     }
-    // A multi-DoF joint whose child still moves as a hinge or a slide in the fit (a small
-    // body's noisy poses can fake a second degree of freedom in the pair test) is typed by
-    // the fit: a slide, then a hinge, is fitted from the two bodies' fitted poses, refined
-    // like a freed joint, and the first the fit then follows closely is kept (see
-    // `type_by_fit`). Only a joint whose pair test found one rotation direction and at most
-    // two translation ones is tried: tried on every multi-DoF joint, the human joints of the
-    // tennis serve (rotation rank 2-3) were typed, one as a slide, and the keypoints'
-    // re-prediction rose from 2.3 to 3.4 sigma.
-    //
-    // A joint the fit still does not follow gets the other single-DoF type tried the same
-    // way: a 3.9 cm link turning +-0.19 rad on the base (rate-test case 548, 2 mm of noise)
-    // showed no rotation in its pair test and a straight path, so it was typed prismatic; its
-    // child missed the fit by 36 sigma^2 per point as a slide and fits as a hinge.
+    if readmitted.is_empty() {
+        return Ok((
+            FitState {
+                observer,
+                fits,
+                made_from,
+            },
+            readmitted,
+        ));
+    }
+    Ok((FitState::of(model, observer, fits), readmitted))
+}
+
+/// The limits of [`type_joints_by_fit`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TypeByFitLimits {
+    /// A typed joint's excess must be within this (default 3.0; `docs/decisions.md`,
+    /// `type_by_fit.max_excess`).
+    pub max_excess: f64,
+    /// ... and every other joint's within this (default 30, the freeing bound).
+    pub others_max_excess: f64,
+    /// Only joints whose pair test found at most this many rotation directions are tried
+    /// (default 1): tried on every multi-DoF joint, the human joints of a tennis serve
+    /// (rotation rank 2-3) were typed, one as a slide, and the re-prediction rose from 2.3 to
+    /// 3.4 sigma.
+    pub max_rotation_rank: usize,
+    /// ... and at most this many translation directions (default 2).
+    pub max_translation_rank: usize,
+}
+
+impl Default for TypeByFitLimits {
+    fn default() -> Self {
+        Self {
+            max_excess: TYPE_EXCESS,
+            others_max_excess: MAX_JOINT_EXCESS,
+            max_rotation_rank: 1,
+            max_translation_rank: 2,
+        }
+    }
+}
+
+/// Types by the fit a multi-DoF joint whose child still moves as a hinge or a slide in it (a
+/// small body's noisy poses can fake a second degree of freedom in the pair test): a slide,
+/// then a hinge, is fitted from the two bodies' fitted poses, refined like a freed joint, and
+/// the first the fit then follows closely is kept (see `type_by_fit`). A freed single-DoF
+/// joint gets the other single-DoF type tried the same way: a link turning a little on the
+/// base can show no rotation in its pair test and a straight path. Returns the new fit and
+/// the joints typed.
+///
+/// # Errors
+/// As [`Observer::new`] and [`Observer::fit_sequence`].
+pub fn type_joints_by_fit(
+    model: &mut Model,
+    tracks: &Tracks,
+    state: FitState,
+    limits: &TypeByFitLimits,
+) -> Result<(FitState, Vec<usize>)> {
+    let FitState {
+        mut observer,
+        mut fits,
+        made_from,
+    } = state;
+    let mut typed = Vec::new();
     for k in 0..observer.joints.len() {
         let ranks = &model.joints[k].ranks;
-        if ranks.rotation > 1 || ranks.translation > 2 {
+        if ranks.rotation > limits.max_rotation_rank
+            || ranks.translation > limits.max_translation_rank
+        {
             continue;
         }
         let types: &[bool] = match model.joints[k].joint_type {
@@ -139,10 +291,41 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             JointType::Revolute if observer.freed[k] => &[false],
             _ => continue,
         };
-        if let Some((trial, trial_fits)) = type_by_fit(model, k, tracks, &fits, types)? {
+        if let Some((trial, trial_fits)) = type_by_fit(model, k, tracks, &fits, types, limits)? {
             (observer, fits) = (trial, trial_fits);
+            typed.push(k);
         }
     }
+    if typed.is_empty() {
+        return Ok((
+            FitState {
+                observer,
+                fits,
+                made_from,
+            },
+            typed,
+        ));
+    }
+    Ok((FitState::of(model, observer, fits), typed))
+}
+
+/// Writes the fit into `model`: every followed or freed joint's positions (multi-DoF ones keep
+/// theirs) with its reference pose turned (or slid) to its position at the joint's reference
+/// frame, so the positions stay zero there; the positions' precision and their smoothing;
+/// every joint's observed range. Returns the fit's RMS residual in units of the model's noise
+/// level (`None` with no usable frame).
+///
+/// # Errors
+/// [`kinetree_core::Error::Shape`] when `state` is not the fit of `model`; the smoothing's
+/// errors.
+pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64>> {
+    if !state.is_of(model) {
+        return Err(kinetree_core::Error::Shape {
+            expected: "the whole-tree fit of this model".into(),
+            found: "the fit of another model".into(),
+        });
+    }
+    let (observer, fits) = (&state.observer, &state.fits);
     for (k, joint) in model.joints.iter_mut().enumerate() {
         let j = &observer.joints[k];
         // Joints in the fit and freed ones (from the fitted poses); multi-DoF ones keep the
@@ -151,12 +334,7 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             let mut column: Vec<Option<f64>> = fits.iter().map(|f| f.positions[k]).collect();
             if let Some(zero) = column.get(joint.reference_frame).copied().flatten() {
                 let turned = Observer::joint_transform(j, zero);
-                let r = turned.rotation;
-                let t = turned.translation.vector;
-                joint.reference_pose = Some(kinetree_core::model::RigidTransform {
-                    rotation_xyzw: [r.i, r.j, r.k, r.w],
-                    translation: [t.x, t.y, t.z],
-                });
+                joint.reference_pose = Some(RigidTransform::from_isometry(&turned));
                 for v in column.iter_mut().flatten() {
                     *v -= zero;
                 }
@@ -181,7 +359,7 @@ pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<
             ]
         });
     }
-    Ok(rms_in_sigma(&fits, model.noise.sigma_m))
+    Ok(rms_in_sigma(fits, model.noise.sigma_m))
 }
 
 /// Bundle-adjusts the joints `observer` (built from `model`) follows ([`crate::bundle`]) and
@@ -219,26 +397,20 @@ fn adjust_model(
 /// fit `fits`: a candidate of each type of `revolute` in turn ([`candidate_joint`] on the
 /// fitted relative poses) is refined as a freed joint is ([`refine_joint`]) and every joint
 /// bundle-adjusted with it; the first the fit follows closely (its excess within
-/// [`TYPE_EXCESS`], every other joint's within [`MAX_JOINT_EXCESS`]) is kept, with a
+/// `limits`, every other joint's within its bound) is kept, with a
 /// `joint_typed_by_fit` warning in place of the `multi_dof_joint` or `joint_not_followed`
 /// one. Returns the new observer and fits, or `None` (the model unchanged) when none is
 /// followed. For a multi-DoF joint the slide comes first: a hinge about a distant pivot
-/// approximates a slide with two more parameters, and fitted a true slide better (excess 4.6
-/// against 7.3 on rate-test case 83).
-///
-/// Case 83: a 3.1 cm, 4-point slider at 1.5 mm of noise had rotation residuals of 4.5 per
-/// degree of freedom against a bound of 3.3 at rank 0 in its pair test (its poses from three
-/// or four points are noisier than their propagated precision says), so the joint was
-/// multi-DoF; it stays so, its slide missing the child's points by 7.3 sigma^2 per point
-/// (6.8 with the joints below it freed, so not the pull of the seven joints below), though
-/// its fitted axis is 0.05 deg off. Case 536: a 31 cm hinge at 4 mm of noise, multi-DoF in
-/// its pair test, has an excess of 36 as a slide and 1.0 as a hinge.
+/// approximates a slide with two more parameters, and fitted a true slide better (a 3.1 cm,
+/// 4-point slider at 1.5 mm of noise: excess 4.6 as a slide against 7.3 as a hinge;
+/// `docs/decisions.md`, `type_by_fit.max_excess`).
 fn type_by_fit(
     model: &mut Model,
     k: usize,
     tracks: &Tracks,
     fits: &[FrameFit],
     revolute: &[bool],
+    limits: &TypeByFitLimits,
 ) -> Result<Option<(Observer, Vec<FrameFit>)>> {
     let (parent, child) = (model.joints[k].parent, model.joints[k].child);
     let this = |p: &usize, c: &usize| *p == parent && *c == child;
@@ -285,12 +457,12 @@ fn type_by_fit(
             (trial, trial_fits) = adjusted;
         }
         let excess = trial.joint_excess(tracks, &trial_fits)?;
-        let Some(own) = excess[k].filter(|&e| e <= TYPE_EXCESS) else {
+        let Some(own) = excess[k].filter(|&e| e <= limits.max_excess) else {
             continue;
         };
         if excess
             .iter()
-            .any(|e| e.is_some_and(|e| e > MAX_JOINT_EXCESS))
+            .any(|e| e.is_some_and(|e| e > limits.others_max_excess))
         {
             continue;
         }
@@ -366,22 +538,12 @@ fn candidate_joint(
     })
 }
 
-/// A multi-DoF joint is typed by [`type_by_fit`] only when its child's excess with the
-/// single-DoF joint is at most this. Measured: a 31 cm hinge at 4 mm of noise, multi-DoF in
-/// its pair test, 1.0 (and 36 as a slide); with [`READMIT_EXCESS`] (10) instead, a 3.1 cm
-/// slider came back at 7.3, but human joints of the tennis serve were typed too (one as a
-/// slide; re-prediction 2.3 -> 3.4 sigma), and on the noise sweep at 3 mm a wrongly typed
-/// joint moved points (two runs lost their ARI of 1). With this bound and the rank rule of
-/// [`fit_model_positions`] (session 8): rate test +1 (case 536), sweeps +7 runs with every
-/// joint right and -1 (1 cm of noise, DBSCAN, where the ARI was 0.84), real recordings
-/// unchanged.
+/// Default of [`TypeByFitLimits::max_excess`] (`docs/decisions.md`,
+/// `type_by_fit.max_excess`).
 const TYPE_EXCESS: f64 = 3.0;
 
-/// A joint freed by [`fit_model_positions`] is put back into the fit after its refinement
-/// only if its [`Observer::joint_excess`] is then below this. Measured: joints of random
-/// mechanisms whose small parents had misled the tester came back at 0.7-1.9; human joints
-/// of the real recordings at 21-25, and with them in the fit the keypoints' re-prediction
-/// rose from 2.3 to 2.8 sigma (a freed joint describes a joint that is no hinge better).
+/// Default bound of [`readmit_freed_joints`] (`docs/decisions.md`,
+/// `readmit_joints.max_excess`).
 const READMIT_EXCESS: f64 = 10.0;
 
 /// Refines joint `k` of `model` against its child's keypoints over all frames, the parent
@@ -449,12 +611,7 @@ pub(crate) fn store_joint(
         joint.point_in_parent = Some(arr(refined.pivot.coords));
         joint.point = Some(arr((cam_parent * refined.pivot).coords));
     }
-    let r = refined.reference.rotation;
-    let t = refined.reference.translation.vector;
-    joint.reference_pose = Some(kinetree_core::model::RigidTransform {
-        rotation_xyzw: [r.i, r.j, r.k, r.w],
-        translation: [t.x, t.y, t.z],
-    });
+    joint.reference_pose = Some(RigidTransform::from_isometry(&refined.reference));
 }
 
 /// A joint whose [`Observer::joint_excess`] is above this is freed by

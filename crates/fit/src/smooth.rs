@@ -264,7 +264,8 @@ mod tests {
     }
 
     /// `truth` measured with noise of `sigma` to 2 `sigma` (varying over the frames), every
-    /// fifth frame missing (not the first or last of 100 or 200): the positions and their standard deviations.
+    /// fifth frame missing (not the first or last of 100 or 200): the positions and their
+    /// standard deviations.
     fn measured(truth: &[f64], sigma: f64, seed: u64) -> (Vec<Option<f64>>, Vec<Option<f64>>) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let unit = Normal::new(0.0, 1.0).expect("normal");

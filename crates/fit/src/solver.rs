@@ -5,8 +5,8 @@ use crate::tree_cholesky::{TreeCholesky, TreePattern};
 use kinetree_core::geom::{angle_about, kabsch_with_rank_check, wrap_pi};
 use kinetree_core::model::JointType;
 use kinetree_core::nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Quaternion, Translation3, Unit,
-    UnitQuaternion, Vector3, Vector6,
+    DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Translation3, Unit, UnitQuaternion,
+    Vector3, Vector6,
 };
 use kinetree_core::{Error, Model, PoseQuality, Result, Tracks, Warning};
 
@@ -166,12 +166,12 @@ impl Observer {
                 }
                 let (measure, reference) = match (j.reference_pose, j.axis_in_parent) {
                     (Some(r), Some(axis)) if vector(axis).norm() > 0.0 => {
-                        let [x, y, z, w] = r.rotation_xyzw;
-                        let rotation = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
-                        let reference = Isometry3::from_parts(
-                            Translation3::from(vector(r.translation)),
-                            rotation,
-                        );
+                        let reference = r.to_isometry().ok_or_else(|| {
+                            Error::Config(format!(
+                                "joint {} -> {}: reference_pose {:?} is not a rigid transform",
+                                j.parent, j.child, r
+                            ))
+                        })?;
                         let axis = vector(axis).normalize();
                         let pivot = Point3::from(vector(j.point_in_parent.unwrap_or([0.0; 3])));
                         let measure = match j.joint_type {
@@ -852,7 +852,6 @@ impl Observer {
         })
     }
 
-    /// `s` moved by `step` (free poses turned about `origin`), into `out`.
     /// The model's noise level in units of 1 mm (of the tracks' length unit). The fit's length
     /// tolerances ([`STEP_TOLERANCE`], [`MAX_STD_M`]) were set for 1 mm of noise and scale
     /// with it, so a model in millimetres (noise 1, not 0.001) fits to the same relative
@@ -886,6 +885,7 @@ impl Observer {
         size
     }
 
+    /// `s` moved by `step` (free poses turned about `origin`), into `out`.
     fn apply(&self, s: &State, step: &DVector<f64>, origin: &Vector3<f64>, out: &mut State) {
         out.free.clone_from(&s.free);
         out.q.clone_from(&s.q);
@@ -1104,16 +1104,13 @@ impl Observer {
 /// Gauss-Newton iterations per start, at most (two to four are typical).
 const MAX_ITERATIONS: usize = 30;
 /// A step whose largest component (metres at 1 mm of noise, see [`Observer::length_unit`], or
-/// radians) is below this ends the descent. Near
-/// the solution each step is at most about 1 % of the one before (measured on the observer
-/// benchmark's arm: steps of 8e-3, 8e-5, 3e-7), so the state after a step below 1e-4 is
-/// within about a micron or microradian of the minimum, far below any noise; a further
-/// iteration to confirm it took a quarter of a frame's fit.
+/// radians) is below this ends the descent: near the solution each step is at most about 1 %
+/// of the one before, so the state is then within about a micron or microradian of the
+/// minimum, far below any noise (`docs/decisions.md`, `kinetree_fit::STEP_TOLERANCE`).
 const STEP_TOLERANCE: f64 = 1e-4;
 /// The descent also ends when the next step, predicted as `s_k^2 / s_(k-1)` from the last two
-/// step sizes, is below this (as [`STEP_TOLERANCE`]): measured on the observer benchmark's arm,
-/// the actual next step was a third to a fifth of the prediction (2.7e-4 after 2.0e-2:
-/// predicted 3.6e-6, then 6.3e-7).
+/// step sizes, is below this (as [`STEP_TOLERANCE`]): the actual next step is smaller than
+/// the prediction (`docs/decisions.md`, `kinetree_fit::PREDICTED_STEP_TOLERANCE`).
 const PREDICTED_STEP_TOLERANCE: f64 = 1e-5;
 
 /// The position of single-DoF joint `j` that best carries its child's visible points onto

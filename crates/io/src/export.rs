@@ -1,7 +1,7 @@
 //! Exports of a discovered model: URDF for robotics tools and DOT for graph viewers.
 
 use kinetree_core::model::{Joint, JointType, Model, RigidTransform};
-use kinetree_core::nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
+use kinetree_core::nalgebra::{Rotation3, Vector3};
 use kinetree_core::{Error, Result};
 use std::fmt::Write as _;
 
@@ -28,15 +28,12 @@ fn dot_text(s: &str) -> String {
 }
 
 fn rotation(t: &RigidTransform) -> Result<Rotation3<f64>> {
-    let [x, y, z, w] = t.rotation_xyzw;
-    let q = Quaternion::new(w, x, y, z);
-    if !(q.norm().is_finite() && q.norm() > 1e-9) {
-        return Err(Error::InvalidParameter {
+    t.to_isometry()
+        .map(|x| x.rotation.to_rotation_matrix())
+        .ok_or_else(|| Error::InvalidParameter {
             name: "reference_pose".into(),
-            message: format!("rotation {:?} is not a quaternion", t.rotation_xyzw),
-        });
-    }
-    Ok(UnitQuaternion::from_quaternion(q).to_rotation_matrix())
+            message: format!("{t:?} is not a rigid transform"),
+        })
 }
 
 fn v3(v: &Vector3<f64>) -> String {

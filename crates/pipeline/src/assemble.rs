@@ -74,10 +74,7 @@ pub(crate) fn assemble(
                     .copied()
                     .flatten()
             })
-            .map(|x| RigidTransform {
-                rotation_xyzw: [x.rotation.i, x.rotation.j, x.rotation.k, x.rotation.w],
-                translation: [x.translation.x, x.translation.y, x.translation.z],
-            });
+            .map(|x| RigidTransform::from_isometry(&x));
         let (axis_p, point_p) = match &pair.joint {
             JointKind::Revolute { axis, pivot } => (Some(*axis), Some(*pivot)),
             JointKind::Prismatic { axis } => (Some(*axis), None),
@@ -202,5 +199,6 @@ pub(crate) fn assemble(
         body_order: order,
         fitted: None,
         history: Vec::new(),
+        cache: None,
     })
 }

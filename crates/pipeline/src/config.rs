@@ -29,10 +29,10 @@ pub enum DissimilarityConfig {
     DistanceVariance(SpreadParams),
 }
 
-/// The default is the paper's `f_test`. `log_p_value` (measured with `chi2_rank`, session 1)
-/// got every point right slightly more often on 200 mechanisms with keypoints in general
-/// position (171 against 166) but lost a 4-joint chain that `f_test` gets right
-/// (`tests/tests/discover.rs`), a trade too small to leave the paper's measure.
+/// The default is the paper's `f_test`: `log_p_value` got every point right slightly more
+/// often on 200 mechanisms with keypoints in general position (171 against 166) but lost a
+/// 4-joint chain that `f_test` gets right (`tests/tests/discover.rs`), a trade too small to
+/// leave the paper's measure (`docs/decisions.md`, `dissimilarity default`).
 impl Default for DissimilarityConfig {
     fn default() -> Self {
         Self::FTest(FTestParams::default())
@@ -122,12 +122,11 @@ pub enum DofConfig {
     Chi2Rank(Chi2RankParams),
 }
 
-/// The default is `chi2_rank` with its reference-free pivot test. Measured in session 1
-/// (every joint found with its type): 190/200 mechanisms with keypoints in general position
-/// against 165 for the paper's `svd_rank`, whose worst-axis whitening hides the rotation of
-/// slender bodies; 97/120 box-corner mechanisms against 94-96. Its decisions pass the
-/// invariance tests (camera motion, units, time reversal). The paper experiment names
-/// `svd_rank` explicitly.
+/// The default is `chi2_rank` with its reference-free pivot test: it found every joint with
+/// its type on 190 of 200 mechanisms with keypoints in general position, against 165 for the
+/// paper's `svd_rank`, whose worst-axis whitening hides the rotation of slender bodies
+/// (`docs/decisions.md`, `dof default`). Its decisions pass the invariance tests (camera
+/// motion, units, time reversal). The paper experiment names `svd_rank` explicitly.
 impl Default for DofConfig {
     fn default() -> Self {
         Self::Chi2Rank(Chi2RankParams::default())

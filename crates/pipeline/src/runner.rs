@@ -470,23 +470,29 @@ impl<'a> Runner<'a> {
                 return Err(Error::Degenerate("the bodies phase left no poses".into()));
             };
             let mut model = self.make(&draft.segmentation, poses, pairs, &hist)?;
+            self.adopt(&mut model);
             self.fit(&mut model)?;
             draft.model = Some(model);
             // The previous pass's edits must stand on this model, or the pass is undone.
             if let Some((before, edits)) = previous.take() {
                 let mut undone = None;
-                for (r, e) in &edits {
-                    if !r.stands(&ctx, e, &before, &draft)? {
-                        undone = Some(*r);
+                for (r, e) in edits {
+                    if !r.stands(&ctx, &e, &before, &draft)? {
+                        undone = Some((r, e));
                         break;
                     }
                 }
-                if let Some(r) = undone {
+                if let Some((r, e)) = undone {
+                    let mut points: Vec<usize> = match &e {
+                        Edit::Points(moves) => moves.iter().map(|&(p, _)| p).collect(),
+                        _ => Vec::new(),
+                    };
+                    points.sort_unstable();
                     let mut note = Proposal::new(
-                        Edit::Points(Vec::new()),
-                        "the previous pass undone: its edit did not stand",
+                        e,
+                        "the previous pass undone: this edit did not stand on its model",
                     );
-                    note.points = Vec::new();
+                    note.points = points;
                     self.record(r, "reverted", &note);
                     break before;
                 }
@@ -502,9 +508,10 @@ impl<'a> Runner<'a> {
                         continue;
                     };
                     self.record(r, "applied", &p);
-                    let Edit::Model { model, poses } = p.edit else {
+                    let Edit::Model { mut model, poses } = p.edit else {
                         return Err(wrong_edit(r, &p.edit));
                     };
+                    self.adopt(&mut model);
                     draft.poses = Some(poses);
                     draft.pairs = None;
                     draft.model = Some(*model);
@@ -553,17 +560,49 @@ impl<'a> Runner<'a> {
         Ok((last, trace))
     }
 
-    /// Finishes an assembled model: point confidence, bodies' internal dissimilarity, and the
-    /// whole-tree fit (positions, their precision, the re-prediction).
+    /// Finishes an assembled model: point confidence, bodies' internal dissimilarity, the
+    /// whole-tree fit, the fit repairs in order, and the positions, their precision and the
+    /// re-prediction written from the final fit. The fit repairs' trace entries are left in
+    /// the model's `trace`, for the caller to keep if it adopts the model.
     fn finish(&self, seg: &Segmentation, mut m: ModelDraft) -> Result<ModelDraft> {
         let diag = kinetree_clustering::diagnostics(self.dmat, seg);
         m.model.point_confidence = diag.point_margin.clone();
         for body in &mut m.model.bodies {
             body.internal_dissimilarity = diag.body_spread[m.body_order[body.id]];
         }
-        m.model.reprediction_rms_in_sigma =
-            kinetree_fit::fit_model_positions(&mut m.model, self.tracks)?;
+        let state = kinetree_fit::FitState::new(&m.model, self.tracks)?;
+        m.cache = Some(std::sync::Arc::new(state));
+        let ctx = self.context();
+        let pass = self.trace.lock().map_or(0, |t| t.1);
+        let mut entries = Vec::new();
+        let mut draft = Draft::new(seg.clone());
+        draft.model = Some(m);
+        for r in self.phase(RepairPhase::Fit) {
+            let Some(p) = r.propose(&ctx, &draft)? else {
+                continue;
+            };
+            entries.push(entry(r, pass, "applied", &p));
+            let Edit::Fit(refit) = p.edit else {
+                return Err(wrong_edit(r, &p.edit));
+            };
+            draft.model = Some(*refit);
+        }
+        let Some(mut m) = draft.model else {
+            return Err(Error::Degenerate("no model to finish".into()));
+        };
+        let state = crate::repairs::fit_state(&ctx, &m)?;
+        m.cache = None;
+        m.model.reprediction_rms_in_sigma = kinetree_fit::write_positions(&mut m.model, &state)?;
+        m.model.trace = entries;
         Ok(m)
+    }
+
+    /// Keeps the fit repairs' trace entries of an adopted model.
+    fn adopt(&self, m: &mut ModelDraft) {
+        let entries = std::mem::take(&mut m.model.trace);
+        if let Ok(mut t) = self.trace.lock() {
+            t.0.extend(entries);
+        }
     }
 }
 

@@ -79,13 +79,14 @@ pub fn explains_point(
 /// is given points that would make it one of the point sets in `undone` (ascending; the
 /// pipeline's splits undid them). Returns the new segmentation and the points attached.
 ///
-/// Why `undone`: a 4-point body broken into two pairs by the pairwise measure (segmentation
-/// draw of 20-25 bodies, case 79) had one pair fit a small neighbour's poorly determined
-/// poses within the bound; the split took it off again (29 sigma), this attachment put it
-/// back, eight times over, and the two pairs never became one body. Only the very body a
-/// split undid is refused: barring every point the split left out from the body it left
-/// also refused right attachments (a point seen in 6 of 20 frames, left out by a split
-/// that had kept a wrong one), one run lost on the occlusion sweep.
+/// Why `undone`: a 4-point slider in a mechanism of 20-25 bodies, broken into two pairs by
+/// the pairwise measure (`tests/tests/segmentation.rs`), had one pair fit a small
+/// neighbour's poorly determined poses within the bound; the split took it off again (29
+/// sigma), this attachment put it back, eight times over, and the two pairs never became
+/// one body. Only the very body a split undid is refused: barring every point the split left
+/// out from the body it left also refused right attachments (a point seen in 6 of 20
+/// frames, left out by a split that had kept a wrong one), one run lost on the occlusion
+/// sweep.
 ///
 /// Pairwise tests discard a point whose own noise happened to be high over its few visible
 /// frames, because every pair it belongs to shares that noise. This test looks at the point

@@ -289,9 +289,10 @@ pub fn group_rigidity(tracks: &Tracks, points: &[usize], sigma: f64) -> (f64, f6
 /// Fits a hinge between `parent`'s poses (`None`: the camera frame) and the keypoints
 /// `points`, and poses them through it. Returns `None` for a parent that is not a body of
 /// `poses`, a noise level that is not a positive number, tracks and poses of different
-/// lengths, and when the data cannot support the hypothesis at all: fewer than two keypoints, a keypoint with under 3 frames or the group
-/// in under [`MIN_HINGE_FRAMES`] frames with the parent, tracks that do not spread across the
-/// axis ([`MIN_HINGE_SPREAD_IN_SIGMA`]), keypoints never seen together with the others, or no
+/// lengths, and when the data cannot support the hypothesis at all: fewer than two
+/// keypoints, a keypoint with under 3 frames or the group in under [`MIN_HINGE_FRAMES`]
+/// frames with the parent, tracks that do not spread across the axis
+/// ([`MIN_HINGE_SPREAD_IN_SIGMA`]), keypoints never seen together with the others, or no
 /// keypoint off the axis. Whether the hinge *holds* is the caller's decision, from
 /// [`Hinge::chi2_per_dof`], [`Hinge::rms_residual_m`] and [`Hinge::arc_in_std`], and from
 /// [`group_rigidity`] (the same for every parent).

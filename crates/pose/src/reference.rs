@@ -301,8 +301,9 @@ impl KabschPoses {
                 .sum::<f64>()
                 / n)
                 .sqrt();
-            // A fit on collinear points never gets here (see `usable`); a huge finite variance keeps
-            // the matrix free of the NaN that infinity times zero would put off the diagonal.
+            // A fit on collinear points never gets here (see `usable`); a huge finite variance
+            // keeps the matrix free of the NaN that infinity times zero would put off the
+            // diagonal.
             let rot_cov =
                 rotation_cov_per_sigma2(&src).unwrap_or_else(|| Matrix3::identity() * 1e12);
             let c = centroid(&src).coords.cross_matrix();

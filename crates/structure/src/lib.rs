@@ -277,7 +277,7 @@ pub fn near_tied_edges(
 /// the parent is the camera), the earliest on a tie. The model reports the joint's axis in
 /// the camera frame through the parent's pose at this frame, so a frame where the parent had
 /// three visible points would tilt that axis by the frame's own orientation error (25-38 deg
-/// on random mechanisms at 2-3 mm noise when this was the first common frame).
+/// on random mechanisms at 2-3 mm noise with the first common frame as the reference).
 pub fn joint_positions(poses: &BodyPoses, pair: &PairDof) -> (Vec<Option<f64>>, Option<usize>) {
     let x = relative_poses(poses, pair.a, pair.b);
     let spread = |body: Option<usize>, t: usize| {

@@ -3,9 +3,11 @@
 //! ([`kinetree_fit::FittedMotions::points_fitting_no_body`]).
 
 use super::move_points::{fitted_model, points_settle};
+use super::{count_in_range, in_range};
 use kinetree_core::{
     Constraints, Draft, Edit, Proposal, Repair, RepairContext, RepairPhase, Result, Warning,
 };
+use kinetree_fit::MotionLimits;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`EjectPoints`] (`[pipeline.repairs.eject_points]`).
@@ -14,28 +16,63 @@ use serde::{Deserialize, Serialize};
 pub struct EjectPointsParams {
     /// Whether the repair runs.
     pub enabled: bool,
+    /// Frames a point needs with a body's fitted pose to count in the body's median misfit
+    /// ([`MotionLimits::min_frames`], default 10).
+    pub min_frames: usize,
+    /// Frames a point needs with a body's fitted pose to be placed on it or judged on it
+    /// ([`MotionLimits::min_frames_to_place`], default 5).
+    pub min_frames_to_place: usize,
+    /// A point is taken off when it fits its body this many times worse than the larger of
+    /// the body's median and the bound, and no other body within the bound
+    /// ([`MotionLimits::outlier_ratio`], default 5).
+    pub outlier_ratio: f64,
 }
 
 impl Default for EjectPointsParams {
     fn default() -> Self {
-        Self { enabled: true }
+        let l = MotionLimits::default();
+        Self {
+            enabled: true,
+            min_frames: l.min_frames,
+            min_frames_to_place: l.min_frames_to_place,
+            outlier_ratio: l.outlier_ratio,
+        }
     }
 }
 
 impl EjectPointsParams {
-    /// Checks the ranges (there are none).
+    /// Checks the ranges.
     ///
     /// # Errors
-    /// Never.
+    /// [`kinetree_core::Error::InvalidParameter`] naming the parameter.
     pub fn validate(&self) -> Result<()> {
-        Ok(())
+        const NAME: &str = "eject_points";
+        count_in_range(NAME, "min_frames", self.min_frames, 2, 1_000_000)?;
+        count_in_range(
+            NAME,
+            "min_frames_to_place",
+            self.min_frames_to_place,
+            2,
+            1_000_000,
+        )?;
+        in_range(NAME, "outlier_ratio", self.outlier_ratio, 1.0, 1e6)
+    }
+
+    /// The motion limits of these parameters (the defaults for the rest).
+    pub fn limits(&self) -> MotionLimits {
+        MotionLimits {
+            min_frames: self.min_frames,
+            min_frames_to_place: self.min_frames_to_place,
+            outlier_ratio: self.outlier_ratio,
+            ..MotionLimits::default()
+        }
     }
 }
 
 /// Takes off bodies the points whose track no body's fitted motion explains.
 #[derive(Debug, Clone)]
 pub struct EjectPoints {
-    _params: EjectPointsParams,
+    params: EjectPointsParams,
 }
 
 impl EjectPoints {
@@ -45,7 +82,7 @@ impl EjectPoints {
     /// When the parameters are invalid.
     pub fn new(params: EjectPointsParams) -> Result<Self> {
         params.validate()?;
-        Ok(Self { _params: params })
+        Ok(Self { params })
     }
 }
 
@@ -59,7 +96,7 @@ impl Repair for EjectPoints {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let (found, motions) = fitted_model(self.name(), draft)?;
+        let (found, motions) = fitted_model(self.name(), draft, self.params.limits())?;
         let ejected: Vec<usize> = motions
             .points_fitting_no_body(&found.model, ctx.tracks)?
             .into_iter()
@@ -93,6 +130,6 @@ impl Repair for EjectPoints {
         _before: &Draft,
         after: &Draft,
     ) -> Result<bool> {
-        points_settle(self.name(), ctx, edit, after)
+        points_settle(self.name(), ctx, edit, after, self.params.limits())
     }
 }

@@ -175,6 +175,12 @@ impl Repair for JointSpoilers {
         _before: &Draft,
         after: &Draft,
     ) -> Result<bool> {
-        points_settle(self.name(), ctx, edit, after)
+        points_settle(
+            self.name(),
+            ctx,
+            edit,
+            after,
+            kinetree_fit::MotionLimits::default(),
+        )
     }
 }

@@ -6,32 +6,40 @@
 //! ([`crate::conformance::check_repair`]).
 
 mod attach;
+mod bundle_adjust;
 mod drop_unposed;
 mod eject_points;
+mod free_joints;
 mod hinge_groups;
 mod hinges;
 mod joint_spoilers;
 mod merge;
 mod move_points;
 mod noise_refinement;
+mod readmit_joints;
 mod regroup;
 mod retest;
 mod split;
 mod tree_ties;
+mod type_by_fit;
 
 pub use attach::{Attach, AttachParams};
+pub use bundle_adjust::{BundleAdjust, BundleAdjustParams};
 pub use drop_unposed::{DropUnposed, DropUnposedParams};
 pub use eject_points::{EjectPoints, EjectPointsParams};
+pub use free_joints::{FreeJoints, FreeJointsParams};
 pub use hinge_groups::{HingeGroups, HingeGroupsParams};
 pub use hinges::{HingeBounds, Hinges, HingesParams};
 pub use joint_spoilers::{JointSpoilers, JointSpoilersParams};
 pub use merge::{Merge, MergeParams};
 pub use move_points::{MovePoints, MovePointsParams};
 pub use noise_refinement::{NoiseRefinement, NoiseRefinementParams};
+pub use readmit_joints::{ReadmitJoints, ReadmitJointsParams};
 pub use regroup::{Regroup, RegroupParams};
 pub use retest::{Retest, RetestParams};
 pub use split::{Split, SplitParams};
 pub use tree_ties::{TreeTies, TreeTiesParams};
+pub use type_by_fit::{TypeByFit, TypeByFitParams};
 
 use kinetree_core::{
     BodyPoses, BodyTrack, ClusteringInput, DissimilarityMatrix, Error, Model, PoseInput, Repair,
@@ -62,6 +70,14 @@ pub struct RepairsConfig {
     pub merge: MergeParams,
     /// Tree: near-tied tree edges settled by whole-tree fits.
     pub tree_ties: TreeTiesParams,
+    /// Fit: joints the whole-tree fit cannot follow freed.
+    pub free_joints: FreeJointsParams,
+    /// Fit: the followed joints bundle-adjusted over every frame.
+    pub bundle_adjust: BundleAdjustParams,
+    /// Fit: freed joints put back when they fit again.
+    pub readmit_joints: ReadmitJointsParams,
+    /// Fit: multi-DoF and freed joints typed by the fit.
+    pub type_by_fit: TypeByFitParams,
     /// Points: points another body's fitted motion explains better moved there.
     pub move_points: MovePointsParams,
     /// Points: points that fit no body's motion left on none.
@@ -87,6 +103,10 @@ impl RepairsConfig {
         self.hinge_groups.validate()?;
         self.merge.validate()?;
         self.tree_ties.validate()?;
+        self.free_joints.validate()?;
+        self.bundle_adjust.validate()?;
+        self.readmit_joints.validate()?;
+        self.type_by_fit.validate()?;
         self.move_points.validate()?;
         self.eject_points.validate()?;
         self.joint_spoilers.validate()?;
@@ -122,6 +142,22 @@ impl RepairsConfig {
                 Box::new(TreeTies::new(self.tree_ties)?),
             ),
             (
+                self.free_joints.enabled,
+                Box::new(FreeJoints::new(self.free_joints)?),
+            ),
+            (
+                self.bundle_adjust.enabled,
+                Box::new(BundleAdjust::new(self.bundle_adjust)?),
+            ),
+            (
+                self.readmit_joints.enabled,
+                Box::new(ReadmitJoints::new(self.readmit_joints)?),
+            ),
+            (
+                self.type_by_fit.enabled,
+                Box::new(TypeByFit::new(self.type_by_fit)?),
+            ),
+            (
                 self.move_points.enabled,
                 Box::new(MovePoints::new(self.move_points)?),
             ),
@@ -153,6 +189,10 @@ impl RepairsConfig {
         c.hinge_groups.enabled = false;
         c.merge.enabled = false;
         c.tree_ties.enabled = false;
+        c.free_joints.enabled = false;
+        c.bundle_adjust.enabled = false;
+        c.readmit_joints.enabled = false;
+        c.type_by_fit.enabled = false;
         c.move_points.enabled = false;
         c.eject_points.enabled = false;
         c.joint_spoilers.enabled = false;
@@ -351,6 +391,62 @@ pub(crate) fn unassigned_points(
     (0..tracks.n_points())
         .filter(|&i| seg.body_of(i).is_none() && tracks.visible_count(i) >= min_visible)
         .collect()
+}
+
+/// The draft's model, or a typed error naming `repair`.
+pub(crate) fn model_of<'a>(
+    repair: &str,
+    draft: &'a kinetree_core::Draft,
+) -> Result<&'a kinetree_core::ModelDraft> {
+    draft
+        .model
+        .as_ref()
+        .ok_or_else(|| Error::Degenerate(format!("repair `{repair}` needs a model")))
+}
+
+/// The whole-tree fit of `m`: the cached one when it is still the model's, else made anew.
+pub(crate) fn fit_state(
+    ctx: &RepairContext<'_>,
+    m: &kinetree_core::ModelDraft,
+) -> Result<kinetree_fit::FitState> {
+    let cached = m
+        .cache
+        .as_ref()
+        .and_then(|c| c.downcast_ref::<kinetree_fit::FitState>())
+        .filter(|s| s.is_of(&m.model));
+    match cached {
+        Some(s) => Ok(s.clone()),
+        None => kinetree_fit::FitState::new(&m.model, ctx.tracks),
+    }
+}
+
+/// A fit repair's proposal: `model` (a refit of `found`'s) with its fit `state` cached; the
+/// summary names the joints (`parent->child`, model ids) of `joints`.
+pub(crate) fn fit_proposal(
+    found: &kinetree_core::ModelDraft,
+    model: Model,
+    state: kinetree_fit::FitState,
+    summary: String,
+    joints: &[usize],
+) -> kinetree_core::Proposal {
+    let named: Vec<String> = joints
+        .iter()
+        .filter_map(|&k| model.joints.get(k))
+        .map(|j| format!("{}->{}", j.parent, j.child))
+        .collect();
+    let summary = if named.is_empty() {
+        summary
+    } else {
+        format!("{summary}: {}", named.join(", "))
+    };
+    let draft = kinetree_core::ModelDraft {
+        model,
+        body_order: found.body_order.clone(),
+        fitted: None,
+        history: found.history.clone(),
+        cache: Some(std::sync::Arc::new(state)),
+    };
+    kinetree_core::Proposal::new(kinetree_core::Edit::Fit(Box::new(draft)), summary)
 }
 
 /// Joints of `m` typed multi-DoF.

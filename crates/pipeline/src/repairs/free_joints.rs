@@ -1,0 +1,84 @@
+//! Joints the whole-tree fit cannot follow freed, one at a time
+//! ([`kinetree_fit::free_unfollowed_joints`]): the child is then posed freely in the fit, and
+//! the joint's positions come from the two bodies' fitted poses (a `joint_not_followed`
+//! warning). On random mechanisms the largest excess of a model was under 4 in nine of ten and
+//! 10-30 where a pivot was a few centimetres off; joints the model gets wrong reach 50-200
+//! (`docs/decisions.md`, `free_joints.max_excess`).
+
+use super::{fit_proposal, fit_state, in_range, model_of};
+use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`FreeJoints`] (`[pipeline.repairs.free_joints]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FreeJointsParams {
+    /// Whether the repair runs.
+    pub enabled: bool,
+    /// A joint whose child misses the fit by more than this, in `sigma^2` per point beyond
+    /// its own pose, is freed (default 30).
+    pub max_excess: f64,
+}
+
+impl Default for FreeJointsParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_excess: kinetree_fit::MAX_JOINT_EXCESS,
+        }
+    }
+}
+
+impl FreeJointsParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming the parameter.
+    pub fn validate(&self) -> Result<()> {
+        in_range("free_joints", "max_excess", self.max_excess, 0.0, 1e12)
+    }
+}
+
+/// Frees the joints the fit cannot follow.
+#[derive(Debug, Clone)]
+pub struct FreeJoints {
+    params: FreeJointsParams,
+}
+
+impl FreeJoints {
+    /// The repair.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: FreeJointsParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl Repair for FreeJoints {
+    fn name(&self) -> &str {
+        "free_joints"
+    }
+
+    fn phase(&self) -> RepairPhase {
+        RepairPhase::Fit
+    }
+
+    fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
+        let found = model_of(self.name(), draft)?;
+        let state = fit_state(ctx, found)?;
+        let mut model = found.model.clone();
+        let (state, freed) = kinetree_fit::free_unfollowed_joints(
+            &mut model,
+            ctx.tracks,
+            state,
+            self.params.max_excess,
+        )?;
+        if freed.is_empty() {
+            return Ok(None);
+        }
+        let summary = format!("{} joint(s) the fit cannot follow freed", freed.len());
+        Ok(Some(fit_proposal(found, model, state, summary, &freed)))
+    }
+}

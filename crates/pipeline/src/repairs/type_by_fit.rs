@@ -1,0 +1,107 @@
+//! Multi-DoF joints whose child still moves as a hinge or a slide in the whole-tree fit typed
+//! by the fit, and freed single-DoF joints given the other single-DoF type
+//! ([`kinetree_fit::type_joints_by_fit`]; a `joint_typed_by_fit` warning). A small body's
+//! noisy poses can fake a second degree of freedom in its pair test (`docs/decisions.md`,
+//! `type_by_fit`).
+
+use super::{count_in_range, fit_proposal, fit_state, in_range, model_of};
+use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
+use kinetree_fit::TypeByFitLimits;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`TypeByFit`] (`[pipeline.repairs.type_by_fit]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TypeByFitParams {
+    /// Whether the repair runs.
+    pub enabled: bool,
+    /// A typed joint's excess must be within this (default 3.0).
+    pub max_excess: f64,
+    /// ... and every other joint's within this (default 30, the freeing bound).
+    pub others_max_excess: f64,
+    /// Only joints whose pair test found at most this many rotation directions are tried
+    /// (default 1).
+    pub max_rotation_rank: usize,
+    /// ... and at most this many translation directions (default 2).
+    pub max_translation_rank: usize,
+}
+
+impl Default for TypeByFitParams {
+    fn default() -> Self {
+        let l = TypeByFitLimits::default();
+        Self {
+            enabled: true,
+            max_excess: l.max_excess,
+            others_max_excess: l.others_max_excess,
+            max_rotation_rank: l.max_rotation_rank,
+            max_translation_rank: l.max_translation_rank,
+        }
+    }
+}
+
+impl TypeByFitParams {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming the parameter.
+    pub fn validate(&self) -> Result<()> {
+        const NAME: &str = "type_by_fit";
+        in_range(NAME, "max_excess", self.max_excess, 0.0, 1e12)?;
+        in_range(NAME, "others_max_excess", self.others_max_excess, 0.0, 1e12)?;
+        count_in_range(NAME, "max_rotation_rank", self.max_rotation_rank, 0, 3)?;
+        count_in_range(
+            NAME,
+            "max_translation_rank",
+            self.max_translation_rank,
+            0,
+            3,
+        )
+    }
+}
+
+/// Types joints by the whole-tree fit.
+#[derive(Debug, Clone)]
+pub struct TypeByFit {
+    params: TypeByFitParams,
+}
+
+impl TypeByFit {
+    /// The repair.
+    ///
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: TypeByFitParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl Repair for TypeByFit {
+    fn name(&self) -> &str {
+        "type_by_fit"
+    }
+
+    fn phase(&self) -> RepairPhase {
+        RepairPhase::Fit
+    }
+
+    fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
+        let found = model_of(self.name(), draft)?;
+        let state = fit_state(ctx, found)?;
+        let mut model = found.model.clone();
+        let p = &self.params;
+        let limits = TypeByFitLimits {
+            max_excess: p.max_excess,
+            others_max_excess: p.others_max_excess,
+            max_rotation_rank: p.max_rotation_rank,
+            max_translation_rank: p.max_translation_rank,
+        };
+        let (state, typed) =
+            kinetree_fit::type_joints_by_fit(&mut model, ctx.tracks, state, &limits)?;
+        if typed.is_empty() {
+            return Ok(None);
+        }
+        let summary = format!("{} joint(s) typed by the whole-tree fit", typed.len());
+        Ok(Some(fit_proposal(found, model, state, summary, &typed)))
+    }
+}
