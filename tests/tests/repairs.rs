@@ -663,6 +663,21 @@ fn free_joints_frees_a_joint_the_fit_cannot_follow() {
         a < 0.5 * b,
         "re-prediction {a} sigma freed, {b} forced through the slide"
     );
+    // The decision is typed on the joint; the warning only reports it. The observer frees the
+    // joint from the model alone, with or without the warnings.
+    assert_eq!(link2_joint(&on).fit, kinetree_core::model::JointFit::Freed);
+    let mut bare = on.model.clone();
+    bare.warnings.clear();
+    let tracks = arm().tracks;
+    let fit = |m: &kinetree_core::Model| {
+        kinetree_fit::Observer::new(m)
+            .and_then(|o| o.fit_sequence(&tracks))
+            .expect("fit")
+            .iter()
+            .map(|f| f.positions.clone())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(fit(&on.model), fit(&bare));
 }
 
 #[test]

@@ -8,7 +8,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 /// Version of the model JSON schema.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// Where the noise level came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -157,6 +157,20 @@ impl std::fmt::Display for JointType {
     }
 }
 
+/// How the whole-tree fit treats a joint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JointFit {
+    /// In the fit, as typed by its pair test.
+    #[default]
+    Followed,
+    /// Not in the fit: its child is posed freely, and its positions come from the two
+    /// bodies' fitted poses (the fit could not follow it).
+    Freed,
+    /// In the fit, with the type the fit gave it (its pair test typed it otherwise).
+    TypedByFit,
+}
+
 /// One joint of the kinematic tree.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Joint {
@@ -213,6 +227,10 @@ pub struct Joint {
     pub ranks: Ranks,
     /// Largest rejected-singular-value / threshold ratio (below 1: decision holds).
     pub fit_ratio: f64,
+    /// How the whole-tree fit treats the joint (absent in files of schema 1, whose
+    /// `joint_not_followed` warnings name the freed joints).
+    #[serde(default)]
+    pub fit: JointFit,
 }
 
 /// The whole discovered model.

@@ -4,7 +4,7 @@
 //! their precision, their smoothing and every joint's range written into the model.
 
 use crate::solver::{FrameFit, Measure, Observer, rms_in_sigma};
-use kinetree_core::model::{JointType, RigidTransform};
+use kinetree_core::model::{JointFit, JointType, RigidTransform};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 use kinetree_core::{Model, Result, Tracks, Warning};
 use rayon::prelude::*;
@@ -136,6 +136,7 @@ pub fn free_unfollowed_joints(
             break;
         };
         (observer, fits) = (freed, freed_fits);
+        model.joints[k].fit = JointFit::Freed;
         let j = &model.joints[k];
         model.warnings.push(Warning::JointNotFollowed {
             parent: j.parent,
@@ -198,6 +199,7 @@ pub fn readmit_freed_joints(
             continue;
         }
         let (parent, child) = (model.joints[k].parent, model.joints[k].child);
+        model.joints[k].fit = JointFit::Followed;
         model.warnings.retain(|w| {
             !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if *p == parent && *c == child)
         });
@@ -435,7 +437,8 @@ fn type_by_fit(
             continue;
         };
         (model.joints, model.warnings) = original.clone();
-        // Put back into the fit (a joint with this warning is freed by `Observer::new`).
+        // Put back into the fit; its warning no longer holds.
+        model.joints[k].fit = JointFit::TypedByFit;
         model.warnings.retain(
             |w| !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if this(p, c)),
         );

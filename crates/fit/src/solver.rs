@@ -3,7 +3,7 @@
 
 use crate::tree_cholesky::{TreeCholesky, TreePattern};
 use kinetree_core::geom::{angle_about, kabsch_with_rank_check, wrap_pi};
-use kinetree_core::model::JointType;
+use kinetree_core::model::{JointFit, JointType};
 use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Translation3, Unit, UnitQuaternion,
     Vector3, Vector6,
@@ -117,8 +117,9 @@ pub(crate) struct State {
 }
 
 impl Observer {
-    /// Builds the observer from a model. Joints its `joint_not_followed` warnings name are
-    /// freed (see [`Observer::free_joint`]), as they were when it was discovered.
+    /// Builds the observer from a model. Its freed joints (`JointFit::Freed`; in files of
+    /// schema 1, the joints its `joint_not_followed` warnings name) are freed (see
+    /// [`Observer::free_joint`]), as they were when it was discovered.
     ///
     /// # Errors
     /// [`Error::Config`] when the model has no reference shapes (written by an older version),
@@ -227,13 +228,23 @@ impl Observer {
             n_params: 0,
         };
         // Joints freed when the model was discovered stay free, so new frames are fitted as
-        // the discovery's were.
-        for w in &model.warnings {
-            if let Warning::JointNotFollowed { parent, child, .. } = w
-                && let Some(&Some(k)) = observer.parent_joint.get(*child)
-                && observer.joints[k].parent == *parent
+        // the discovery's were. Files of schema 1 name them by their warnings only.
+        for j in &model.joints {
+            if j.fit == JointFit::Freed
+                && let Some(&Some(k)) = observer.parent_joint.get(j.child)
+                && observer.joints[k].parent == j.parent
             {
                 observer.freed[k] = true;
+            }
+        }
+        if model.schema_version < 2 {
+            for w in &model.warnings {
+                if let Warning::JointNotFollowed { parent, child, .. } = w
+                    && let Some(&Some(k)) = observer.parent_joint.get(*child)
+                    && observer.joints[k].parent == *parent
+                {
+                    observer.freed[k] = true;
+                }
             }
         }
         observer.lay_out();

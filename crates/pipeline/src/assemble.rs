@@ -118,6 +118,7 @@ pub(crate) fn assemble(
                 sliding: pair.sliding.rank,
             },
             fit_ratio: pair.fit_ratio,
+            fit: kinetree_core::model::JointFit::Followed,
         });
     }
     for &b in &order {

@@ -457,27 +457,22 @@ pub(crate) fn multi_dof_joints(m: &Model) -> usize {
         .count()
 }
 
-/// Joints of `m` its whole-tree fit typed (a `joint_typed_by_fit` warning).
+/// Joints of `m` its whole-tree fit typed.
 pub(crate) fn typed_by_fit(m: &Model) -> usize {
-    m.warnings
+    m.joints
         .iter()
-        .filter(|w| matches!(w, kinetree_core::Warning::JointTypedByFit { .. }))
+        .filter(|j| j.fit == kinetree_core::model::JointFit::TypedByFit)
         .count()
 }
 
-/// The joints of `model` its whole-tree fit does not follow (named by a `joint_not_followed`
-/// warning), as `(parent, child)` model body ids.
+/// The joints of `model` its whole-tree fit does not follow, as `(parent, child)` model body
+/// ids.
 pub(crate) fn not_followed(model: &Model) -> Vec<(usize, usize)> {
     model
-        .warnings
+        .joints
         .iter()
-        .filter_map(|w| match w {
-            kinetree_core::Warning::JointNotFollowed { parent, child, .. } => {
-                Some((*parent, *child))
-            }
-            _ => None,
-        })
-        .filter(|&(p, c)| model.joints.iter().any(|j| j.parent == p && j.child == c))
+        .filter(|j| j.fit == kinetree_core::model::JointFit::Freed)
+        .map(|j| (j.parent, j.child))
         .collect()
 }
 

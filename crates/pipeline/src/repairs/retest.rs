@@ -86,12 +86,10 @@ impl Repair for Retest {
         // a child would test as exactly that joint.
         let typed: Vec<(usize, usize)> = found
             .model
-            .warnings
+            .joints
             .iter()
-            .filter_map(|w| match w {
-                Warning::JointTypedByFit { parent, child, .. } => Some((*parent, *child)),
-                _ => None,
-            })
+            .filter(|j| j.fit == kinetree_core::model::JointFit::TypedByFit)
+            .map(|j| (j.parent, j.child))
             .collect();
         let motions = if typed.is_empty() {
             let fitted = found.fitted.clone().ok_or_else(|| {
