@@ -44,6 +44,26 @@ impl FitState {
         }
     }
 
+    /// The fit after a step that changed `model` (a new fingerprint) or left it as it was (the
+    /// old one, `made_from`, which still holds).
+    fn kept(
+        model: &Model,
+        observer: Observer,
+        fits: Vec<FrameFit>,
+        made_from: String,
+        changed: bool,
+    ) -> Self {
+        if changed {
+            Self::of(model, observer, fits)
+        } else {
+            Self {
+                observer,
+                fits,
+                made_from,
+            }
+        }
+    }
+
     /// Whether this is the fit of `model` as it is now.
     pub fn is_of(&self, model: &Model) -> bool {
         self.made_from == fingerprint(model)
@@ -217,17 +237,8 @@ pub fn readmit_freed_joints(
             (model.joints, model.warnings) = (joints, warnings);
         }
     }
-    if readmitted.is_empty() {
-        return Ok((
-            FitState {
-                observer,
-                fits,
-                made_from,
-            },
-            readmitted,
-        ));
-    }
-    Ok((FitState::of(model, observer, fits), readmitted))
+    let state = FitState::kept(model, observer, fits, made_from, !readmitted.is_empty());
+    Ok((state, readmitted))
 }
 
 /// The limits of [`type_joints_by_fit`].
@@ -298,17 +309,8 @@ pub fn type_joints_by_fit(
             typed.push(k);
         }
     }
-    if typed.is_empty() {
-        return Ok((
-            FitState {
-                observer,
-                fits,
-                made_from,
-            },
-            typed,
-        ));
-    }
-    Ok((FitState::of(model, observer, fits), typed))
+    let state = FitState::kept(model, observer, fits, made_from, !typed.is_empty());
+    Ok((state, typed))
 }
 
 /// Writes the fit into `model`: every followed or freed joint's positions (multi-DoF ones keep

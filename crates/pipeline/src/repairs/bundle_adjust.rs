@@ -2,7 +2,7 @@
 //! bundle-adjusted with every frame's configuration, all keypoints at once
 //! ([`kinetree_fit::bundle_adjust`]).
 
-use super::{fit_proposal, fit_state, model_of};
+use super::refit;
 use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
 use serde::{Deserialize, Serialize};
 
@@ -57,14 +57,15 @@ impl Repair for BundleAdjust {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let found = model_of(self.name(), draft)?;
-        let state = fit_state(ctx, found)?;
-        let mut model = found.model.clone();
-        let (state, changed) = kinetree_fit::bundle_adjust(&mut model, ctx.tracks, state)?;
-        if !changed {
-            return Ok(None);
-        }
-        let summary = "joint axes, pivots and reference poses bundle-adjusted over every frame";
-        Ok(Some(fit_proposal(found, model, state, summary.into(), &[])))
+        refit(
+            self.name(),
+            ctx,
+            draft,
+            |model, state| {
+                let (state, changed) = kinetree_fit::bundle_adjust(model, ctx.tracks, state)?;
+                Ok((state, changed.then(Vec::new)))
+            },
+            |_| "joint axes, pivots and reference poses bundle-adjusted over every frame".into(),
+        )
     }
 }

@@ -5,7 +5,7 @@
 //! 10-30 where a pivot was a few centimetres off; joints the model gets wrong reach 50-200
 //! (`docs/decisions.md`, `free_joints.max_excess`).
 
-use super::{fit_proposal, fit_state, in_range, model_of};
+use super::{in_range, refit};
 use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
 use serde::{Deserialize, Serialize};
 
@@ -66,19 +66,17 @@ impl Repair for FreeJoints {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let found = model_of(self.name(), draft)?;
-        let state = fit_state(ctx, found)?;
-        let mut model = found.model.clone();
-        let (state, freed) = kinetree_fit::free_unfollowed_joints(
-            &mut model,
-            ctx.tracks,
-            state,
-            self.params.max_excess,
-        )?;
-        if freed.is_empty() {
-            return Ok(None);
-        }
-        let summary = format!("{} joint(s) the fit cannot follow freed", freed.len());
-        Ok(Some(fit_proposal(found, model, state, summary, &freed)))
+        let max = self.params.max_excess;
+        refit(
+            self.name(),
+            ctx,
+            draft,
+            |model, state| {
+                let (state, freed) =
+                    kinetree_fit::free_unfollowed_joints(model, ctx.tracks, state, max)?;
+                Ok((state, (!freed.is_empty()).then_some(freed)))
+            },
+            |n| format!("{n} joint(s) the fit cannot follow freed"),
+        )
     }
 }

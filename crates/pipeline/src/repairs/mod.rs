@@ -1,9 +1,9 @@
 //! The built-in repairs, one file each, and their configuration (`[pipeline.repairs.<name>]`).
 //!
-//! Adding a repair: a file here with a params struct (`Default`, serde with
-//! `deny_unknown_fields`, `validate()`) and the [`Repair`] impl, a field in [`RepairsConfig`]
-//! and a line in [`RepairsConfig::build`], and a line in `tests/tests/conformance.rs`
-//! ([`crate::conformance::check_repair`]).
+//! Adding a repair: a file here with a params struct (`Default` with `enabled: true`, serde
+//! with `deny_unknown_fields`, `validate()`) and the [`Repair`] impl, and a line in the
+//! `repairs_config!` list below (its place is the order within the phase). Every built-in
+//! repair goes through [`crate::conformance::check_repair`] in `tests/tests/repairs.rs`.
 
 mod attach;
 mod bundle_adjust;
@@ -47,158 +47,90 @@ use kinetree_core::{
 };
 use serde::{Deserialize, Serialize};
 
-/// Every built-in repair's parameters, in the order the runner asks them within a phase.
-/// Each has `enabled` and the thresholds it uses; defaults are the documented values.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub struct RepairsConfig {
-    /// Grouping: the estimated noise level refined inside the bodies found.
-    pub noise_refinement: NoiseRefinementParams,
-    /// Bodies: bodies registered in few frames posed through a hinge.
-    pub hinges: HingesParams,
-    /// Bodies: bodies registered in too few frames dropped.
-    pub drop_unposed: DropUnposedParams,
-    /// Bodies: bodies that mix points of several bodies split in two.
-    pub split: SplitParams,
-    /// Bodies: points on no body attached where one body's poses explain them.
-    pub attach: AttachParams,
-    /// Bodies: unassigned points that move as one rigid body made one.
-    pub regroup: RegroupParams,
-    /// Bodies: unassigned points that turn together on a hinge made a body.
-    pub hinge_groups: HingeGroupsParams,
-    /// Bodies: bodies that move rigidly together merged.
-    pub merge: MergeParams,
-    /// Tree: near-tied tree edges settled by whole-tree fits.
-    pub tree_ties: TreeTiesParams,
-    /// Fit: joints the whole-tree fit cannot follow freed.
-    pub free_joints: FreeJointsParams,
-    /// Fit: the followed joints bundle-adjusted over every frame.
-    pub bundle_adjust: BundleAdjustParams,
-    /// Fit: freed joints put back when they fit again.
-    pub readmit_joints: ReadmitJointsParams,
-    /// Fit: multi-DoF and freed joints typed by the fit.
-    pub type_by_fit: TypeByFitParams,
-    /// Points: points another body's fitted motion explains better moved there.
-    pub move_points: MovePointsParams,
-    /// Points: points that fit no body's motion left on none.
-    pub eject_points: EjectPointsParams,
-    /// Points: a keypoint that alone makes a joint multi-DoF left on none.
-    pub joint_spoilers: JointSpoilersParams,
-    /// Model: pair tests redone on the whole-tree fit's poses.
-    pub retest: RetestParams,
+/// Declares [`RepairsConfig`] from one list of `field: Params => Repair`, so that its fields,
+/// their validation, the repairs built from them and `all_off` cannot disagree.
+macro_rules! repairs_config {
+    ($($(#[doc = $doc:expr])* $field:ident: $params:ident => $repair:ident,)*) => {
+        /// Every built-in repair's parameters (`[pipeline.repairs.<name>]`), in the order the
+        /// runner asks the repairs within a phase. Each has `enabled` and the thresholds it
+        /// uses; defaults are the documented values.
+        #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+        #[serde(deny_unknown_fields, default)]
+        pub struct RepairsConfig {
+            $($(#[doc = $doc])* pub $field: $params,)*
+        }
+
+        impl RepairsConfig {
+            /// The built-in repairs' names, in order.
+            pub const NAMES: &'static [&'static str] = &[$(stringify!($field)),*];
+
+            /// Checks every repair's parameters.
+            ///
+            /// # Errors
+            /// [`Error::InvalidParameter`] naming `pipeline.repairs.<name>.<parameter>`.
+            pub fn validate(&self) -> Result<()> {
+                $(self.$field.validate()?;)*
+                Ok(())
+            }
+
+            /// The enabled repairs, in order.
+            ///
+            /// # Errors
+            /// As [`RepairsConfig::validate`].
+            pub fn build(&self) -> Result<Vec<Box<dyn Repair>>> {
+                self.validate()?;
+                let mut out: Vec<Box<dyn Repair>> = Vec::new();
+                $(if self.$field.enabled {
+                    out.push(Box::new($repair::new(self.$field)?));
+                })*
+                Ok(out)
+            }
+
+            /// Every repair turned off.
+            pub fn all_off() -> Self {
+                let mut c = Self::default();
+                $(c.$field.enabled = false;)*
+                c
+            }
+        }
+    };
 }
 
-impl RepairsConfig {
-    /// Checks every repair's parameters.
-    ///
-    /// # Errors
-    /// [`Error::InvalidParameter`] naming `pipeline.repairs.<name>.<parameter>`.
-    pub fn validate(&self) -> Result<()> {
-        self.noise_refinement.validate()?;
-        self.hinges.validate()?;
-        self.drop_unposed.validate()?;
-        self.split.validate()?;
-        self.attach.validate()?;
-        self.regroup.validate()?;
-        self.hinge_groups.validate()?;
-        self.merge.validate()?;
-        self.tree_ties.validate()?;
-        self.free_joints.validate()?;
-        self.bundle_adjust.validate()?;
-        self.readmit_joints.validate()?;
-        self.type_by_fit.validate()?;
-        self.move_points.validate()?;
-        self.eject_points.validate()?;
-        self.joint_spoilers.validate()?;
-        self.retest.validate()
-    }
-
-    /// The enabled repairs, in order.
-    ///
-    /// # Errors
-    /// As [`RepairsConfig::validate`].
-    pub fn build(&self) -> Result<Vec<Box<dyn Repair>>> {
-        self.validate()?;
-        let all: Vec<(bool, Box<dyn Repair>)> = vec![
-            (
-                self.noise_refinement.enabled,
-                Box::new(NoiseRefinement::new(self.noise_refinement)?),
-            ),
-            (self.hinges.enabled, Box::new(Hinges::new(self.hinges)?)),
-            (
-                self.drop_unposed.enabled,
-                Box::new(DropUnposed::new(self.drop_unposed)?),
-            ),
-            (self.split.enabled, Box::new(Split::new(self.split)?)),
-            (self.attach.enabled, Box::new(Attach::new(self.attach)?)),
-            (self.regroup.enabled, Box::new(Regroup::new(self.regroup)?)),
-            (
-                self.hinge_groups.enabled,
-                Box::new(HingeGroups::new(self.hinge_groups)?),
-            ),
-            (self.merge.enabled, Box::new(Merge::new(self.merge)?)),
-            (
-                self.tree_ties.enabled,
-                Box::new(TreeTies::new(self.tree_ties)?),
-            ),
-            (
-                self.free_joints.enabled,
-                Box::new(FreeJoints::new(self.free_joints)?),
-            ),
-            (
-                self.bundle_adjust.enabled,
-                Box::new(BundleAdjust::new(self.bundle_adjust)?),
-            ),
-            (
-                self.readmit_joints.enabled,
-                Box::new(ReadmitJoints::new(self.readmit_joints)?),
-            ),
-            (
-                self.type_by_fit.enabled,
-                Box::new(TypeByFit::new(self.type_by_fit)?),
-            ),
-            (
-                self.move_points.enabled,
-                Box::new(MovePoints::new(self.move_points)?),
-            ),
-            (
-                self.eject_points.enabled,
-                Box::new(EjectPoints::new(self.eject_points)?),
-            ),
-            (
-                self.joint_spoilers.enabled,
-                Box::new(JointSpoilers::new(self.joint_spoilers)?),
-            ),
-            (self.retest.enabled, Box::new(Retest::new(self.retest)?)),
-        ];
-        Ok(all
-            .into_iter()
-            .filter_map(|(on, r)| on.then_some(r))
-            .collect())
-    }
-
-    /// Every repair turned off.
-    pub fn all_off() -> Self {
-        let mut c = Self::default();
-        c.noise_refinement.enabled = false;
-        c.hinges.enabled = false;
-        c.drop_unposed.enabled = false;
-        c.split.enabled = false;
-        c.attach.enabled = false;
-        c.regroup.enabled = false;
-        c.hinge_groups.enabled = false;
-        c.merge.enabled = false;
-        c.tree_ties.enabled = false;
-        c.free_joints.enabled = false;
-        c.bundle_adjust.enabled = false;
-        c.readmit_joints.enabled = false;
-        c.type_by_fit.enabled = false;
-        c.move_points.enabled = false;
-        c.eject_points.enabled = false;
-        c.joint_spoilers.enabled = false;
-        c.retest.enabled = false;
-        c
-    }
+repairs_config! {
+    /// Grouping: the estimated noise level refined inside the bodies found.
+    noise_refinement: NoiseRefinementParams => NoiseRefinement,
+    /// Bodies: bodies registered in few frames posed through a hinge.
+    hinges: HingesParams => Hinges,
+    /// Bodies: bodies registered in too few frames dropped.
+    drop_unposed: DropUnposedParams => DropUnposed,
+    /// Bodies: bodies that mix points of several bodies split in two.
+    split: SplitParams => Split,
+    /// Bodies: points on no body attached where one body's poses explain them.
+    attach: AttachParams => Attach,
+    /// Bodies: unassigned points that move as one rigid body made one.
+    regroup: RegroupParams => Regroup,
+    /// Bodies: unassigned points that turn together on a hinge made a body.
+    hinge_groups: HingeGroupsParams => HingeGroups,
+    /// Bodies: bodies that move rigidly together merged.
+    merge: MergeParams => Merge,
+    /// Tree: near-tied tree edges settled by whole-tree fits.
+    tree_ties: TreeTiesParams => TreeTies,
+    /// Fit: joints the whole-tree fit cannot follow freed.
+    free_joints: FreeJointsParams => FreeJoints,
+    /// Fit: the followed joints bundle-adjusted over every frame.
+    bundle_adjust: BundleAdjustParams => BundleAdjust,
+    /// Fit: freed joints put back when they fit again.
+    readmit_joints: ReadmitJointsParams => ReadmitJoints,
+    /// Fit: multi-DoF and freed joints typed by the fit.
+    type_by_fit: TypeByFitParams => TypeByFit,
+    /// Points: points another body's fitted motion explains better moved there.
+    move_points: MovePointsParams => MovePoints,
+    /// Points: points that fit no body's motion left on none.
+    eject_points: EjectPointsParams => EjectPoints,
+    /// Points: a keypoint that alone makes a joint multi-DoF left on none.
+    joint_spoilers: JointSpoilersParams => JointSpoilers,
+    /// Model: pair tests redone on the whole-tree fit's poses.
+    retest: RetestParams => Retest,
 }
 
 /// The error for a parameter `name` of repair `repair` outside its range.
@@ -420,9 +352,34 @@ pub(crate) fn fit_state(
     }
 }
 
+/// A fit repair's proposal: `step` refits a copy of the draft's model from its whole-tree fit
+/// and returns the new fit with the joints it changed (`None`: nothing changed). The proposal
+/// carries the refitted model with its fit cached, and its summary (`summary` of the number
+/// of joints) names them.
+pub(crate) fn refit(
+    repair: &str,
+    ctx: &RepairContext<'_>,
+    draft: &kinetree_core::Draft,
+    step: impl FnOnce(
+        &mut Model,
+        kinetree_fit::FitState,
+    ) -> Result<(kinetree_fit::FitState, Option<Vec<usize>>)>,
+    summary: impl FnOnce(usize) -> String,
+) -> Result<Option<kinetree_core::Proposal>> {
+    let found = model_of(repair, draft)?;
+    let state = fit_state(ctx, found)?;
+    let mut model = found.model.clone();
+    let (state, changed) = step(&mut model, state)?;
+    let Some(joints) = changed else {
+        return Ok(None);
+    };
+    let summary = summary(joints.len());
+    Ok(Some(fit_proposal(found, model, state, summary, &joints)))
+}
+
 /// A fit repair's proposal: `model` (a refit of `found`'s) with its fit `state` cached; the
 /// summary names the joints (`parent->child`, model ids) of `joints`.
-pub(crate) fn fit_proposal(
+fn fit_proposal(
     found: &kinetree_core::ModelDraft,
     model: Model,
     state: kinetree_fit::FitState,

@@ -5,7 +5,7 @@
 //! the real recordings at 21-25, and with them in the fit the re-prediction rose from 2.3 to
 //! 2.8 sigma (`docs/decisions.md`, `readmit_joints.max_excess`).
 
-use super::{fit_proposal, fit_state, in_range, model_of};
+use super::{in_range, refit};
 use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
 use serde::{Deserialize, Serialize};
 
@@ -75,23 +75,22 @@ impl Repair for ReadmitJoints {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let found = model_of(self.name(), draft)?;
-        let state = fit_state(ctx, found)?;
-        let mut model = found.model.clone();
-        let (state, back) = kinetree_fit::readmit_freed_joints(
-            &mut model,
-            ctx.tracks,
-            state,
-            self.params.max_excess,
-            self.params.others_max_excess,
-        )?;
-        if back.is_empty() {
-            return Ok(None);
-        }
-        let summary = format!(
-            "{} freed joint(s) refined and put back into the fit",
-            back.len()
-        );
-        Ok(Some(fit_proposal(found, model, state, summary, &back)))
+        let p = self.params;
+        refit(
+            self.name(),
+            ctx,
+            draft,
+            |model, state| {
+                let (state, back) = kinetree_fit::readmit_freed_joints(
+                    model,
+                    ctx.tracks,
+                    state,
+                    p.max_excess,
+                    p.others_max_excess,
+                )?;
+                Ok((state, (!back.is_empty()).then_some(back)))
+            },
+            |n| format!("{n} freed joint(s) refined and put back into the fit"),
+        )
     }
 }

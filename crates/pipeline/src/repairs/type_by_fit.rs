@@ -4,7 +4,7 @@
 //! noisy poses can fake a second degree of freedom in its pair test (`docs/decisions.md`,
 //! `type_by_fit`).
 
-use super::{count_in_range, fit_proposal, fit_state, in_range, model_of};
+use super::{count_in_range, in_range, refit};
 use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
 use kinetree_fit::TypeByFitLimits;
 use serde::{Deserialize, Serialize};
@@ -86,9 +86,6 @@ impl Repair for TypeByFit {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let found = model_of(self.name(), draft)?;
-        let state = fit_state(ctx, found)?;
-        let mut model = found.model.clone();
         let p = &self.params;
         let limits = TypeByFitLimits {
             max_excess: p.max_excess,
@@ -96,12 +93,16 @@ impl Repair for TypeByFit {
             max_rotation_rank: p.max_rotation_rank,
             max_translation_rank: p.max_translation_rank,
         };
-        let (state, typed) =
-            kinetree_fit::type_joints_by_fit(&mut model, ctx.tracks, state, &limits)?;
-        if typed.is_empty() {
-            return Ok(None);
-        }
-        let summary = format!("{} joint(s) typed by the whole-tree fit", typed.len());
-        Ok(Some(fit_proposal(found, model, state, summary, &typed)))
+        refit(
+            self.name(),
+            ctx,
+            draft,
+            |model, state| {
+                let (state, typed) =
+                    kinetree_fit::type_joints_by_fit(model, ctx.tracks, state, &limits)?;
+                Ok((state, (!typed.is_empty()).then_some(typed)))
+            },
+            |n| format!("{n} joint(s) typed by the whole-tree fit"),
+        )
     }
 }
