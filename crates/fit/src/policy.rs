@@ -19,10 +19,35 @@ pub struct FitState {
     made_from: String,
 }
 
-/// What the fit depends on: the bodies, the joints and the warnings that free joints. Written
-/// with `Debug`, so that a NaN compares equal to itself.
+/// What the fit depends on: the noise level, the bodies' keypoints and shapes, each joint's
+/// place, type,
+/// parameters and fit status, and (for files of schema 1) the warnings that free joints.
+/// Written with `Debug`, so that a NaN compares equal to itself; the joints' positions, which
+/// the fit writes and never reads, are left out.
 fn fingerprint(model: &Model) -> String {
-    format!("{:?}{:?}{:?}", model.bodies, model.joints, model.warnings)
+    use std::fmt::Write as _;
+    let mut s = format!("{} {:?};", model.n_points, model.noise.sigma_m);
+    for b in &model.bodies {
+        let _ = write!(s, "{:?}{:?}", b.points, b.shape);
+    }
+    for j in &model.joints {
+        let _ = write!(
+            s,
+            "{} {} {:?} {:?} {:?} {:?} {} {:?};",
+            j.parent,
+            j.child,
+            j.joint_type,
+            j.axis_in_parent,
+            j.point_in_parent,
+            j.reference_pose,
+            j.reference_frame,
+            j.fit
+        );
+    }
+    if model.schema_version < 2 {
+        let _ = write!(s, "{:?}", model.warnings);
+    }
+    s
 }
 
 impl FitState {

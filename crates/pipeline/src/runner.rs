@@ -393,7 +393,7 @@ impl<'a> Runner<'a> {
                     Edit::Poses(poses) => {
                         draft.poses = Some(poses);
                         draft.pairs = None;
-                        pose_warnings = proposal.warnings;
+                        pose_warnings.extend(proposal.warnings);
                     }
                     Edit::Segmentation(seg) => {
                         history.extend(proposal.warnings);
