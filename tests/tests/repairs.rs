@@ -829,3 +829,26 @@ fn retest_rebuilds_the_model_on_the_fitted_poses() {
             .any(|j| !j.joint_type.is_single_dof())
     );
 }
+
+/// The runner reports every trace entry through the progress callback as it makes it, in the
+/// model's trace order, and never prints.
+#[test]
+fn progress_reports_every_trace_entry_in_order() {
+    let data = arm();
+    let l2 = points_of(&data, 2);
+    let mixed = labels(&data, |l| l2.iter().for_each(|&p| l[p] = Some(1)));
+    let mut p = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+    p.clustering = Box::new(Fixed(mixed));
+    let seen = std::sync::Mutex::new(Vec::new());
+    let d = p
+        .run_with_progress(&data.tracks, &|e| {
+            if let Ok(mut s) = seen.lock() {
+                s.push(e.clone());
+            }
+        })
+        .expect("discover");
+    let seen = seen.into_inner().expect("lock");
+    assert!(seen.iter().any(|e| e.repair == "split"), "{seen:?}");
+    assert!(seen.iter().any(|e| e.repair == "noise_refinement"));
+    assert_eq!(seen, d.model.trace);
+}

@@ -114,6 +114,7 @@ pub fn check_repair(repair: &dyn Repair) -> Vec<String> {
         NoiseSource::Given,
         Some(sigma),
         Vec::new(),
+        &|_| {},
     );
     let ctx = runner.context();
     let phase = repair.phase();

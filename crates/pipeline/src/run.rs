@@ -178,7 +178,24 @@ impl Pipeline {
     /// [`Error::Degenerate`] when no body can be found or registered, and any stage's or
     /// repair's error.
     pub fn run(&self, tracks: &Tracks) -> Result<Discovery> {
+        self.run_with_progress(tracks, &|_| {})
+    }
+
+    /// [`Pipeline::run`], calling `progress` with every trace entry as the runner makes it
+    /// (the grouping's once the grouping is done). The entries are the model's `trace`, in
+    /// the same order.
+    ///
+    /// # Errors
+    /// As [`Pipeline::run`].
+    pub fn run_with_progress(
+        &self,
+        tracks: &Tracks,
+        progress: crate::runner::Progress<'_>,
+    ) -> Result<Discovery> {
         let g = self.group(tracks)?;
+        for e in &g.trace {
+            progress(e);
+        }
         let runner = Runner::new(
             self,
             tracks,
@@ -188,6 +205,7 @@ impl Pipeline {
             g.noise_source,
             g.first_noise_estimate_m,
             g.trace,
+            progress,
         );
         let (draft, trace) = runner.run(g.segmentation, g.warnings)?;
         let (Some(found), Some(poses)) = (draft.model, draft.poses) else {

@@ -273,8 +273,11 @@ pub(crate) fn grouping(
 /// The edits of one points pass, with the repairs that proposed them.
 type PassEdits<'r> = Vec<(&'r dyn Repair, Edit)>;
 
+/// What the runner calls with every trace entry as it is made: progress, for a caller who
+/// wants to show it (the runner itself never prints).
+pub type Progress<'a> = &'a (dyn Fn(&TraceEntry) + Sync);
+
 /// One discovery's state shared by the phases after the grouping.
-#[derive(Debug)]
 pub(crate) struct Runner<'a> {
     pipeline: &'a Pipeline,
     tracks: &'a Tracks,
@@ -285,6 +288,17 @@ pub(crate) struct Runner<'a> {
     first_guess: Option<f64>,
     /// The trace so far and the current pass.
     trace: Mutex<(Vec<TraceEntry>, usize)>,
+    progress: Progress<'a>,
+}
+
+impl std::fmt::Debug for Runner<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Runner")
+            .field("sigma", &self.sigma)
+            .field("source", &self.source)
+            .field("trace", &self.trace)
+            .finish_non_exhaustive()
+    }
 }
 
 impl<'a> Runner<'a> {
@@ -298,6 +312,7 @@ impl<'a> Runner<'a> {
         source: NoiseSource,
         first_guess: Option<f64>,
         trace: Vec<TraceEntry>,
+        progress: Progress<'a>,
     ) -> Self {
         Self {
             pipeline,
@@ -308,6 +323,7 @@ impl<'a> Runner<'a> {
             source,
             first_guess,
             trace: Mutex::new((trace, 0)),
+            progress,
         }
     }
 
@@ -325,9 +341,13 @@ impl<'a> Runner<'a> {
     }
 
     fn record(&self, repair: &dyn Repair, outcome: &str, proposal: &Proposal) {
-        if let Ok(mut t) = self.trace.lock() {
-            let pass = t.1;
-            t.0.push(entry(repair, pass, outcome, proposal));
+        let made = self.trace.lock().ok().map(|mut t| {
+            let e = entry(repair, t.1, outcome, proposal);
+            t.0.push(e.clone());
+            e
+        });
+        if let Some(e) = made {
+            (self.progress)(&e);
         }
     }
 
@@ -600,6 +620,9 @@ impl<'a> Runner<'a> {
     /// Keeps the fit repairs' trace entries of an adopted model.
     fn adopt(&self, m: &mut ModelDraft) {
         let entries = std::mem::take(&mut m.model.trace);
+        for e in &entries {
+            (self.progress)(e);
+        }
         if let Ok(mut t) = self.trace.lock() {
             t.0.extend(entries);
         }
