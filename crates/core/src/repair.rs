@@ -24,13 +24,13 @@ pub enum RepairPhase {
     /// After each pose estimate: [`Edit::Segmentation`] (the poses are redone and the phase
     /// restarts) or [`Edit::Poses`] (the poses are replaced and the next repair asked).
     Bodies,
-    /// While each model is finished, after its assembly and first whole-tree fit:
-    /// [`Edit::Fit`], which replaces the model's joints (same bodies, poses and tree).
-    Fit,
     /// After the first model of a segmentation is assembled, before its whole-tree fit:
     /// [`Edit::Tree`]. The alternative is finished like the model and replaces it when
     /// [`Repair::stands`] says so.
     Tree,
+    /// While each model is finished, after its assembly and first whole-tree fit:
+    /// [`Edit::Fit`], which replaces the model's joints (same bodies, poses and tree).
+    Fit,
     /// After each finished model, for at most the runner's `model_passes` passes:
     /// [`Edit::Points`]; the bodies and the model are then redone, and the pass is reverted
     /// unless every edit of it stands.

@@ -2,9 +2,10 @@
 //! redoes what each edit invalidates, and records every change in a trace.
 //!
 //! Phases, in order (see [`RepairPhase`]): grouping (after each clustering), bodies (after
-//! each pose estimate), then models made over passes: each model's tree repairs, then its
-//! points repairs (at most `model_passes` passes, each redoing the bodies and the model, and
-//! reverted unless its edits stand), then its model repairs when no point moved.
+//! each pose estimate), then models made over passes: each model's tree repairs, the fit
+//! repairs on every model finished (the first and any alternative), then its points repairs
+//! (at most `model_passes` passes, each redoing the bodies and the model, and reverted unless
+//! its edits stand), then its model repairs when no point moved.
 
 use crate::Pipeline;
 use kinetree_core::model::NoiseSource;
