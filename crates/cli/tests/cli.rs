@@ -293,6 +293,12 @@ fn export_and_inspect_a_discovered_model() {
     let text = run_ok(kinetree().arg("inspect").arg(&model));
     assert!(text.contains("3 bodies"), "{text}");
     assert!(text.contains("joint body 0 -> body 1: 1 DoF"), "{text}");
+    assert!(text.contains("Followed by the fit"), "{text}");
+    // The repairs' trace: the joints are bundle-adjusted on every discovery of the arm.
+    assert!(
+        text.contains("repairs (") && text.contains("Fit bundle_adjust (applied)"),
+        "{text}"
+    );
     // A bad format and a bad model are clean errors.
     let out = kinetree()
         .arg("export")

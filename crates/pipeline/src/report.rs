@@ -174,8 +174,8 @@ pub fn summary(model: &Model) -> String {
 }
 
 /// A readable account of a model for `kinetree inspect`: the [`summary`], then each body's
-/// keypoints by label, each joint's decision (ranks, fit ratio, frames observed) and the
-/// stages that produced it.
+/// keypoints by label, each joint's decision (ranks, fit ratio, how the whole-tree fit treats
+/// it, frames observed), the stages that produced it, and the repairs' trace.
 pub fn inspect(model: &Model) -> String {
     let mut s = format!(
         "model schema {} by {}; stages: {} / {} / {} / {}\n",
@@ -208,7 +208,7 @@ pub fn inspect(model: &Model) -> String {
         let seen = j.positions.iter().filter(|p| p.is_some()).count();
         let _ = writeln!(
             s,
-            "  joint body {} -> body {}: {} DoF, ranks t{} r{} c{} s{}, fit ratio {:.2}, observed in {seen}/{} frames",
+            "  joint body {} -> body {}: {} DoF, ranks t{} r{} c{} s{}, fit ratio {:.2}, {:?} by the fit, observed in {seen}/{} frames",
             j.parent,
             j.child,
             j.dof,
@@ -217,8 +217,19 @@ pub fn inspect(model: &Model) -> String {
             j.ranks.centre,
             j.ranks.sliding,
             j.fit_ratio,
+            j.fit,
             model.n_frames
         );
+    }
+    if !model.trace.is_empty() {
+        let _ = writeln!(s, "repairs ({} changes):", model.trace.len());
+        for e in &model.trace {
+            let _ = writeln!(
+                s,
+                "  pass {} {:?} {} ({}): {}",
+                e.pass, e.phase, e.repair, e.outcome, e.summary
+            );
+        }
     }
     s
 }
