@@ -335,6 +335,9 @@ fn every_built_in_repair_conforms() {
         17,
         "one conformance line per built-in repair"
     );
+    // Each repair answers to the name of its config section, in the config's order.
+    let names: Vec<&str> = repairs.iter().map(|r| r.name()).collect();
+    assert_eq!(names, RepairsConfig::NAMES);
     for r in &repairs {
         let v = check_repair(r.as_ref());
         assert!(v.is_empty(), "{}: {v:?}", r.name());

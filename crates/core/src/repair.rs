@@ -131,15 +131,6 @@ impl Constraints {
         self.undone_bodies.clear();
         self.off_hinge.clear();
     }
-
-    /// Whether there are no decisions.
-    pub fn is_empty(&self) -> bool {
-        self.cannot_link.is_empty()
-            && self.undone_bodies.is_empty()
-            && self.off_hinge.is_empty()
-            && self.kept_off.is_empty()
-            && self.split_origins.is_empty()
-    }
 }
 
 /// Every body's pose in every frame from a model's whole-tree fit, with its precision; in the

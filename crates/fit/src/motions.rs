@@ -198,7 +198,7 @@ impl FittedMotions {
         }))
     }
 
-    /// Motions from poses already fitted (as [`FittedMotions::fitted`] gives them).
+    /// Motions from poses already fitted (as [`FittedMotions::into_fitted`] gives them).
     pub fn from_fitted(fitted: FittedPoses) -> Self {
         Self {
             fitted,
@@ -212,9 +212,9 @@ impl FittedMotions {
         self
     }
 
-    /// The fitted poses and their precision, by model body.
-    pub fn fitted(&self) -> &FittedPoses {
-        &self.fitted
+    /// The fitted poses and their precision, by model body, given up.
+    pub fn into_fitted(self) -> FittedPoses {
+        self.fitted
     }
 
     /// The per-body poses `per_body` (segmentation numbering; `body_order[model body]` is its

@@ -71,7 +71,7 @@ fn clean_draft(
         }
         if matches!(phase, RepairPhase::Points | RepairPhase::Model) {
             let motions = kinetree_fit::FittedMotions::new(&model.model, &fx.tracks)?;
-            model.fitted = Some(motions.fitted().clone());
+            model.fitted = Some(motions.into_fitted());
         }
         draft.model = Some(model);
     }

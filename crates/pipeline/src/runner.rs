@@ -50,18 +50,14 @@ impl RunnerParams {
     /// # Errors
     /// [`Error::InvalidParameter`] naming `pipeline.runner.<parameter>`.
     pub fn validate(&self) -> Result<()> {
-        let check = |name: &str, v: usize, max: usize| {
-            if v <= max {
-                Ok(())
-            } else {
-                Err(Error::InvalidParameter {
-                    name: format!("pipeline.runner.{name}"),
-                    message: format!("must be at most {max}, got {v}"),
-                })
-            }
-        };
-        check("model_passes", self.model_passes, 100)?;
-        check("reassign_min_pairs", self.reassign_min_pairs, 1_000_000)
+        use crate::repairs::count_within;
+        count_within("pipeline.runner.model_passes", self.model_passes, 0, 100)?;
+        count_within(
+            "pipeline.runner.reassign_min_pairs",
+            self.reassign_min_pairs,
+            0,
+            1_000_000,
+        )
     }
 }
 
@@ -441,7 +437,7 @@ impl<'a> Runner<'a> {
     fn fit(&self, model: &mut ModelDraft) -> Result<()> {
         if model.fitted.is_none() {
             let motions = kinetree_fit::FittedMotions::new(&model.model, self.tracks)?;
-            model.fitted = Some(motions.fitted().clone());
+            model.fitted = Some(motions.into_fitted());
         }
         Ok(())
     }

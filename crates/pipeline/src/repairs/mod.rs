@@ -162,14 +162,24 @@ pub(crate) fn count_in_range(
     min: usize,
     max: usize,
 ) -> Result<()> {
+    count_within(
+        &format!("pipeline.repairs.{repair}.{name}"),
+        value,
+        min,
+        max,
+    )
+}
+
+/// Checks that the count at the config key `key` (its whole dotted path) is within
+/// `[min, max]`.
+pub(crate) fn count_within(key: &str, value: usize, min: usize, max: usize) -> Result<()> {
     if (min..=max).contains(&value) {
         Ok(())
     } else {
-        Err(invalid(
-            repair,
-            name,
-            format!("must be within [{min}, {max}], got {value}"),
-        ))
+        Err(Error::InvalidParameter {
+            name: key.to_owned(),
+            message: format!("must be within [{min}, {max}], got {value}"),
+        })
     }
 }
 
