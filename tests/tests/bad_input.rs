@@ -277,3 +277,35 @@ fn constant_and_sparse_data_give_typed_errors() {
     }
     assert!(matches!(estimate.group(&sparse), Err(Error::Degenerate(_))));
 }
+
+/// A model file whose joint reference pose is no rigid transform (a zero quaternion, or a
+/// translation that is not finite) is refused by the observer and by the URDF export, naming
+/// the joint's reference pose, instead of being fitted or written with NaN.
+#[test]
+fn a_reference_pose_that_is_no_rigid_transform_is_a_typed_error() {
+    let data = kinetree_synth::simulate(&kinetree_synth::paper_arm(0)).expect("simulate");
+    let model = kinetree_pipeline::Pipeline::from_config(&Default::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model;
+    for bad in [[0.0, 0.0, 0.0, 0.0], [f64::NAN, 0.0, 0.0, 1.0]] {
+        let mut m = model.clone();
+        if let Some(r) = m.joints[0].reference_pose.as_mut() {
+            r.rotation_xyzw = bad;
+        }
+        let e = kinetree_fit::Observer::new(&m).expect_err("observer");
+        assert!(
+            matches!(e, Error::Config(_)) && e.to_string().contains("reference_pose"),
+            "{e}"
+        );
+        let e = kinetree_io::export::to_urdf(&m).expect_err("urdf");
+        assert!(e.to_string().contains("reference_pose"), "{e}");
+    }
+    let mut m = model;
+    if let Some(r) = m.joints[0].reference_pose.as_mut() {
+        r.translation[1] = f64::INFINITY;
+    }
+    let e = kinetree_fit::Observer::new(&m).expect_err("observer");
+    assert!(e.to_string().contains("reference_pose"), "{e}");
+}
