@@ -59,7 +59,7 @@ fn check_urdf(d: &Discovery, median: (f64, f64), p95: (f64, f64)) -> usize {
         let origin = pose(&u.origin);
         let off_p = Translation3::from(Vector3::from(offsets[j.parent]));
         let off_c = Translation3::from(Vector3::from(offsets[j.child]));
-        let (sp, sc) = (d.body_order[j.parent], d.body_order[j.child]);
+        let (sp, sc) = (j.parent, j.child);
         for (t, q) in j.positions.iter().enumerate() {
             let Some(q) = *q else { continue };
             let (Some(cp), Some(cc)) = (

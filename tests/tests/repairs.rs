@@ -855,3 +855,175 @@ fn progress_reports_every_trace_entry_in_order() {
     assert!(seen.iter().any(|e| e.repair == "noise_refinement"));
     assert_eq!(seen, d.model.trace);
 }
+
+/// A repair of `phase` that proposes nothing and records, in `seen`, every draft whose model
+/// and segmentation, poses or pair tests number the bodies differently.
+#[derive(Debug)]
+struct NumberingProbe {
+    phase: kinetree_core::RepairPhase,
+    seen: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
+}
+
+impl Repair for NumberingProbe {
+    fn name(&self) -> &str {
+        "numbering_probe"
+    }
+    fn phase(&self) -> kinetree_core::RepairPhase {
+        self.phase
+    }
+    fn propose(
+        &self,
+        _: &kinetree_core::RepairContext<'_>,
+        draft: &kinetree_core::Draft,
+    ) -> Result<Option<kinetree_core::Proposal>> {
+        let mut wrong = Vec::new();
+        if let Some(m) = &draft.model {
+            let n = draft.segmentation.n_bodies();
+            if m.model.bodies.len() != n || m.body_order.iter().enumerate().any(|(k, &b)| k != b) {
+                wrong.push(format!("{:?}: body_order {:?}", self.phase, m.body_order));
+            }
+            for (k, body) in m.model.bodies.iter().enumerate() {
+                if body
+                    .points
+                    .iter()
+                    .any(|&p| draft.segmentation.body_of(p) != Some(k))
+                {
+                    wrong.push(format!(
+                        "{:?}: model body {k} not segmentation body {k}",
+                        self.phase
+                    ));
+                }
+                if let Some(poses) = &draft.poses
+                    && poses.bodies.get(k).map(|t| &t.points) != Some(&body.points)
+                {
+                    wrong.push(format!(
+                        "{:?}: model body {k} not posed body {k}",
+                        self.phase
+                    ));
+                }
+            }
+        }
+        if let Ok(mut s) = self.seen.lock() {
+            s.extend(wrong);
+        }
+        Ok(None)
+    }
+}
+
+/// The paper arm with its points reversed: the canonical numbering of the clustering (by
+/// lowest point) starts at link 2, the model's tree order at the base. Every repair after the
+/// bodies phase still sees one numbering in the draft and its model, and so does the caller.
+#[test]
+fn repairs_see_one_body_numbering_in_the_draft_and_its_model() {
+    let data = arm();
+    let n = data.tracks.n_points();
+    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..data.tracks.n_frames())
+        .map(|t| (0..n).map(|i| data.tracks.get(t, n - 1 - i)).collect())
+        .collect();
+    let tracks = Tracks::from_points(&frames).expect("tracks");
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let mut p = Pipeline::from_config(&config()).expect("pipeline");
+    for phase in [
+        kinetree_core::RepairPhase::Tree,
+        kinetree_core::RepairPhase::Fit,
+        kinetree_core::RepairPhase::Points,
+        kinetree_core::RepairPhase::Model,
+    ] {
+        p.repairs.insert(
+            0,
+            Box::new(NumberingProbe {
+                phase,
+                seen: seen.clone(),
+            }),
+        );
+    }
+    let d = p.run(&tracks).expect("discover");
+    assert_eq!(d.model.bodies.len(), 3);
+    // The model's numbering is not the canonical one here, or the test shows nothing.
+    let model_labels: Vec<Option<usize>> = d
+        .model
+        .point_body
+        .iter()
+        .map(|&b| usize::try_from(b).ok())
+        .collect();
+    let canonical = Segmentation::from_raw(&model_labels, 1);
+    assert_ne!(
+        canonical.labels(),
+        &model_labels[..],
+        "tree order is the canonical order"
+    );
+    let seen = seen.lock().expect("probe").clone();
+    assert!(seen.is_empty(), "{seen:?}");
+    for (k, body) in d.model.bodies.iter().enumerate() {
+        assert_eq!(d.poses.bodies[k].points, body.points, "posed body {k}");
+        assert!(
+            body.points
+                .iter()
+                .all(|&i| d.segmentation.body_of(i) == Some(k))
+        );
+        assert!(
+            body.points
+                .iter()
+                .all(|&i| d.model.point_body[i] == k as i64)
+        );
+    }
+}
+
+/// `Draft::adopt` renumbers the segmentation, poses, pair tests and pending edits into the
+/// model's numbering, and refuses a model whose body order does not fit the draft.
+#[test]
+fn a_draft_adopts_a_model_in_its_numbering_or_says_why_not() {
+    let data = arm();
+    let d = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    let order = vec![2, 0, 1];
+    let made = |body_order: Vec<usize>| kinetree_core::ModelDraft {
+        model: d.model.clone(),
+        body_order,
+        fitted: None,
+        history: Vec::new(),
+        cache: None,
+    };
+    let pairs = d.model.pairs.clone();
+    let mut draft = kinetree_core::Draft::new(d.segmentation.clone());
+    draft.poses = Some(d.poses.clone());
+    draft.pairs = Some(pairs.clone());
+    let point = d.model.bodies[0].points[0];
+    draft.pending = vec![(point, Some(2)), (point, None)];
+    let mut adopted = draft.clone();
+    adopted.adopt(made(order.clone())).expect("adopt");
+    let new_id = [1, 2, 0];
+    for (old, track) in d.poses.bodies.iter().enumerate() {
+        let k = new_id[old];
+        assert_eq!(
+            adopted.poses.as_ref().expect("poses").bodies[k].points,
+            track.points
+        );
+        assert!(
+            track
+                .points
+                .iter()
+                .all(|&i| adopted.segmentation.body_of(i) == Some(k))
+        );
+    }
+    for (p, q) in pairs.iter().zip(adopted.pairs.as_ref().expect("pairs")) {
+        assert_eq!((q.a, q.b), (p.a.map(|a| new_id[a]), new_id[p.b]));
+    }
+    assert_eq!(adopted.pending, vec![(point, Some(0)), (point, None)]);
+    let m = adopted.model.as_ref().expect("model");
+    assert_eq!(m.body_order, vec![0, 1, 2]);
+    for bad in [vec![0, 1], vec![0, 1, 1], vec![0, 1, 5]] {
+        let mut again = draft.clone();
+        let e = again.adopt(made(bad.clone())).expect_err("refused");
+        assert!(
+            matches!(e, kinetree_core::Error::Shape { .. }),
+            "{bad:?}: {e}"
+        );
+        assert!(again.model.is_none(), "a refused model is not taken");
+    }
+    let mut stray = draft.clone();
+    stray.pending.push((point, Some(7)));
+    assert!(stray.adopt(made(order)).is_err());
+}

@@ -145,9 +145,10 @@ pub struct FittedPoses {
 
 /// Makes models from bodies, poses and pair tests, as the runner does.
 pub trait ModelMaker: Send + Sync + std::fmt::Debug {
-    /// The model of `segmentation`'s bodies with `poses` and `pairs` (segmentation numbering),
-    /// its spanning tree chosen without the edges `excluded` (`(parent, child)`), `history` as
-    /// its first warnings; not yet fitted (no positions' precision, no re-prediction).
+    /// The model of `segmentation`'s bodies with `poses` and `pairs` (in its numbering), its
+    /// spanning tree chosen without the edges `excluded` (`(parent, child)`), `history` as its
+    /// first warnings; not yet fitted (no positions' precision, no re-prediction). Its bodies
+    /// come in tree order; `body_order` maps them to `segmentation`'s.
     ///
     /// # Errors
     /// [`crate::Error::Degenerate`] when there is no body; a stage's error.
@@ -159,7 +160,8 @@ pub trait ModelMaker: Send + Sync + std::fmt::Debug {
         excluded: &[(usize, usize)],
         history: &[Warning],
     ) -> Result<ModelDraft>;
-    /// The finished model: assembled, the tree repairs applied, fitted whole to every frame.
+    /// The finished model: assembled, the tree repairs applied, fitted whole to every frame;
+    /// `body_order` maps its bodies to `segmentation`'s.
     ///
     /// # Errors
     /// As [`ModelMaker::assemble`], and the whole-tree fit's.
@@ -177,7 +179,8 @@ pub trait ModelMaker: Send + Sync + std::fmt::Debug {
 pub struct ModelDraft {
     /// The model (bodies in tree order).
     pub model: Model,
-    /// `model body id -> segmentation body id`.
+    /// `model body id -> body id` in the segmentation the model was made from; the identity
+    /// once a draft has adopted the model ([`Draft::adopt`]).
     pub body_order: Vec<usize>,
     /// The model's whole-tree fit, when the runner has made it (the `Points` and `Model`
     /// phases have it).
@@ -203,20 +206,25 @@ impl std::fmt::Debug for ModelDraft {
 }
 
 /// The current state of a run, as a repair sees it.
+///
+/// One body numbering holds throughout a draft: the segmentation's, which is the model's once
+/// the draft has one ([`Draft::adopt`] renumbers the segmentation, poses, pair tests and
+/// pending edits into the model's tree order). Body `k` of `segmentation`, of `poses`, of
+/// `pairs` and of `model` is one body.
 #[derive(Debug, Clone)]
 pub struct Draft {
-    /// Which point belongs to which body (segmentation numbering).
+    /// Which point belongs to which body.
     pub segmentation: Segmentation,
     /// Poses per body of the segmentation; absent in the grouping phase.
     pub poses: Option<BodyPoses>,
-    /// Every pair's DoF test on `poses`, when made (segmentation numbering).
+    /// Every pair's DoF test on `poses`, when made.
     pub pairs: Option<Vec<PairDof>>,
     /// The model, in the tree, points and model phases.
     pub model: Option<ModelDraft>,
     /// Decisions made so far.
     pub constraints: Constraints,
     /// The point edits proposed so far in this pass of the points phase, in order:
-    /// `(point, new body)` (segmentation numbering; `None`: on no body).
+    /// `(point, new body)` (`None`: on no body).
     pub pending: Vec<(usize, Option<usize>)>,
 }
 
@@ -231,6 +239,67 @@ impl Draft {
             constraints: Constraints::default(),
             pending: Vec::new(),
         }
+    }
+
+    /// Takes `model`, made from this draft's segmentation, poses and pair tests, and
+    /// renumbers those (and the pending point edits) into the model's body numbering; the
+    /// model's `body_order` becomes the identity.
+    ///
+    /// # Errors
+    /// [`crate::Error::Shape`] when `model.body_order` is not a permutation of the
+    /// segmentation's bodies, or the poses or pair tests name other bodies.
+    pub fn adopt(&mut self, mut model: ModelDraft) -> Result<()> {
+        let n = self.segmentation.n_bodies();
+        let order = &model.body_order;
+        let shape = |what: &str| crate::Error::Shape {
+            expected: format!("a model made from this draft's {n} bodies"),
+            found: format!("{what} (body_order {order:?})"),
+        };
+        let new_id = crate::segmentation::inverse_permutation(order, n)
+            .ok_or_else(|| shape("its body_order is no permutation of the bodies"))?;
+        if self.poses.as_ref().is_some_and(|p| p.bodies.len() != n) {
+            return Err(shape("the poses have another number of bodies"));
+        }
+        let known = |b: usize| b < n;
+        if let Some(pairs) = &self.pairs
+            && pairs
+                .iter()
+                .any(|p| !known(p.b) || p.a.is_some_and(|a| !known(a)))
+        {
+            return Err(shape("a pair test names a body beyond the segmentation's"));
+        }
+        if self
+            .pending
+            .iter()
+            .any(|&(_, b)| b.is_some_and(|b| !known(b)))
+        {
+            return Err(shape(
+                "a pending point edit names a body beyond the segmentation's",
+            ));
+        }
+        if order.iter().enumerate().any(|(k, &b)| k != b) {
+            self.segmentation = self
+                .segmentation
+                .renumbered(order)
+                .ok_or_else(|| shape("its body_order is no permutation of the bodies"))?;
+            if let Some(poses) = &mut self.poses {
+                let mut old: Vec<Option<crate::BodyTrack>> = std::mem::take(&mut poses.bodies)
+                    .into_iter()
+                    .map(Some)
+                    .collect();
+                poses.bodies = order.iter().filter_map(|&b| old[b].take()).collect();
+            }
+            for p in self.pairs.iter_mut().flatten() {
+                p.a = p.a.map(|a| new_id[a]);
+                p.b = new_id[p.b];
+            }
+            for (_, b) in &mut self.pending {
+                *b = b.map(|b| new_id[b]);
+            }
+            model.body_order = (0..n).collect();
+        }
+        self.model = Some(model);
+        Ok(())
     }
 }
 
@@ -249,9 +318,9 @@ pub enum Edit {
     Segmentation(Segmentation),
     /// New poses for the same segmentation.
     Poses(BodyPoses),
-    /// The tree without these edges `(parent, child)` (segmentation numbering).
+    /// The tree without these edges `(parent, child)`.
     Tree(Vec<(usize, usize)>),
-    /// Points moved: `(point, new body)` (segmentation numbering; `None`: on no body).
+    /// Points moved: `(point, new body)` (`None`: on no body).
     Points(Vec<(usize, Option<usize>)>),
     /// The model with its joints refitted (same bodies, poses and tree).
     Fit(Box<ModelDraft>),
@@ -259,7 +328,7 @@ pub enum Edit {
     Model {
         /// The model.
         model: Box<ModelDraft>,
-        /// Its poses (segmentation numbering).
+        /// Its poses, in the draft's numbering (the runner adopts the model with them).
         poses: BodyPoses,
     },
 }

@@ -4,14 +4,31 @@ use serde::{Deserialize, Serialize};
 
 /// Which body every point belongs to; `None` for a discarded point.
 ///
-/// Bodies are numbered canonically: body 0 holds the lowest-indexed assigned point, body 1 the
-/// lowest-indexed point not in body 0, and so on, so equal partitions compare equal.
+/// Every constructor and edit numbers the bodies canonically: body 0 holds the lowest-indexed
+/// assigned point, body 1 the lowest-indexed point not in body 0, and so on, so equal
+/// partitions compare equal. [`Segmentation::renumbered`] alone gives another numbering: a
+/// model's tree order, which a run's draft takes once it has a model.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Segmentation {
     labels: Vec<Option<usize>>,
     n_bodies: usize,
     /// Groups of points that formed clusters too small for a pose, in point order.
     pub discarded_groups: Vec<Vec<usize>>,
+}
+
+/// `new_id` with `new_id[order[k]] = k`, when `order` is a permutation of `0..n`.
+pub(crate) fn inverse_permutation(order: &[usize], n: usize) -> Option<Vec<usize>> {
+    if order.len() != n {
+        return None;
+    }
+    let mut new_id = vec![usize::MAX; n];
+    for (k, &old) in order.iter().enumerate() {
+        if new_id.get(old) != Some(&usize::MAX) {
+            return None;
+        }
+        new_id[old] = k;
+    }
+    Some(new_id)
 }
 
 /// The fewest points a body needs for a pose.
@@ -103,6 +120,18 @@ impl Segmentation {
         out
     }
 
+    /// The same partition with body `order[k]` renumbered `k` (a model's tree order); `None`
+    /// unless `order` is a permutation of the bodies. Not canonical: any edit renumbers
+    /// canonically again.
+    pub fn renumbered(&self, order: &[usize]) -> Option<Self> {
+        let new_id = inverse_permutation(order, self.n_bodies)?;
+        Some(Self {
+            labels: self.labels.iter().map(|l| l.map(|b| new_id[b])).collect(),
+            n_bodies: self.n_bodies,
+            discarded_groups: self.discarded_groups.clone(),
+        })
+    }
+
     /// `self.discarded_groups` without `points` (now assigned), empty groups removed.
     pub fn discarded_groups_without(&self, points: &[usize]) -> Vec<Vec<usize>> {
         self.discarded_groups
@@ -159,5 +188,21 @@ mod tests {
         let dropped = seg.without_bodies(&[0]);
         assert_eq!(dropped.labels(), &[None, None, Some(0), Some(1), None]);
         assert_eq!(dropped.discarded_groups, vec![vec![4]]);
+    }
+
+    #[test]
+    fn renumbering_keeps_the_partition_and_refuses_a_non_permutation() {
+        let mut seg = Segmentation::from_raw(&[Some(0), Some(1), Some(1), Some(2), None], 1);
+        seg.discarded_groups = vec![vec![4]];
+        // Body 2 first, then 0, then 1.
+        let tree = seg.renumbered(&[2, 0, 1]).expect("a permutation");
+        assert_eq!(tree.labels(), &[Some(1), Some(2), Some(2), Some(0), None]);
+        assert_eq!(tree.n_bodies(), 3);
+        assert_eq!(tree.discarded_groups, vec![vec![4]]);
+        // An edit renumbers canonically again.
+        assert_eq!(tree.without_points(&[]), seg);
+        for bad in [&[0, 1][..], &[0, 1, 1], &[0, 1, 3], &[0, 1, 2, 3]] {
+            assert!(seg.renumbered(bad).is_none(), "{bad:?}");
+        }
     }
 }

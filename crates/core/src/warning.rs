@@ -101,7 +101,7 @@ pub enum Warning {
     },
     /// A body that has no pose in some frames.
     FramesUnregistered {
-        /// Body id in the output numbering.
+        /// Body id in the model numbering.
         body: usize,
         /// Frames without a pose.
         frames: usize,
@@ -113,14 +113,14 @@ pub enum Warning {
     },
     /// No body is static relative to the camera; the tree is rooted at the least-moving one.
     NoStaticBody {
-        /// The chosen root (output numbering).
+        /// The chosen root (model numbering).
         root: usize,
     },
     /// The spanning tree had to use an edge that is not a single-DoF joint.
     MultiDofJoint {
-        /// Parent body (output numbering).
+        /// Parent body (model numbering).
         parent: usize,
-        /// Child body (output numbering).
+        /// Child body (model numbering).
         child: usize,
         /// Estimated degrees of freedom of the pair.
         dof: usize,
@@ -129,9 +129,9 @@ pub enum Warning {
     /// positions predicted through the joint by far more than they miss the child's own pose.
     /// The joint's positions come from the two bodies' fitted poses instead.
     JointNotFollowed {
-        /// Parent body (output numbering).
+        /// Parent body (model numbering).
         parent: usize,
-        /// Child body (output numbering).
+        /// Child body (model numbering).
         child: usize,
         /// The miss beyond the child's own pose, per point, in units of sigma^2.
         excess_in_sigma2: f64,
@@ -141,9 +141,9 @@ pub enum Warning {
     /// poses, the fit followed it, and it replaced the pair test's joint (its ranks are still
     /// the pair test's).
     JointTypedByFit {
-        /// Parent body (output numbering).
+        /// Parent body (model numbering).
         parent: usize,
-        /// Child body (output numbering).
+        /// Child body (model numbering).
         child: usize,
         /// `revolute` or `prismatic`.
         joint_type: crate::model::JointType,

@@ -217,19 +217,17 @@ impl FittedMotions {
         self.fitted
     }
 
-    /// The per-body poses `per_body` (segmentation numbering; `body_order[model body]` is its
-    /// segmentation body) with every registered pose replaced by the fitted one, in the same
+    /// The per-body poses `per_body` (in the model's body numbering, as a draft that adopted
+    /// the model has them) with every registered pose replaced by the fitted one, in the same
     /// body frame; a registered pose keeps its per-body quality (the fitted pose is at least
     /// as precise, so tests on these poses are calibrated conservatively). Frames the per-body
     /// estimator left unposed get the fitted pose with the fit's own precision
     /// (`Observer::pose_qualities`).
     ///
     /// # Errors
-    /// [`Error::Shape`] when `per_body` or `body_order` do not match these motions.
-    pub fn onto_body_poses(&self, per_body: &BodyPoses, body_order: &[usize]) -> Result<BodyPoses> {
-        if body_order.len() != self.fitted.body_poses.len()
-            || per_body.bodies.len() != self.fitted.body_poses.len()
-            || body_order.iter().any(|&s| s >= per_body.bodies.len())
+    /// [`Error::Shape`] when `per_body` does not match these motions.
+    pub fn onto_body_poses(&self, per_body: &BodyPoses) -> Result<BodyPoses> {
+        if per_body.bodies.len() != self.fitted.body_poses.len()
             || self
                 .fitted
                 .body_poses
@@ -243,17 +241,19 @@ impl FittedMotions {
                     self.fitted.body_poses.first().map_or(0, Vec::len)
                 ),
                 found: format!(
-                    "{} bodies over {} frames, {} in the body order",
+                    "{} bodies over {} frames",
                     per_body.bodies.len(),
-                    per_body.n_frames,
-                    body_order.len()
+                    per_body.n_frames
                 ),
             });
         }
         let mut out = per_body.clone();
-        for (model_body, fitted) in self.fitted.body_poses.iter().enumerate() {
-            let track = &mut out.bodies[body_order[model_body]];
-            let qualities = &self.fitted.body_qualities[model_body];
+        for ((track, fitted), qualities) in out
+            .bodies
+            .iter_mut()
+            .zip(&self.fitted.body_poses)
+            .zip(&self.fitted.body_qualities)
+        {
             for ((pose, quality), (f, fq)) in track
                 .cam_from_body
                 .iter_mut()

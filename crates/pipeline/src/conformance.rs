@@ -59,11 +59,16 @@ fn clean_draft(
         noise_sigma_m: sigma,
     })?;
     let pairs = all_pairs(pipeline.dof.as_ref(), &poses, sigma)?;
+    draft.poses = Some(poses);
+    draft.pairs = Some(pairs);
     if phase != RepairPhase::Bodies {
+        let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
+            return Ok(draft);
+        };
         let mut model = if matches!(phase, RepairPhase::Tree | RepairPhase::Fit) {
-            runner.assemble(&seg, &poses, &pairs, &[], &[])?
+            runner.assemble(&seg, poses, pairs, &[], &[])?
         } else {
-            runner.make(&seg, &poses, &pairs, &[])?
+            runner.make(&seg, poses, pairs, &[])?
         };
         if phase == RepairPhase::Fit {
             let state = kinetree_fit::FitState::new(&model.model, &fx.tracks)?;
@@ -73,10 +78,8 @@ fn clean_draft(
             let motions = kinetree_fit::FittedMotions::new(&model.model, &fx.tracks)?;
             model.fitted = Some(motions.into_fitted());
         }
-        draft.model = Some(model);
+        draft.adopt(model)?;
     }
-    draft.poses = Some(poses);
-    draft.pairs = Some(pairs);
     Ok(draft)
 }
 

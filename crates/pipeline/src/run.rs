@@ -47,12 +47,10 @@ pub struct Discovery {
     pub stats: PairStats,
     /// The dissimilarity matrix used for the final segmentation.
     pub dissimilarity: DissimilarityMatrix,
-    /// Final segmentation (segmentation numbering).
+    /// Final segmentation, in the model's body numbering (body `k` is the model's body `k`).
     pub segmentation: Segmentation,
-    /// Poses per body (segmentation numbering).
+    /// Poses per body, in the model's body numbering.
     pub poses: BodyPoses,
-    /// `model body id -> segmentation body id`.
-    pub body_order: Vec<usize>,
 }
 
 /// Stage 1's results ([`Pipeline::group`]): what [`Pipeline::run`] builds the bodies from.
@@ -214,7 +212,6 @@ impl Pipeline {
         let mut model = found.model;
         model.trace = trace;
         Ok(Discovery {
-            body_order: found.body_order,
             model,
             stats: g.stats,
             dissimilarity: g.dissimilarity,

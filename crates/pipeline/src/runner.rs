@@ -267,6 +267,37 @@ pub(crate) fn grouping(
     Ok((sigma, dmat, seg, trace))
 }
 
+/// For each body of `seg`, the body of `other` (the same partition in another numbering)
+/// that holds its points.
+///
+/// # Errors
+/// [`Error::Shape`] when the two are not one partition.
+fn bodies_in(seg: &Segmentation, other: &Segmentation) -> Result<Vec<usize>> {
+    let order: Vec<usize> = seg
+        .members()
+        .iter()
+        .filter_map(|m| other.body_of(*m.first()?))
+        .collect();
+    let same = order.len() == seg.n_bodies()
+        && seg.n_points() == other.n_points()
+        && seg
+            .labels()
+            .iter()
+            .zip(other.labels())
+            .all(|(a, b)| a.map(|a| order[a]) == *b);
+    if !same {
+        return Err(Error::Shape {
+            expected: "one partition of the points in two body numberings".into(),
+            found: format!(
+                "{} and {} bodies that hold other points",
+                seg.n_bodies(),
+                other.n_bodies()
+            ),
+        });
+    }
+    Ok(order)
+}
+
 /// The edits of one points pass, with the repairs that proposed them.
 type PassEdits<'r> = Vec<(&'r dyn Repair, Edit)>;
 
@@ -489,7 +520,7 @@ impl<'a> Runner<'a> {
             let mut model = self.make(&draft.segmentation, poses, pairs, &hist)?;
             self.adopt(&mut model);
             self.fit(&mut model)?;
-            draft.model = Some(model);
+            draft.adopt(model)?;
             // The previous pass's edits must stand on this model, or the pass is undone.
             if let Some((before, edits)) = previous.take() {
                 let mut undone = None;
@@ -531,7 +562,7 @@ impl<'a> Runner<'a> {
                     self.adopt(&mut model);
                     draft.poses = Some(poses);
                     draft.pairs = None;
-                    draft.model = Some(*model);
+                    draft.adopt(*model)?;
                     if pass < passes {
                         if let Some(m) = draft.model.as_mut() {
                             self.fit(m)?;
@@ -577,10 +608,11 @@ impl<'a> Runner<'a> {
         Ok((last, trace))
     }
 
-    /// Finishes an assembled model: point confidence, bodies' internal dissimilarity, the
-    /// whole-tree fit, the fit repairs in order, and the positions, their precision and the
-    /// re-prediction written from the final fit. The fit repairs' trace entries are left in
-    /// the model's `trace`, for the caller to keep if it adopts the model.
+    /// Finishes a model assembled from `seg`: point confidence, bodies' internal
+    /// dissimilarity, the whole-tree fit, the fit repairs in order (on a draft that adopted
+    /// the model), and the positions, their precision and the re-prediction written from the
+    /// final fit. The fit repairs' trace entries are left in the model's `trace`, for the
+    /// caller to keep if it adopts the model.
     fn finish(&self, seg: &Segmentation, mut m: ModelDraft) -> Result<ModelDraft> {
         let diag = kinetree_clustering::diagnostics(self.dmat, seg);
         m.model.point_confidence = diag.point_margin.clone();
@@ -592,8 +624,9 @@ impl<'a> Runner<'a> {
         let ctx = self.context();
         let pass = self.trace.lock().map_or(0, |t| t.1);
         let mut entries = Vec::new();
+        let order = m.body_order.clone();
         let mut draft = Draft::new(seg.clone());
-        draft.model = Some(m);
+        draft.adopt(m)?;
         for r in self.phase(RepairPhase::Fit) {
             let Some(p) = r.propose(&ctx, &draft)? else {
                 continue;
@@ -609,6 +642,7 @@ impl<'a> Runner<'a> {
         };
         let state = crate::repairs::fit_state(&ctx, &m)?;
         m.cache = None;
+        m.body_order = order;
         m.model.reprediction_rms_in_sigma = kinetree_fit::write_positions(&mut m.model, &state)?;
         m.model.trace = entries;
         Ok(m)
@@ -662,24 +696,29 @@ impl ModelMaker for Runner<'_> {
         let mut draft = Draft::new(segmentation.clone());
         draft.poses = Some(poses.clone());
         draft.pairs = Some(pairs.to_vec());
-        draft.model = Some(first);
+        draft.adopt(first)?;
+        // From here on the draft is in the first model's numbering; the alternatives are
+        // assembled from it, and each adopted in turn.
         let mut alternatives = Vec::new();
         for r in self.phase(RepairPhase::Tree) {
             if let Some(p) = r.propose(&ctx, &draft)? {
                 let Edit::Tree(excluded) = &p.edit else {
                     return Err(wrong_edit(r, &p.edit));
                 };
-                let alt = self.assemble(segmentation, poses, pairs, excluded, history)?;
+                let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
+                    return Err(Error::Degenerate("no poses to assemble from".into()));
+                };
+                let alt = self.assemble(&draft.segmentation, poses, pairs, excluded, history)?;
                 alternatives.push((r, p, alt));
             }
         }
         let Some(first) = draft.model.take() else {
             return Err(Error::Degenerate("no model to finish".into()));
         };
-        draft.model = Some(self.finish(segmentation, first)?);
+        draft.model = Some(self.finish(&draft.segmentation, first)?);
         for (r, p, alt) in alternatives {
             let mut after = draft.clone();
-            after.model = Some(self.finish(segmentation, alt)?);
+            after.adopt(self.finish(&draft.segmentation, alt)?)?;
             if r.stands(&ctx, &p.edit, &draft, &after)? {
                 self.record(r, "kept", &p);
                 draft = after;
@@ -687,8 +726,10 @@ impl ModelMaker for Runner<'_> {
                 self.record(r, "discarded", &p);
             }
         }
-        draft
+        let mut made = draft
             .model
-            .ok_or_else(|| Error::Degenerate("no model was made".into()))
+            .ok_or_else(|| Error::Degenerate("no model was made".into()))?;
+        made.body_order = bodies_in(&draft.segmentation, segmentation)?;
+        Ok(made)
     }
 }

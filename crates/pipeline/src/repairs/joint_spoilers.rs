@@ -78,7 +78,7 @@ impl Repair for JointSpoilers {
                 "repair `joint_spoilers` needs a model and its poses".into(),
             ));
         };
-        let order = &found.body_order;
+        let n = poses.bodies.len();
         let spread: Vec<(f64, f64)> = poses.bodies.iter().map(pose_spread).collect();
         // `None` when the points cannot be posed.
         let posed_alone = |points: &[usize]| posed_as_one(ctx, points).ok().flatten();
@@ -90,9 +90,10 @@ impl Repair for JointSpoilers {
             .iter()
             .filter(|j| j.joint_type == kinetree_core::model::JointType::MultiDof)
         {
-            let (Some(&p), Some(&c)) = (order.get(joint.parent), order.get(joint.child)) else {
+            let (p, c) = (joint.parent, joint.child);
+            if p >= n || c >= n {
                 continue;
-            };
+            }
             let (frame, moving) = frame_and_moving(&spread, p, c);
             // Whether the pair test with `side` posed as `track` finds a single-DoF joint.
             let mut single_dof = |side: usize, track: BodyTrack| {

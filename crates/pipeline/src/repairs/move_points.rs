@@ -180,7 +180,7 @@ impl Repair for MovePoints {
         }
         let edits: Vec<(usize, Option<usize>)> = moves
             .iter()
-            .map(|&(point, body)| (point, found.body_order.get(body).copied()))
+            .map(|&(point, body)| (point, Some(body)))
             .collect();
         let moved: Vec<usize> = moves.iter().map(|&(point, _)| point).collect();
         let mut p = Proposal::new(

@@ -99,7 +99,7 @@ impl Repair for Retest {
         } else {
             FittedMotions::freeing(&found.model, ctx.tracks, &typed)?
         };
-        let fitted = motions.onto_body_poses(poses, &found.body_order)?;
+        let fitted = motions.onto_body_poses(poses)?;
         let pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m)?;
         // The rebuilt model costs as much as the first: build it only if its tree has fewer
         // multi-DoF edges or gives a joint the fit did not follow another parent.
@@ -112,14 +112,9 @@ impl Repair for Retest {
                     .is_some_and(|q| q.joint.is_single_dof())
             })
             .count();
-        let order = &found.body_order;
-        let reattached =
-            not_followed(&found.model)
-                .iter()
-                .any(|&(p, c)| match (order.get(c), order.get(p)) {
-                    (Some(&c), Some(&p)) => tree.parent.get(c) != Some(&Some(p)),
-                    _ => false,
-                });
+        let reattached = not_followed(&found.model)
+            .iter()
+            .any(|&(p, c)| tree.parent.get(c).is_some_and(|&q| q != Some(p)));
         if multi_edges >= multi_dof_joints(&found.model) + typed_by_fit(&found.model) && !reattached
         {
             return Ok(None);
