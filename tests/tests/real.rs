@@ -183,10 +183,10 @@ fn real_recordings_segment_into_their_labelled_segments() {
 /// prismatic joint along x over 0.46 m.
 #[test]
 fn door_and_drawer_tracks_give_their_joints() {
-    use kinetree_dof::{TrackJoint, fit_point_track};
+    use kinetree_dof::{CIRCLE_GAIN, TrackJoint, fit_point_track};
     let data = root().join("data/sturm-door-drawer");
     let door = kinetree_io::read_point_track(&data.join("right_door_001/001.log")).expect("door");
-    let fit = fit_point_track(&door).expect("fit");
+    let fit = fit_point_track(&door, CIRCLE_GAIN).expect("fit");
     let TrackJoint::Revolute {
         axis,
         radius_m,
@@ -201,7 +201,7 @@ fn door_and_drawer_tracks_give_their_joints() {
     assert!((arc_rad.to_degrees() - 86.0).abs() < 2.0, "arc {arc_rad}");
     assert!(fit.line_rms_m > 10.0 * fit.circle_rms_m);
     let drawer = kinetree_io::read_point_track(&data.join("drawer_001/001.log")).expect("drawer");
-    let fit = fit_point_track(&drawer).expect("fit");
+    let fit = fit_point_track(&drawer, CIRCLE_GAIN).expect("fit");
     let TrackJoint::Prismatic { axis, travel_m } = fit.joint else {
         panic!("drawer: {:?}", fit.joint);
     };

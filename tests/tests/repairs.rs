@@ -497,6 +497,19 @@ fn repair_parameter_rules_name_the_key() {
         ),
         ("[runner]\nbogus = 1", "pipeline.runner"),
         ("hinged_bodies = false", "pipeline.repairs.hinges.enabled"),
+        (
+            "[positions]\nmax_std_rad = 0.0",
+            "pipeline.positions.max_std_rad",
+        ),
+        (
+            "[positions]\nmax_std_m = nan",
+            "pipeline.positions.max_std_m",
+        ),
+        (
+            "[positions]\nmin_smoothed_frames = 2",
+            "pipeline.positions.min_smoothed_frames",
+        ),
+        ("[positions]\nbogus = 1", "pipeline.positions"),
     ];
     for (text, key) in rows {
         let err = pipeline_from_toml(text)
@@ -1026,4 +1039,47 @@ fn a_draft_adopts_a_model_in_its_numbering_or_says_why_not() {
     let mut stray = draft.clone();
     stray.pending.push((point, Some(7)));
     assert!(stray.adopt(made(order)).is_err());
+}
+
+/// `[pipeline.positions]` retunes when a joint position is reported unknown and when positions
+/// are smoothed, and the model carries the limits, so observing new frames reports as the
+/// discovery did.
+#[test]
+fn position_limits_reach_the_positions_and_travel_with_the_model() {
+    let data = arm();
+    let known = |m: &kinetree_core::Model| -> (usize, usize) {
+        let count = |c: &[Option<f64>]| c.iter().filter(|q| q.is_some()).count();
+        m.joints.iter().fold((0, 0), |(p, s), j| {
+            (p + count(&j.positions), s + count(&j.smoothed_positions))
+        })
+    };
+    let plain = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    let (positions, smoothed) = known(&plain.model);
+    assert!(positions > 100 && smoothed > 100, "{positions} {smoothed}");
+    let mut c = config();
+    c.positions.max_std_rad = 1e-9;
+    c.positions.min_smoothed_frames = 1_000_000;
+    let strict = Pipeline::from_config(&c)
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover");
+    assert_eq!(strict.model.position_limits, c.positions);
+    assert_eq!(
+        known(&strict.model),
+        (0, 0),
+        "no revolute position that precise"
+    );
+    // The observer reads the limits from the model.
+    let fits = kinetree_fit::Observer::new(&strict.model)
+        .expect("observer")
+        .fit_sequence(&data.tracks)
+        .expect("fit");
+    assert!(fits.iter().all(|f| f.positions.iter().all(Option::is_none)));
+    let mut broken = strict.model.clone();
+    broken.position_limits.max_std_m = -1.0;
+    let e = kinetree_fit::Observer::new(&broken).expect_err("refused");
+    assert!(e.to_string().contains("position_limits.max_std_m"), "{e}");
 }

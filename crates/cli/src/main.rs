@@ -116,6 +116,10 @@ enum Command {
         /// Point index in a tracks file.
         #[arg(long)]
         point: Option<usize>,
+        /// The circle (revolute) is taken when the line leaves at least this many times its
+        /// residual.
+        #[arg(long, default_value_t = kinetree_dof::CIRCLE_GAIN)]
+        circle_gain: f64,
         /// Output JSON.
         #[arg(short, long, default_value = "track-joint.json")]
         output: PathBuf,
@@ -298,6 +302,7 @@ fn main() -> Result<()> {
         Command::FitTrack {
             track,
             point,
+            circle_gain,
             output,
         } => {
             let samples = match point {
@@ -310,7 +315,7 @@ fn main() -> Result<()> {
                 }
                 None => kinetree_io::read_point_track(&track)?,
             };
-            let fit = kinetree_dof::fit_point_track(&samples)
+            let fit = kinetree_dof::fit_point_track(&samples, circle_gain)
                 .with_context(|| format!("fitting {}", track.display()))?;
             emitln!(
                 "{} samples; line RMS {:.2} mm, circle RMS {:.2} mm",
@@ -396,8 +401,12 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -
     if smooth {
         for (k, column) in columns.iter_mut().enumerate() {
             let std: Vec<Option<f64>> = fits.iter().map(|f| f.std[k]).collect();
-            (*column, _) =
-                kinetree_fit::smooth_fitted_positions(column, &std, observer.is_revolute(k))?;
+            (*column, _) = kinetree_fit::smooth_fitted_positions(
+                column,
+                &std,
+                observer.is_revolute(k),
+                &model.position_limits,
+            )?;
         }
     }
     let mut w = std::io::BufWriter::new(

@@ -22,6 +22,9 @@ pub struct SpectralParams {
     pub kmeans_restarts: usize,
     /// Clusters with fewer points are discarded (at least 3, the minimum for a pose).
     pub min_points: usize,
+    /// Up to this many points the eigenvectors come from a dense eigendecomposition, above it
+    /// from subspace iteration (default [`DENSE_LIMIT`]).
+    pub dense_limit: usize,
 }
 
 impl Default for SpectralParams {
@@ -33,6 +36,7 @@ impl Default for SpectralParams {
             max_clusters: 40,
             kmeans_restarts: 10,
             min_points: MIN_BODY_POINTS,
+            dense_limit: DENSE_LIMIT,
         }
     }
 }
@@ -102,7 +106,7 @@ impl SpectralParams {
 ///   times from the input seed; the lowest inertia wins.
 ///
 /// Points with no affinity to anything stay unassigned. The eigenvectors come from faer: a
-/// dense symmetric eigendecomposition up to [`DENSE_LIMIT`] points, above that block subspace
+/// dense symmetric eigendecomposition up to `dense_limit` points, above that block subspace
 /// iteration on `I + D^-1/2 W D^-1/2` (whose largest eigenvalues are the ones we need) from a
 /// fixed start, so the result is deterministic.
 ///
@@ -118,8 +122,9 @@ pub struct Spectral {
 /// small tail value, would otherwise add up to more than a 3-point body's own degree.
 const TAIL_WIDTHS: f64 = 4.0;
 
-/// Above this many points subspace iteration replaces the dense eigendecomposition (measured:
-/// dense is faster at N = 1000, 0.2 s against 1.7 s).
+/// Default of [`SpectralParams::dense_limit`]: above this many points subspace iteration
+/// replaces the dense eigendecomposition (measured: dense is faster at N = 1000, 0.2 s against
+/// 1.7 s; `docs/decisions.md`).
 pub const DENSE_LIMIT: usize = 1200;
 
 /// Most rounds of subspace iteration.
@@ -185,7 +190,8 @@ impl Clustering for Spectral {
         });
         drop(w);
         let n_eig = (self.params.n_clusters.unwrap_or(self.params.max_clusters) + 1).min(k_pts);
-        let (lap_values, vectors) = smallest_laplacian_eigen(&shifted, n_eig)?;
+        let (lap_values, vectors) =
+            smallest_laplacian_eigen(&shifted, n_eig, self.params.dense_limit)?;
         let k = match self.params.n_clusters {
             Some(c) => c.min(k_pts),
             None => eigengap(&lap_values),
@@ -215,10 +221,11 @@ impl Clustering for Spectral {
 fn smallest_laplacian_eigen(
     shifted: &faer::Mat<f64>,
     count: usize,
+    dense_limit: usize,
 ) -> Result<(Vec<f64>, Vec<Vec<f64>>)> {
     let n = shifted.nrows();
     let failed = |what: &str| Error::Degenerate(format!("spectral clustering: {what}"));
-    let mut pairs: Vec<(f64, Vec<f64>)> = if n <= DENSE_LIMIT {
+    let mut pairs: Vec<(f64, Vec<f64>)> = if n <= dense_limit {
         let evd = shifted
             .self_adjoint_eigen(faer::Side::Lower)
             .map_err(|e| failed(&format!("eigendecomposition failed ({e:?})")))?;
@@ -478,6 +485,7 @@ mod tests {
         }
     }
 
+    /// With the dense eigendecomposition and, `dense_limit = 0`, with subspace iteration.
     #[test]
     fn eigengap_finds_the_number_of_blocks() {
         for sizes in [
@@ -485,15 +493,28 @@ mod tests {
             vec![3, 10, 30, 60, 80, 90, 100, 70, 57],
         ] {
             let (m, truth) = blocks(&sizes);
-            let s = Spectral::new(SpectralParams::default()).expect("params");
-            let seg = s
-                .cluster(&ClusteringInput {
-                    dissimilarity: &m,
-                    seed: 1,
+            for dense_limit in [DENSE_LIMIT, 0] {
+                let s = Spectral::new(SpectralParams {
+                    dense_limit,
+                    ..SpectralParams::default()
                 })
-                .expect("clusters");
-            assert_eq!(seg.n_bodies(), sizes.len(), "sizes {sizes:?}");
-            assert!(same_partition(&seg, &truth), "sizes {sizes:?}");
+                .expect("params");
+                let seg = s
+                    .cluster(&ClusteringInput {
+                        dissimilarity: &m,
+                        seed: 1,
+                    })
+                    .expect("clusters");
+                assert_eq!(
+                    seg.n_bodies(),
+                    sizes.len(),
+                    "sizes {sizes:?}, {dense_limit}"
+                );
+                assert!(
+                    same_partition(&seg, &truth),
+                    "sizes {sizes:?}, {dense_limit}"
+                );
+            }
         }
     }
 

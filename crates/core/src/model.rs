@@ -31,6 +31,62 @@ pub struct NoiseInfo {
     pub source: NoiseSource,
 }
 
+/// When the whole-tree fit reports a joint position as unknown, and when it smooths one
+/// (`[pipeline.positions]`); the model carries them so that a later observation of new frames
+/// reports positions as the discovery did.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PositionLimits {
+    /// A revolute position whose standard deviation exceeds this is reported unknown, radians
+    /// (default 0.5: a position known to half a radian tells little of the configuration).
+    pub max_std_rad: f64,
+    /// A prismatic position whose standard deviation exceeds this at 1 mm of noise is
+    /// reported unknown, metres; the per-frame bound scales with the model's noise level
+    /// (default 0.1, that is 100 sigma).
+    pub max_std_m: f64,
+    /// Fewest frames with a position and its standard deviation for a joint's positions to be
+    /// smoothed (default 3: the smoother's state has two entries).
+    pub min_smoothed_frames: usize,
+}
+
+impl Default for PositionLimits {
+    fn default() -> Self {
+        Self {
+            max_std_rad: 0.5,
+            max_std_m: 0.1,
+            min_smoothed_frames: 3,
+        }
+    }
+}
+
+impl PositionLimits {
+    /// Checks the ranges; `section` names the config section or model field in the error.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidParameter`] naming `<section>.<parameter>`.
+    pub fn validate(&self, section: &str) -> crate::Result<()> {
+        let bad = |field: &str, message: String| crate::Error::InvalidParameter {
+            name: format!("{section}.{field}"),
+            message,
+        };
+        for (field, v) in [
+            ("max_std_rad", self.max_std_rad),
+            ("max_std_m", self.max_std_m),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(field, format!("must be finite and positive, got {v}")));
+            }
+        }
+        if !(3..=1_000_000).contains(&self.min_smoothed_frames) {
+            return Err(bad(
+                "min_smoothed_frames",
+                format!("must be in 3..=1000000, got {}", self.min_smoothed_frames),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Names of the stages that produced the model.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct StageNames {
@@ -248,6 +304,9 @@ pub struct Model {
     pub point_labels: Option<Vec<String>>,
     /// Noise level used.
     pub noise: NoiseInfo,
+    /// When a joint position is reported unknown, and when positions are smoothed.
+    #[serde(default)]
+    pub position_limits: PositionLimits,
     /// Stage names.
     pub stages: StageNames,
     /// Body of every point, -1 for discarded points.

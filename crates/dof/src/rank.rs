@@ -26,12 +26,16 @@ pub enum RankRule {
         z: f64,
         /// Tolerance factor on `chi^2 / dof`.
         slack: f64,
+        /// The residual per degree of freedom above which [`hidden_next_rank`] looks for a
+        /// rotation the slack hides.
+        min_excess: f64,
     },
 }
 
 pub use kinetree_core::stats::chi2_per_dof_quantile;
 
-/// Rank `r`'s residual per degree of freedom must exceed this (the nominal noise level) for
+/// Default of [`Chi2RankParams::min_excess`](crate::Chi2RankParams::min_excess): rank `r`'s
+/// residual per degree of freedom must exceed this (the nominal noise level) for
 /// [`hidden_next_rank`] to look further: under it, a tiny rank `r + 1` residual can come from
 /// whitened columns nearly of that rank by construction, and the ratio means nothing
 /// (`docs/decisions.md`, `kinetree_dof::MIN_EXCESS`).
@@ -54,7 +58,7 @@ pub const MIN_EXCESS: f64 = 1.0;
 /// residual far below 1 can come from whitened columns that are nearly of rank `r + 1` by
 /// construction (a 2 cm, 4-point body's rotation covariance leaving one direction), and a
 /// ratio to it then means nothing (see [`MIN_EXCESS`]).
-pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64) -> bool {
+pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64, min_excess: f64) -> bool {
     let r = test.rank;
     if r + 1 >= dim
         || test.chi2_per_dof.len() < r + 2
@@ -67,7 +71,7 @@ pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64) -> bool {
     let residual = test.chi2_per_dof[r];
     if !(level > 0.0
         && level < 1.0
-        && residual > MIN_EXCESS
+        && residual > min_excess
         && residual > test.chi2_bound[r] * level)
     {
         return false;
@@ -294,7 +298,7 @@ fn rank_test_about(
                 chi2_bound: Vec::new(),
             }
         }
-        RankRule::Chi2 { z, slack } => {
+        RankRule::Chi2 { z, slack, .. } => {
             let omega: Vec<Matrix3<f64>> = covs.iter().map(|c| information(c, dim)).collect();
             let (chi2, _) = weighted_residuals(&centred, &omega, covs, dim);
             let d = dim as f64;
@@ -351,43 +355,59 @@ mod tests {
         assert!(hidden_next_rank(
             &chi2_test([2.39, 0.59, 0.61], 150),
             3,
-            4.0
+            4.0,
+            MIN_EXCESS
         ));
         assert!(hidden_next_rank(
             &chi2_test([2.80, 0.76, 0.48], 150),
             3,
-            4.0
+            4.0,
+            MIN_EXCESS
         ));
         assert!(!hidden_next_rank(
             &chi2_test([1.62, 0.71, 0.75], 173),
             3,
-            4.0
+            4.0,
+            MIN_EXCESS
         ));
         assert!(!hidden_next_rank(
             &chi2_test([0.53, 0.47, 0.45], 200),
             3,
-            4.0
+            4.0,
+            MIN_EXCESS
         ));
-        assert!(!hidden_next_rank(&chi2_test([3.0, 1.1, 1.0], 150), 3, 4.0));
+        assert!(!hidden_next_rank(
+            &chi2_test([3.0, 1.1, 1.0], 150),
+            3,
+            4.0,
+            MIN_EXCESS
+        ));
         // A rotation over a near-zero rank-1 level stands out; a rank-0 residual under the
         // nominal noise does not, however small rank 1's (a slide under a 2 cm, 4-point
         // parent).
         assert!(hidden_next_rank(
             &chi2_test([1.42, 0.03, 0.01], 120),
             3,
-            4.0
+            4.0,
+            MIN_EXCESS
         ));
         assert!(!hidden_next_rank(
             &chi2_test([0.12, 0.003, 0.0], 120),
             3,
-            4.0
+            4.0,
+            MIN_EXCESS
         ));
         // Three frames: the bound is too wide.
-        assert!(!hidden_next_rank(&chi2_test([2.39, 0.59, 0.61], 3), 3, 4.0));
+        assert!(!hidden_next_rank(
+            &chi2_test([2.39, 0.59, 0.61], 3),
+            3,
+            4.0,
+            MIN_EXCESS
+        ));
         // At full rank or without values.
         let mut full = chi2_test([2.39, 0.59, 0.61], 150);
         full.rank = 2;
-        assert!(!hidden_next_rank(&full, 3, 4.0));
-        assert!(!hidden_next_rank(&RankTest::empty(), 3, 4.0));
+        assert!(!hidden_next_rank(&full, 3, 4.0, MIN_EXCESS));
+        assert!(!hidden_next_rank(&RankTest::empty(), 3, 4.0, MIN_EXCESS));
     }
 }

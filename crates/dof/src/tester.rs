@@ -281,9 +281,9 @@ fn classify(
     // motion-dependent bias (box corners occluded as it slides) shows such a rotation too,
     // but no fixed pivot explains its translation. Only the rotation is retried: on
     // translations, mis-modelled anisotropic noise made a prismatic child's line a plane.
-    if let RankRule::Chi2 { z, .. } = rule
+    if let RankRule::Chi2 { z, min_excess, .. } = rule
         && rotation.rank == 0
-        && crate::rank::hidden_next_rank(&rotation, 3, z)
+        && crate::rank::hidden_next_rank(&rotation, 3, z, min_excess)
     {
         let mut turning = rotation.clone();
         turning.rank = 1;
@@ -397,7 +397,7 @@ fn classify_ranks(
             }
             centre_uncentred = rank_test_uncentred(&w, &w_cov, 2, rule);
             match rule {
-                RankRule::Chi2 { z: zq, slack } => {
+                RankRule::Chi2 { z: zq, slack, .. } => {
                     // One reference-free test covers a moving centre and sliding.
                     if let Some((per_dof, dof)) = pivot_test(c) {
                         let bound = slack * crate::rank::chi2_per_dof_quantile(dof, zq);
@@ -579,6 +579,10 @@ pub struct Chi2RankParams {
     pub model_error_m: f64,
     /// Model error of every body's orientation, radians (std-dev per axis).
     pub model_error_rad: f64,
+    /// A rotation test's rank-0 residual per degree of freedom must exceed this for a
+    /// rotation the slack hides to be looked for (default [`crate::MIN_EXCESS`], the nominal
+    /// noise level).
+    pub min_excess: f64,
 }
 
 impl Default for Chi2RankParams {
@@ -590,6 +594,7 @@ impl Default for Chi2RankParams {
             min_centre_angle_in_std: 5.0,
             model_error_m: 0.0,
             model_error_rad: 0.0,
+            min_excess: crate::MIN_EXCESS,
         }
     }
 }
@@ -608,6 +613,7 @@ impl Chi2RankParams {
         for (name, v) in [
             ("model_error_m", self.model_error_m),
             ("model_error_rad", self.model_error_rad),
+            ("min_excess", self.min_excess),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(Error::InvalidParameter {
@@ -660,6 +666,7 @@ impl DofTester for Chi2Rank {
             RankRule::Chi2 {
                 z: self.params.z,
                 slack: self.params.slack,
+                min_excess: self.params.min_excess,
             },
             CentreSettings {
                 min_angle_rad: self.params.min_centre_angle_rad,

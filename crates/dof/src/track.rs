@@ -43,12 +43,13 @@ pub struct TrackFit {
     pub positions: Vec<f64>,
 }
 
-/// The circle is taken when the line leaves at least this many times its residual.
+/// Default `circle_gain` of [`fit_point_track`] (`kinetree fit-track --circle-gain`): the
+/// circle is taken when the line leaves at least this many times its residual.
 pub const CIRCLE_GAIN: f64 = 3.0;
 
 /// Fits a line and a circle to the visible samples of one point and keeps the circle
-/// (revolute) when it explains the track [`CIRCLE_GAIN`] times better, the line (prismatic)
-/// otherwise.
+/// (revolute) when it explains the track `circle_gain` times better ([`CIRCLE_GAIN`] by
+/// default), the line (prismatic) otherwise.
 ///
 /// - Line: the principal direction of the samples (3x3 symmetric eigenproblem).
 /// - Circle: the plane of the samples (smallest principal direction as the normal), then an
@@ -59,8 +60,15 @@ pub const CIRCLE_GAIN: f64 = 3.0;
 /// is nearly straight and is called prismatic, as no method could tell.
 ///
 /// # Errors
-/// [`Error::Degenerate`] with fewer than 3 samples or a track that does not move.
-pub fn fit_point_track(samples: &[Point3<f64>]) -> Result<TrackFit> {
+/// [`Error::Degenerate`] with fewer than 3 samples or a track that does not move;
+/// [`Error::InvalidParameter`] for a `circle_gain` that is not finite and at least 1.
+pub fn fit_point_track(samples: &[Point3<f64>], circle_gain: f64) -> Result<TrackFit> {
+    if !(circle_gain.is_finite() && circle_gain >= 1.0) {
+        return Err(Error::InvalidParameter {
+            name: "circle_gain".into(),
+            message: format!("must be finite and at least 1, got {circle_gain}"),
+        });
+    }
     if samples.len() < 3 {
         return Err(Error::Degenerate(format!(
             "a track needs 3 samples to fit a joint, got {}",
@@ -133,7 +141,7 @@ pub fn fit_point_track(samples: &[Point3<f64>]) -> Result<TrackFit> {
         }
         None => (f64::INFINITY, Vector2::zeros(), f64::INFINITY),
     };
-    if circle_rms * CIRCLE_GAIN <= line_rms {
+    if circle_rms * circle_gain <= line_rms {
         let centre = mean + u * centre2.x + v * centre2.y;
         let mut angles: Vec<Option<f64>> = plane
             .iter()
@@ -201,7 +209,7 @@ mod tests {
                 Point3::from(centre + 0.4 * (u * a.cos() + v * a.sin()))
             })
             .collect();
-        let fit = fit_point_track(&arc).expect("fit");
+        let fit = fit_point_track(&arc, CIRCLE_GAIN).expect("fit");
         let TrackJoint::Revolute {
             axis: a,
             centre: c,
@@ -218,11 +226,24 @@ mod tests {
         let line: Vec<Point3<f64>> = (0..20)
             .map(|k| Point3::from(centre + u * (0.01 * k as f64)))
             .collect();
-        let fit = fit_point_track(&line).expect("fit");
+        let fit = fit_point_track(&line, CIRCLE_GAIN).expect("fit");
         assert!(
             matches!(fit.joint, TrackJoint::Prismatic { travel_m, .. } if (travel_m - 0.19).abs() < 1e-9)
         );
-        assert!(fit_point_track(&line[..2]).is_err());
-        assert!(fit_point_track(&[Point3::origin(); 5]).is_err());
+        assert!(fit_point_track(&line[..2], CIRCLE_GAIN).is_err());
+        assert!(fit_point_track(&[Point3::origin(); 5], CIRCLE_GAIN).is_err());
+        // A gain no rounding-level circle residual can meet calls the arc a line; a gain
+        // under 1 or not finite is refused.
+        let strict = fit_point_track(&arc, 1e30).expect("fit");
+        assert!(
+            matches!(strict.joint, TrackJoint::Prismatic { .. }),
+            "{strict:?}"
+        );
+        for bad in [0.5, f64::NAN, f64::INFINITY] {
+            assert!(matches!(
+                fit_point_track(&arc, bad),
+                Err(Error::InvalidParameter { .. })
+            ));
+        }
     }
 }

@@ -25,8 +25,5 @@ pub use policy::{
     FitState, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,
     free_unfollowed_joints, readmit_freed_joints, type_joints_by_fit, write_positions,
 };
-pub use smooth::{
-    MIN_SMOOTHED_FRAMES, PositionColumn, SmoothedPositions, smooth_fitted_positions,
-    smooth_positions,
-};
-pub use solver::{FrameFit, MAX_STD_M, MAX_STD_RAD, Observer};
+pub use smooth::{PositionColumn, SmoothedPositions, smooth_fitted_positions, smooth_positions};
+pub use solver::{FrameFit, Observer};

@@ -379,6 +379,7 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
             &joint.positions,
             &joint.position_std,
             joint.joint_type != JointType::Prismatic,
+            &model.position_limits,
         )?;
         let known: Vec<f64> = joint.positions.iter().flatten().copied().collect();
         joint.range = (!known.is_empty()).then(|| {

@@ -21,12 +21,9 @@
 //! has two entries, the measurement is one number with its own variance in every frame, and
 //! the choice of `q` needs the innovations' likelihood, which that crate does not expose.
 
-use crate::solver::{MAX_STD_M, MAX_STD_RAD};
+use kinetree_core::model::PositionLimits;
 use kinetree_core::nalgebra::{Matrix2, Vector2};
 use kinetree_core::{Error, Result};
-
-/// Fewest frames with a position and a standard deviation for a smoothing.
-pub const MIN_SMOOTHED_FRAMES: usize = 3;
 
 /// The grid of `q`, as `log10` of `q` over the median measurement variance: from, to, step.
 /// At the low end the smoothed path is nearly a straight line through the whole sequence;
@@ -51,9 +48,10 @@ pub type PositionColumn = Vec<Option<f64>>;
 
 /// A joint's positions from the whole-tree fit smoothed ([`smooth_positions`]): frames whose
 /// standard deviation is not a positive number are left out (the fit gives none), and the
-/// limit on the smoothed deviation is the fit's own, [`MAX_STD_RAD`] for a revolute joint
-/// and [`MAX_STD_M`] for a prismatic one. Returns the smoothed positions and their standard
-/// deviations, all null for a joint with fewer than [`MIN_SMOOTHED_FRAMES`] usable frames.
+/// limit on the smoothed deviation is the fit's own (`limits`: `max_std_rad` for a revolute
+/// joint, `max_std_m` for a prismatic one). Returns the smoothed positions and their standard
+/// deviations, all null for a joint with fewer than `limits.min_smoothed_frames` usable
+/// frames.
 ///
 /// # Errors
 /// As [`smooth_positions`].
@@ -61,16 +59,23 @@ pub fn smooth_fitted_positions(
     positions: &[Option<f64>],
     std: &[Option<f64>],
     revolute: bool,
+    limits: &PositionLimits,
 ) -> Result<(PositionColumn, PositionColumn)> {
     let weights: Vec<Option<f64>> = std
         .iter()
         .map(|s| s.filter(|s| s.is_finite() && *s > 0.0))
         .collect();
-    let max_std = if revolute { MAX_STD_RAD } else { MAX_STD_M };
-    Ok(match smooth_positions(positions, &weights, max_std)? {
-        Some(s) => (s.positions, s.std),
-        None => (vec![None; positions.len()], vec![None; positions.len()]),
-    })
+    let max_std = if revolute {
+        limits.max_std_rad
+    } else {
+        limits.max_std_m
+    };
+    Ok(
+        match smooth_positions(positions, &weights, max_std, limits.min_smoothed_frames)? {
+            Some(s) => (s.positions, s.std),
+            None => (vec![None; positions.len()], vec![None; positions.len()]),
+        },
+    )
 }
 
 /// The filter's state and covariance at one frame, before and after its measurement.
@@ -85,18 +90,19 @@ struct Step {
 /// position and a standard deviation; smoothed values are given from the first to the last
 /// measured frame, where their standard deviation is at most `max_std`.
 ///
-/// Returns `Ok(None)` with fewer than [`MIN_SMOOTHED_FRAMES`] measured frames.
+/// Returns `Ok(None)` with fewer than `min_frames` measured frames.
 ///
 /// # Errors
 /// [`Error::Shape`] when `positions` and `std` differ in length; [`Error::InvalidParameter`]
 /// for a position that is not finite, a standard deviation that is not finite and positive,
-/// or a `max_std` that is not positive.
+/// a `max_std` that is not positive, or `min_frames` under 3 (the state has two entries).
 ///
 /// Complexity: O(G T) for T frames and the G = 57 values of `q` tried.
 pub fn smooth_positions(
     positions: &[Option<f64>],
     std: &[Option<f64>],
     max_std: f64,
+    min_frames: usize,
 ) -> Result<Option<SmoothedPositions>> {
     if positions.len() != std.len() {
         return Err(Error::Shape {
@@ -108,6 +114,12 @@ pub fn smooth_positions(
         return Err(Error::InvalidParameter {
             name: "max_std".into(),
             message: format!("must be positive, got {max_std}"),
+        });
+    }
+    if min_frames < 3 {
+        return Err(Error::InvalidParameter {
+            name: "min_frames".into(),
+            message: format!("must be at least 3, got {min_frames}"),
         });
     }
     let mut measured: Vec<Option<(f64, f64)>> = Vec::with_capacity(positions.len());
@@ -136,7 +148,7 @@ pub fn smooth_positions(
     let (Some(&first), Some(&last)) = (frames.first(), frames.last()) else {
         return Ok(None);
     };
-    if frames.len() < MIN_SMOOTHED_FRAMES {
+    if frames.len() < min_frames {
         return Ok(None);
     }
     let span = &measured[first..=last];
@@ -295,7 +307,7 @@ mod tests {
         let mut z2 = Vec::new();
         for seed in 0..20 {
             let (positions, std) = measured(&truth, 0.02, seed);
-            let s = smooth_positions(&positions, &std, 0.5)
+            let s = smooth_positions(&positions, &std, 0.5, 3)
                 .expect("valid")
                 .expect("enough frames");
             let raw = rms(&positions, &truth);
@@ -322,7 +334,7 @@ mod tests {
         let n = 100;
         let ramp: Vec<f64> = (0..n).map(|t| 0.01 * t as f64).collect();
         let (positions, std) = measured(&ramp, 0.01, 3);
-        let s = smooth_positions(&positions, &std, 0.5)
+        let s = smooth_positions(&positions, &std, 0.5, 3)
             .expect("valid")
             .expect("enough frames");
         let (raw, smoothed) = (rms(&positions, &ramp), rms(&s.positions, &ramp));
@@ -330,7 +342,7 @@ mod tests {
         // A step of 1 against noise of 0.001: the smoother must not blur it away.
         let step: Vec<f64> = (0..n).map(|t| if t < 50 { 0.0 } else { 1.0 }).collect();
         let positions: Vec<Option<f64>> = step.iter().map(|&x| Some(x)).collect();
-        let s = smooth_positions(&positions, &vec![Some(0.001); n], 0.5)
+        let s = smooth_positions(&positions, &vec![Some(0.001); n], 0.5, 3)
             .expect("valid")
             .expect("enough frames");
         let off = s
@@ -346,7 +358,7 @@ mod tests {
     fn only_frames_between_the_first_and_last_measured_are_given() {
         let positions = [None, Some(0.0), Some(0.1), None, Some(0.3), None];
         let std = [Some(0.01), Some(0.01), Some(0.01), None, Some(0.01), None];
-        let s = smooth_positions(&positions, &std, 0.5)
+        let s = smooth_positions(&positions, &std, 0.5, 3)
             .expect("valid")
             .expect("three frames");
         assert_eq!(
@@ -360,7 +372,7 @@ mod tests {
             s.positions
         );
         // A tight limit on the deviation leaves frames out.
-        let tight = smooth_positions(&positions, &std, 1e-6)
+        let tight = smooth_positions(&positions, &std, 1e-6, 3)
             .expect("valid")
             .expect("three frames");
         assert!(tight.positions.iter().all(Option::is_none));
@@ -373,26 +385,31 @@ mod tests {
             &[Some(0.0), Some(1.0), Some(2.0)],
             &[Some(0.1), Some(0.1), None],
             0.5,
+            3,
         );
         assert_eq!(two.expect("valid"), None);
         assert!(matches!(
-            smooth_positions(&[Some(0.0)], &[], 0.5),
+            smooth_positions(&[Some(0.0); 3], &[Some(0.1); 3], 0.5, 2),
+            Err(Error::InvalidParameter { .. })
+        ));
+        assert!(matches!(
+            smooth_positions(&[Some(0.0)], &[], 0.5, 3),
             Err(Error::Shape { .. })
         ));
         assert!(matches!(
-            smooth_positions(&[Some(f64::NAN); 3], &[Some(0.1); 3], 0.5),
+            smooth_positions(&[Some(f64::NAN); 3], &[Some(0.1); 3], 0.5, 3),
             Err(Error::InvalidParameter { name, .. }) if name == "positions"
         ));
         assert!(matches!(
-            smooth_positions(&[Some(0.0); 3], &[Some(0.0); 3], 0.5),
+            smooth_positions(&[Some(0.0); 3], &[Some(0.0); 3], 0.5, 3),
             Err(Error::InvalidParameter { name, .. }) if name == "std"
         ));
         assert!(matches!(
-            smooth_positions(&[Some(0.0); 3], &[Some(f64::INFINITY); 3], 0.5),
+            smooth_positions(&[Some(0.0); 3], &[Some(f64::INFINITY); 3], 0.5, 3),
             Err(Error::InvalidParameter { name, .. }) if name == "std"
         ));
         assert!(matches!(
-            smooth_positions(&[Some(0.0); 3], &[Some(0.1); 3], f64::NAN),
+            smooth_positions(&[Some(0.0); 3], &[Some(0.1); 3], f64::NAN, 3),
             Err(Error::InvalidParameter { name, .. }) if name == "max_std"
         ));
     }
@@ -402,21 +419,27 @@ mod tests {
         let n = 50;
         let truth = sine(n);
         let (positions, mut std) = measured(&truth, 0.2, 11);
+        let limits = PositionLimits::default();
         // A zero and a NaN deviation: left out, not an error.
         std[0] = Some(0.0);
         std[1] = Some(f64::NAN);
         let (revolute, revolute_std) =
-            smooth_fitted_positions(&positions, &std, true).expect("valid");
+            smooth_fitted_positions(&positions, &std, true, &limits).expect("valid");
         assert!(revolute[0].is_none() && revolute[1].is_none());
         assert!(revolute[10].is_some() && revolute_std[10].is_some_and(|s| s > 0.0));
         // Deviations of 0.2-0.4 pass the 0.5 rad limit smoothed, not the 0.1 m one.
-        let (prismatic, _) = smooth_fitted_positions(&positions, &std, false).expect("valid");
+        let (prismatic, _) =
+            smooth_fitted_positions(&positions, &std, false, &limits).expect("valid");
         let kept = |v: &[Option<f64>]| v.iter().filter(|x| x.is_some()).count();
         assert!(kept(&prismatic) < kept(&revolute), "{prismatic:?}");
         // Too few usable frames: all null, of the input's length.
-        let (none, none_std) =
-            smooth_fitted_positions(&positions[..3], &[Some(0.1), None, Some(-1.0)], true)
-                .expect("valid");
+        let (none, none_std) = smooth_fitted_positions(
+            &positions[..3],
+            &[Some(0.1), None, Some(-1.0)],
+            true,
+            &limits,
+        )
+        .expect("valid");
         assert_eq!((none.len(), none_std.len()), (3, 3));
         assert!(none.iter().chain(&none_std).all(Option::is_none));
     }
@@ -424,12 +447,12 @@ mod tests {
     #[test]
     fn the_smoothing_does_not_depend_on_the_units() {
         let (positions, std) = measured(&sine(200), 0.02, 7);
-        let a = smooth_positions(&positions, &std, 0.5)
+        let a = smooth_positions(&positions, &std, 0.5, 3)
             .expect("valid")
             .expect("frames");
         let scale = 1000.0;
         let scaled = |v: &[Option<f64>]| v.iter().map(|x| x.map(|x| x * scale)).collect::<Vec<_>>();
-        let b = smooth_positions(&scaled(&positions), &scaled(&std), 0.5 * scale)
+        let b = smooth_positions(&scaled(&positions), &scaled(&std), 0.5 * scale, 3)
             .expect("valid")
             .expect("frames");
         for (x, y) in a.positions.iter().zip(&b.positions) {

@@ -3,7 +3,7 @@
 
 use crate::tree_cholesky::{TreeCholesky, TreePattern};
 use kinetree_core::geom::{angle_about, kabsch_with_rank_check, wrap_pi};
-use kinetree_core::model::{JointFit, JointType};
+use kinetree_core::model::{JointFit, JointType, PositionLimits};
 use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, Translation3, Unit, UnitQuaternion,
     Vector3, Vector6,
@@ -38,7 +38,8 @@ pub(crate) struct ObservedJoint {
 pub struct FrameFit {
     /// Joint positions, radians or metres, in the order of the model's joints; `None` where
     /// the frame does not determine the position (no visible point below the joint, or a
-    /// standard deviation above [`MAX_STD_RAD`] / [`MAX_STD_M`]).
+    /// standard deviation above the model's
+    /// [`PositionLimits`](kinetree_core::model::PositionLimits)).
     pub positions: Vec<Option<f64>>,
     /// Standard deviation of each position from the fit, with the model's noise level.
     pub std: Vec<Option<f64>>,
@@ -51,11 +52,6 @@ pub struct FrameFit {
     pub sum_sq_m2: f64,
 }
 
-/// A revolute position whose standard deviation exceeds this (radians) is reported unknown.
-pub const MAX_STD_RAD: f64 = 0.5;
-/// A prismatic position whose standard deviation exceeds this (metres at 1 mm of noise; it
-/// scales with the model's noise level, 100 sigma) is reported unknown.
-pub const MAX_STD_M: f64 = 0.1;
 /// A parameter whose variance inflation (its variance over what it would be were it the
 /// only free one) exceeds this is not determined by the frame.
 const MAX_VARIANCE_INFLATION: f64 = 1e8;
@@ -81,6 +77,8 @@ const MAX_VARIANCE_INFLATION: f64 = 1e8;
 pub struct Observer {
     n_points: usize,
     pub(crate) sigma: f64,
+    /// When a position is reported unknown (the model's).
+    pub(crate) limits: PositionLimits,
     pub(crate) bodies: Vec<ObservedBody>,
     pub(crate) joints: Vec<ObservedJoint>,
     /// Joints treated as free (see [`Observer::free_joint`]).
@@ -212,9 +210,11 @@ impl Observer {
         if topo.len() != nb {
             return Err(Error::Config("the model's joints form a cycle".into()));
         }
+        model.position_limits.validate("position_limits")?;
         let mut observer = Self {
             n_points: model.n_points,
             sigma: model.noise.sigma_m,
+            limits: model.position_limits,
             bodies,
             freed: vec![false; joints.len()],
             joints,
@@ -864,7 +864,7 @@ impl Observer {
     }
 
     /// The model's noise level in units of 1 mm (of the tracks' length unit). The fit's length
-    /// tolerances ([`STEP_TOLERANCE`], [`MAX_STD_M`]) were set for 1 mm of noise and scale
+    /// tolerances ([`STEP_TOLERANCE`], `PositionLimits::max_std_m`) were set for 1 mm of noise and scale
     /// with it, so a model in millimetres (noise 1, not 0.001) fits to the same relative
     /// precision and decides the same: with fixed tolerances in metres, the invariance tests
     /// found a mechanism whose tree changed when its tracks were given in millimetres.
@@ -937,8 +937,8 @@ impl Observer {
             let sd = self.sigma * var.sqrt();
             std[k] = Some(sd);
             let limit = match j.measure {
-                Measure::Revolute(..) => MAX_STD_RAD,
-                _ => MAX_STD_M * self.length_unit(),
+                Measure::Revolute(..) => self.limits.max_std_rad,
+                _ => self.limits.max_std_m * self.length_unit(),
             };
             if determined(c) && sd <= limit {
                 positions[k] = d.state.q[k];

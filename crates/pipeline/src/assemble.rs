@@ -177,6 +177,7 @@ pub(crate) fn assemble(
             distance_variance_m2: 2.0 * sigma * sigma,
             source,
         },
+        position_limits: pipeline.positions,
         stages: StageNames {
             dissimilarity: pipeline.dissimilarity.name().into(),
             clustering: pipeline.clustering.name().into(),

@@ -5,6 +5,7 @@ use crate::runner::RunnerParams;
 use kinetree_clustering::{
     Dbscan, DbscanParams, Hierarchical, HierarchicalParams, Spectral, SpectralParams,
 };
+use kinetree_core::model::PositionLimits;
 use kinetree_core::{Clustering, Dissimilarity, DofTester, Error, PoseEstimator, Result};
 use kinetree_dissimilarity::{
     DistanceStd, DistanceVariance, FTest, FTestParams, LogPValue, LogPValueParams, SpreadParams,
@@ -205,6 +206,9 @@ pub struct PipelineConfig {
     pub repairs: RepairsConfig,
     /// The runner's limits.
     pub runner: RunnerParams,
+    /// When the whole-tree fit reports a joint position unknown, and when it smooths one
+    /// (`[pipeline.positions]`; the model carries them for later observations).
+    pub positions: PositionLimits,
     /// Replaced by `repairs.hinges.enabled` and `repairs.hinge_groups.enabled`: setting it
     /// is an error that names them.
     #[serde(default, skip_serializing, deserialize_with = "replaced_hinged_bodies")]
@@ -224,6 +228,7 @@ impl Default for PipelineConfig {
             dof: DofConfig::default(),
             repairs: RepairsConfig::default(),
             runner: RunnerParams::default(),
+            positions: PositionLimits::default(),
             hinged_bodies: (),
         }
     }
@@ -231,7 +236,7 @@ impl Default for PipelineConfig {
 
 impl PipelineConfig {
     /// Checks what the stages' and repairs' constructors do not: the noise level, the
-    /// `halves` slot's cluster count, the repairs' and runner's ranges.
+    /// `halves` slot's cluster count, the repairs', runner's and positions' ranges.
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] naming the key.
@@ -256,7 +261,8 @@ impl PipelineConfig {
             });
         }
         self.repairs.validate()?;
-        self.runner.validate()
+        self.runner.validate()?;
+        self.positions.validate("pipeline.positions")
     }
 
     /// The config with the hinge repairs (`hinges` and `hinge_groups`) on or off.

@@ -30,6 +30,9 @@ pub struct Pipeline {
     pub repairs: Vec<Box<dyn Repair>>,
     /// The runner's limits.
     pub runner: RunnerParams,
+    /// When a joint position is reported unknown, and when positions are smoothed; written
+    /// into the model.
+    pub positions: kinetree_core::model::PositionLimits,
     /// Per-coordinate noise, metres; estimated when `None`.
     pub noise_sigma_m: Option<f64>,
     /// How the noise is estimated when `noise_sigma_m` is `None`.
@@ -90,6 +93,7 @@ impl Pipeline {
             dof: c.dof.build()?,
             repairs: c.repairs.build()?,
             runner: c.runner,
+            positions: c.positions,
             noise_sigma_m: c.noise_sigma_m,
             noise_estimator: c.noise_estimator,
             seed: c.seed,
