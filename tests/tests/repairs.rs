@@ -131,6 +131,12 @@ fn attach_gives_points_on_no_body_to_the_body_whose_poses_explain_them() {
         on.model.trace
     );
     assert!(one_body(&on, &l1), "{:?}", on.model.point_body);
+    // A bound no noisy track can meet attaches nothing.
+    c.repairs.attach.slack = 0.1;
+    c.repairs.attach.bound_in_std = 0.0;
+    let strict = run(&data.tracks, &left, &c).expect("discover");
+    assert!(!traced(&strict, "attach"), "{:?}", strict.model.trace);
+    c.repairs.attach = kinetree_pipeline::repairs::AttachParams::default();
     c.repairs.attach.enabled = false;
     let off = run(&data.tracks, &left, &c).expect("discover");
     assert!(
@@ -477,7 +483,31 @@ fn repair_parameter_rules_name_the_key() {
             "pipeline.repairs.eject_points.min_frames",
         ),
         (
-            "[repairs.bundle_adjust]\nmax_steps = 3",
+            "[repairs.bundle_adjust]\nmax_steps = 0",
+            "pipeline.repairs.bundle_adjust.max_steps",
+        ),
+        (
+            "[repairs.bundle_adjust]\nmin_gain_in_variances = -1.0",
+            "pipeline.repairs.bundle_adjust.min_gain_in_variances",
+        ),
+        (
+            "[repairs.type_by_fit]\nbundle_max_steps = 5000",
+            "pipeline.repairs.type_by_fit.bundle_max_steps",
+        ),
+        (
+            "[repairs.attach]\nslack = 0.0",
+            "pipeline.repairs.attach.slack",
+        ),
+        (
+            "[repairs.attach]\nbound_in_std = nan",
+            "pipeline.repairs.attach.bound_in_std",
+        ),
+        (
+            "[repairs.hinge_groups]\nexplained_slack = inf",
+            "pipeline.repairs.hinge_groups.explained_slack",
+        ),
+        (
+            "[repairs.bundle_adjust]\nsteps = 3",
             "pipeline.repairs.bundle_adjust",
         ),
         (
@@ -752,6 +782,13 @@ fn bundle_adjust_refines_the_axes_of_the_followed_joints() {
         a < 1.0 && b > 5.0,
         "largest axis error {a} deg adjusted, {b} deg without"
     );
+    // One step of the adjustment goes part of the way.
+    c.repairs.bundle_adjust = kinetree_pipeline::repairs::BundleAdjustParams {
+        max_steps: 1,
+        ..Default::default()
+    };
+    let one = axis_error(&doctored(&c, tilted));
+    assert!(one > a && one < b, "one step {one} deg, adjusted {a}, without {b}");
 }
 
 /// A keypoint of link 2 clustered onto link 1 makes link 1's joint multi-DoF; the other

@@ -61,14 +61,27 @@ fn moved(p: &JointParams, d: &[f64]) -> JointParams {
 
 /// Finite-difference step of the joint parameters' twists (metres or radians).
 const DIFF_STEP: f64 = 1e-6;
-/// Most Gauss-Newton steps on the joints.
-const MAX_STEPS: usize = 20;
-/// The adjustment stops when a step lowers the total squared residual by less than this many
-/// noise variances (the parameters then move by well under their standard deviations), or
-/// when the next step's gain, predicted as `g_k^2 / g_(k-1)` from the last two, is; the
-/// prediction saves the last linearisation (`docs/decisions.md`,
-/// `kinetree_fit::MIN_GAIN_IN_VARIANCES`).
-const MIN_GAIN_IN_VARIANCES: f64 = 0.1;
+/// When the bundle adjustment stops (`[pipeline.repairs.bundle_adjust]`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BundleLimits {
+    /// Most Gauss-Newton steps on the joints (default 20).
+    pub max_steps: usize,
+    /// The adjustment stops when a step lowers the total squared residual by less than this
+    /// many noise variances (the parameters then move by well under their standard
+    /// deviations), or when the next step's gain, predicted as `g_k^2 / g_(k-1)` from the
+    /// last two, is; the prediction saves the last linearisation (default 0.1;
+    /// `docs/decisions.md`, `kinetree_fit::MIN_GAIN_IN_VARIANCES`).
+    pub min_gain_in_variances: f64,
+}
+
+impl Default for BundleLimits {
+    fn default() -> Self {
+        Self {
+            max_steps: 20,
+            min_gain_in_variances: 0.1,
+        }
+    }
+}
 
 /// One frame: its visible points and the converged fit of its own parameters.
 struct Frame {
@@ -82,7 +95,11 @@ struct Frame {
 ///
 /// # Errors
 /// [`kinetree_core::Error::Shape`] when the tracks do not match the observer's model.
-pub(crate) fn adjust(observer: &Observer, tracks: &Tracks) -> Result<Option<Observer>> {
+pub(crate) fn adjust(
+    observer: &Observer,
+    tracks: &Tracks,
+    limits: &BundleLimits,
+) -> Result<Option<Observer>> {
     let mut blocks = Vec::new();
     let mut n = 0;
     for (k, j) in observer.joints.iter().enumerate() {
@@ -112,7 +129,7 @@ pub(crate) fn adjust(observer: &Observer, tracks: &Tracks) -> Result<Option<Obse
     let mut lambda = 1e-3;
     let mut previous_gain: Option<f64> = None;
     let variance = (observer.sigma * observer.sigma).max(f64::MIN_POSITIVE);
-    for _ in 0..MAX_STEPS {
+    for _ in 0..limits.max_steps {
         let Some((normal, rhs)) = reduced_system(&current, &blocks, n, &frames) else {
             break;
         };
@@ -158,7 +175,8 @@ pub(crate) fn adjust(observer: &Observer, tracks: &Tracks) -> Result<Option<Obse
                 (current, blocks, cost) = (trial, trial_blocks, c);
                 lambda = (lambda * 0.1).max(1e-9);
                 let predicted = previous_gain.map_or(f64::INFINITY, |p| gain * gain / p);
-                accepted = gain >= MIN_GAIN_IN_VARIANCES && predicted >= MIN_GAIN_IN_VARIANCES;
+                let least = limits.min_gain_in_variances;
+                accepted = gain >= least && predicted >= least;
                 previous_gain = Some(gain);
                 break;
             }

@@ -17,6 +17,7 @@ mod smooth;
 mod solver;
 mod tree_cholesky;
 
+pub use bundle::BundleLimits;
 pub use motions::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
     MotionLimits, OUTLIER_RATIO,

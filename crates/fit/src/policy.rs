@@ -3,6 +3,7 @@
 //! and readmitted when they fit again, multi-DoF joints typed by the fit; then the positions,
 //! their precision, their smoothing and every joint's range written into the model.
 
+use crate::bundle::BundleLimits;
 use crate::solver::{FrameFit, Measure, Observer, rms_in_sigma};
 use kinetree_core::model::{JointFit, JointType, RigidTransform};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
@@ -113,7 +114,7 @@ impl FitState {
 pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<f64>> {
     let state = FitState::new(model, tracks)?;
     let (state, _) = free_unfollowed_joints(model, tracks, state, MAX_JOINT_EXCESS)?;
-    let (state, _) = bundle_adjust(model, tracks, state)?;
+    let (state, _) = bundle_adjust(model, tracks, state, &BundleLimits::default())?;
     let (state, _) = readmit_freed_joints(model, tracks, state, READMIT_EXCESS, MAX_JOINT_EXCESS)?;
     let (state, _) = type_joints_by_fit(model, tracks, state, &TypeByFitLimits::default())?;
     write_positions(model, &state)
@@ -207,8 +208,9 @@ pub fn bundle_adjust(
     model: &mut Model,
     tracks: &Tracks,
     state: FitState,
+    limits: &BundleLimits,
 ) -> Result<(FitState, bool)> {
-    match adjust_model(model, &state.observer, tracks)? {
+    match adjust_model(model, &state.observer, tracks, limits)? {
         Some((observer, fits)) => Ok((FitState::of(model, observer, fits), true)),
         None => Ok((state, false)),
     }
@@ -281,6 +283,8 @@ pub struct TypeByFitLimits {
     pub max_rotation_rank: usize,
     /// ... and at most this many translation directions (default 2).
     pub max_translation_rank: usize,
+    /// The bundle adjustment of each candidate type.
+    pub bundle: BundleLimits,
 }
 
 impl Default for TypeByFitLimits {
@@ -290,6 +294,7 @@ impl Default for TypeByFitLimits {
             others_max_excess: MAX_JOINT_EXCESS,
             max_rotation_rank: 1,
             max_translation_rank: 2,
+            bundle: BundleLimits::default(),
         }
     }
 }
@@ -399,8 +404,9 @@ fn adjust_model(
     model: &mut Model,
     observer: &Observer,
     tracks: &Tracks,
+    limits: &BundleLimits,
 ) -> Result<Option<(Observer, Vec<FrameFit>)>> {
-    let Some(adjusted) = crate::bundle::adjust(observer, tracks)? else {
+    let Some(adjusted) = crate::bundle::adjust(observer, tracks, limits)? else {
         return Ok(None);
     };
     let adjusted_fits = adjusted.fit_sequence(tracks)?;
@@ -484,7 +490,7 @@ fn type_by_fit(
         }
         let mut trial = Observer::new(model)?;
         let mut trial_fits = trial.fit_sequence(tracks)?;
-        if let Some(adjusted) = adjust_model(model, &trial, tracks)? {
+        if let Some(adjusted) = adjust_model(model, &trial, tracks, &limits.bundle)? {
             (trial, trial_fits) = adjusted;
         }
         let excess = trial.joint_excess(tracks, &trial_fits)?;

@@ -57,23 +57,29 @@ pub fn misfit_bound(k: f64, z: f64, slack: f64) -> f64 {
     slack * kinetree_core::stats::chi2_per_dof_quantile(k, z)
 }
 
+/// The attachment's default bound on a point's misfit: `(z, slack)` of [`misfit_bound`],
+/// 4 standard deviations and slack 2.
+pub const ATTACH_BOUND: (f64, f64) = (4.0, 2.0);
+
 /// Whether body `body`'s poses explain `point` as a rigid part of it: [`point_misfit`] within
-/// [`misfit_bound`] at `z = 4`, slack 2 (the attachment's rule, also the pipeline's test of
-/// a point fitting no body before hinges are looked for).
+/// [`misfit_bound`] at `bound = (z, slack)` (the attachment's rule, [`ATTACH_BOUND`] by
+/// default; also the pipeline's test of a point fitting no body before hinges are looked
+/// for).
 pub fn explains_point(
     tracks: &Tracks,
     poses: &BodyPoses,
     body: usize,
     point: usize,
     sigma: f64,
+    (z, slack): (f64, f64),
 ) -> bool {
     point_misfit(tracks, poses, body, point, sigma)
-        .is_some_and(|(m, k)| m <= misfit_bound(k, 4.0, 2.0))
+        .is_some_and(|(m, k)| m <= misfit_bound(k, z, slack))
 }
 
 /// Gives every unassigned point (seen in at least [`MIN_SHARED_FRAMES`] frames with some body)
-/// to the body whose poses explain it, when exactly one body does ([`point_misfit`] below
-/// [`misfit_bound`] with `z = 4`, slack 2). Assigned points are never moved. A point near a
+/// to the body whose poses explain it, when exactly one body does ([`explains_point`] at
+/// `bound`). Assigned points are never moved. A point near a
 /// joint axis can fit two bodies, and such points stay unassigned. Points in `keep_off` are
 /// never attached (the pipeline's model found them fitting no body's motion), and no body
 /// is given points that would make it one of the point sets in `undone` (ascending; the
@@ -100,6 +106,7 @@ pub fn attach_unassigned(
     sigma: f64,
     keep_off: &[usize],
     undone: &[Vec<usize>],
+    bound: (f64, f64),
 ) -> (Segmentation, Vec<usize>) {
     let nb = poses.bodies.len();
     let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
@@ -109,7 +116,7 @@ pub fn attach_unassigned(
             continue;
         }
         let fitting: Vec<usize> = (0..nb)
-            .filter(|&b| explains_point(tracks, poses, b, i, sigma))
+            .filter(|&b| explains_point(tracks, poses, b, i, sigma, bound))
             .collect();
         if let [b] = fitting[..] {
             *label = Some(b);

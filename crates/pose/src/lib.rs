@@ -7,7 +7,7 @@ mod reference;
 mod shape;
 
 pub use attach::{
-    MIN_SHARED_FRAMES, attach_unassigned, explains_point, misfit_bound, point_misfit,
+    ATTACH_BOUND, MIN_SHARED_FRAMES, attach_unassigned, explains_point, misfit_bound, point_misfit,
 };
 pub use hinge::{
     Hinge, MIN_HINGE_FRAMES, MIN_HINGE_SPREAD_IN_SIGMA, MIN_LEVER_IN_SIGMA, filled_from_hinge,

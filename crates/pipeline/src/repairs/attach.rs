@@ -14,21 +14,32 @@ use serde::{Deserialize, Serialize};
 pub struct AttachParams {
     /// Whether the repair runs.
     pub enabled: bool,
+    /// Std-devs of the Wilson-Hilferty quantile that bounds a point's `chi^2 / k` misfit to a
+    /// body's poses (`kinetree_pose::misfit_bound`; default 4).
+    pub bound_in_std: f64,
+    /// Slack on that bound for the approximations in the predicted variance (default 2).
+    pub slack: f64,
 }
 
 impl Default for AttachParams {
     fn default() -> Self {
-        Self { enabled: true }
+        Self {
+            enabled: true,
+            bound_in_std: kinetree_pose::ATTACH_BOUND.0,
+            slack: kinetree_pose::ATTACH_BOUND.1,
+        }
     }
 }
 
 impl AttachParams {
-    /// Checks the ranges (there are none).
+    /// Checks the ranges.
     ///
     /// # Errors
-    /// Never.
+    /// [`kinetree_core::Error::InvalidParameter`] naming `pipeline.repairs.attach.<parameter>`.
     pub fn validate(&self) -> Result<()> {
-        Ok(())
+        use super::in_range;
+        in_range("attach", "bound_in_std", self.bound_in_std, 0.0, 20.0)?;
+        in_range("attach", "slack", self.slack, 0.1, 100.0)
     }
 }
 
@@ -36,7 +47,7 @@ impl AttachParams {
 /// bodies phase, and again after each split.
 #[derive(Debug, Clone)]
 pub struct Attach {
-    _params: AttachParams,
+    params: AttachParams,
 }
 
 impl Attach {
@@ -46,7 +57,7 @@ impl Attach {
     /// When the parameters are invalid.
     pub fn new(params: AttachParams) -> Result<Self> {
         params.validate()?;
-        Ok(Self { _params: params })
+        Ok(Self { params })
     }
 }
 
@@ -77,6 +88,7 @@ impl Repair for Attach {
             ctx.noise_sigma_m,
             &[c.kept_off.as_slice(), &c.off_hinge].concat(),
             &c.undone_bodies,
+            (self.params.bound_in_std, self.params.slack),
         );
         if attached.is_empty() {
             return Ok(None);

@@ -12,28 +12,55 @@ use serde::{Deserialize, Serialize};
 pub struct BundleAdjustParams {
     /// Whether the repair runs. Off, the joints keep the parameters of their pair tests.
     pub enabled: bool,
+    /// Most Gauss-Newton steps ([`kinetree_fit::BundleLimits::max_steps`], default 20).
+    pub max_steps: usize,
+    /// The adjustment stops below this gain in noise variances
+    /// ([`kinetree_fit::BundleLimits::min_gain_in_variances`], default 0.1).
+    pub min_gain_in_variances: f64,
 }
 
 impl Default for BundleAdjustParams {
     fn default() -> Self {
-        Self { enabled: true }
+        let b = kinetree_fit::BundleLimits::default();
+        Self {
+            enabled: true,
+            max_steps: b.max_steps,
+            min_gain_in_variances: b.min_gain_in_variances,
+        }
     }
 }
 
 impl BundleAdjustParams {
-    /// Checks the ranges (there are none).
+    /// Checks the ranges.
     ///
     /// # Errors
-    /// Never.
+    /// [`kinetree_core::Error::InvalidParameter`] naming
+    /// `pipeline.repairs.bundle_adjust.<parameter>`.
     pub fn validate(&self) -> Result<()> {
-        Ok(())
+        const NAME: &str = "bundle_adjust";
+        super::count_in_range(NAME, "max_steps", self.max_steps, 1, 1000)?;
+        super::in_range(
+            NAME,
+            "min_gain_in_variances",
+            self.min_gain_in_variances,
+            0.0,
+            1e6,
+        )
+    }
+
+    /// The adjustment's limits.
+    pub fn limits(&self) -> kinetree_fit::BundleLimits {
+        kinetree_fit::BundleLimits {
+            max_steps: self.max_steps,
+            min_gain_in_variances: self.min_gain_in_variances,
+        }
     }
 }
 
 /// Bundle-adjusts the followed single-DoF joints.
 #[derive(Debug, Clone)]
 pub struct BundleAdjust {
-    _params: BundleAdjustParams,
+    params: BundleAdjustParams,
 }
 
 impl BundleAdjust {
@@ -43,7 +70,7 @@ impl BundleAdjust {
     /// When the parameters are invalid.
     pub fn new(params: BundleAdjustParams) -> Result<Self> {
         params.validate()?;
-        Ok(Self { _params: params })
+        Ok(Self { params })
     }
 }
 
@@ -62,7 +89,8 @@ impl Repair for BundleAdjust {
             ctx,
             draft,
             |model, state| {
-                let (state, changed) = kinetree_fit::bundle_adjust(model, ctx.tracks, state)?;
+                let (state, changed) =
+                    kinetree_fit::bundle_adjust(model, ctx.tracks, state, &self.params.limits())?;
                 Ok((state, changed.then(Vec::new)))
             },
             |_| "joint axes, pivots and reference poses bundle-adjusted over every frame".into(),

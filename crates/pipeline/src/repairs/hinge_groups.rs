@@ -30,6 +30,11 @@ pub struct HingeGroupsParams {
     pub min_arc_in_std: f64,
     /// Largest RMS misfit of the hinge ([`HingeBounds::max_rms_in_sigma`], default 3.0).
     pub max_rms_in_sigma: f64,
+    /// A keypoint a body's poses explain within this many std-devs (the attachment's rule,
+    /// `kinetree_pose::explains_point`; default 4) is not grouped.
+    pub explained_bound_in_std: f64,
+    /// Slack on that bound (default 2).
+    pub explained_slack: f64,
 }
 
 impl Default for HingeGroupsParams {
@@ -43,6 +48,8 @@ impl Default for HingeGroupsParams {
             bound_in_std: b.bound_in_std,
             min_arc_in_std: b.min_arc_in_std,
             max_rms_in_sigma: b.max_rms_in_sigma,
+            explained_bound_in_std: kinetree_pose::ATTACH_BOUND.0,
+            explained_slack: kinetree_pose::ATTACH_BOUND.1,
         }
     }
 }
@@ -56,6 +63,14 @@ impl HingeGroupsParams {
         const NAME: &str = "hinge_groups";
         count_in_range(NAME, "min_frames", self.min_frames, 2, 1_000_000)?;
         count_in_range(NAME, "min_points", self.min_points, 1, 1_000_000)?;
+        super::in_range(
+            NAME,
+            "explained_bound_in_std",
+            self.explained_bound_in_std,
+            0.0,
+            20.0,
+        )?;
+        super::in_range(NAME, "explained_slack", self.explained_slack, 0.1, 100.0)?;
         self.bounds().validate(NAME)
     }
 
@@ -105,10 +120,15 @@ impl Repair for HingeGroups {
         let poses = poses_of(self.name(), draft.poses.as_ref())?;
         let (tracks, sigma, seg) = (ctx.tracks, ctx.noise_sigma_m, &draft.segmentation);
         let nb = poses.bodies.len();
+        let explained = (
+            self.params.explained_bound_in_std,
+            self.params.explained_slack,
+        );
         let left: Vec<usize> = super::unassigned_points(tracks, seg, self.params.min_frames)
             .into_iter()
             .filter(|&i| {
-                !(0..nb).any(|b| kinetree_pose::explains_point(tracks, poses, b, i, sigma))
+                !(0..nb)
+                    .any(|b| kinetree_pose::explains_point(tracks, poses, b, i, sigma, explained))
             })
             .collect();
         let bounds = self.params.bounds();

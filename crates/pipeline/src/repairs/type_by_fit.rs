@@ -24,6 +24,12 @@ pub struct TypeByFitParams {
     pub max_rotation_rank: usize,
     /// ... and at most this many translation directions (default 2).
     pub max_translation_rank: usize,
+    /// Most bundle-adjustment steps on each candidate type (default 20, as
+    /// `bundle_adjust.max_steps`).
+    pub bundle_max_steps: usize,
+    /// Its stopping gain in noise variances (default 0.1, as
+    /// `bundle_adjust.min_gain_in_variances`).
+    pub bundle_min_gain_in_variances: f64,
 }
 
 impl Default for TypeByFitParams {
@@ -35,6 +41,8 @@ impl Default for TypeByFitParams {
             others_max_excess: l.others_max_excess,
             max_rotation_rank: l.max_rotation_rank,
             max_translation_rank: l.max_translation_rank,
+            bundle_max_steps: l.bundle.max_steps,
+            bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
         }
     }
 }
@@ -55,6 +63,14 @@ impl TypeByFitParams {
             self.max_translation_rank,
             0,
             3,
+        )?;
+        count_in_range(NAME, "bundle_max_steps", self.bundle_max_steps, 1, 1000)?;
+        in_range(
+            NAME,
+            "bundle_min_gain_in_variances",
+            self.bundle_min_gain_in_variances,
+            0.0,
+            1e6,
         )
     }
 }
@@ -92,6 +108,10 @@ impl Repair for TypeByFit {
             others_max_excess: p.others_max_excess,
             max_rotation_rank: p.max_rotation_rank,
             max_translation_rank: p.max_translation_rank,
+            bundle: kinetree_fit::BundleLimits {
+                max_steps: p.bundle_max_steps,
+                min_gain_in_variances: p.bundle_min_gain_in_variances,
+            },
         };
         refit(
             self.name(),
