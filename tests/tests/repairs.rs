@@ -209,6 +209,10 @@ fn hinges_pose_a_link_seen_two_keypoints_at_a_time_through_its_joint() {
     let on = run(&tracks, &truth, &config()).expect("discover");
     assert!(traced(&on, "hinges"));
     let mut c = config();
+    // A hinge fit that asks for more frames than the recording has finds none.
+    c.repairs.hinges.min_fit_frames = 100_000;
+    let unfit = run(&tracks, &truth, &c).expect("discover");
+    assert!(!traced(&unfit, "hinges"), "{:?}", unfit.model.trace);
     c.repairs.hinges.enabled = false;
     let off = run(&tracks, &truth, &c).expect("discover");
     assert!(
@@ -503,6 +507,14 @@ fn repair_parameter_rules_name_the_key() {
             "pipeline.repairs.attach.bound_in_std",
         ),
         (
+            "[repairs.hinges]\nmin_fit_frames = 2",
+            "pipeline.repairs.hinges.min_fit_frames",
+        ),
+        (
+            "[repairs.hinge_groups]\nmin_lever_in_sigma = -1.0",
+            "pipeline.repairs.hinge_groups.min_lever_in_sigma",
+        ),
+        (
             "[repairs.hinge_groups]\nexplained_slack = inf",
             "pipeline.repairs.hinge_groups.explained_slack",
         ),
@@ -788,7 +800,10 @@ fn bundle_adjust_refines_the_axes_of_the_followed_joints() {
         ..Default::default()
     };
     let one = axis_error(&doctored(&c, tilted));
-    assert!(one > a && one < b, "one step {one} deg, adjusted {a}, without {b}");
+    assert!(
+        one > a && one < b,
+        "one step {one} deg, adjusted {a}, without {b}"
+    );
 }
 
 /// A keypoint of link 2 clustered onto link 1 makes link 1's joint multi-DoF; the other

@@ -435,8 +435,15 @@ fn a_link_seen_two_keypoints_at_a_time_is_posed_through_its_hinge() {
         poses.bodies[1].n_registered() < 2,
         "link 1 should be hidden"
     );
-    let hinge = kinetree_pose::hinged_body(&data.tracks, &poses, Some(0), &[11, 15], 0.001)
-        .expect("a hinge");
+    let hinge = kinetree_pose::hinged_body(
+        &data.tracks,
+        &poses,
+        Some(0),
+        &[11, 15],
+        0.001,
+        &kinetree_pose::HingeLimits::default(),
+    )
+    .expect("a hinge");
     let (rigidity, _) = kinetree_pose::group_rigidity(&data.tracks, &[11, 15], 0.001);
     assert!(
         (0.6..1.6).contains(&hinge.chi2_per_dof) && rigidity < 1.6,
@@ -493,8 +500,15 @@ fn what_does_not_turn_on_one_hinge_does_not_fit_one() {
     let data = kinetree_tests::revolute_tree(5, 14);
     let poses = true_body_poses(&data);
     let bound = |dof: f64| kinetree_pose::misfit_bound(dof, 4.0, 2.0);
-    let far =
-        kinetree_pose::hinged_body(&data.tracks, &poses, Some(5), &[11, 15], 0.001).expect("a fit");
+    let far = kinetree_pose::hinged_body(
+        &data.tracks,
+        &poses,
+        Some(5),
+        &[11, 15],
+        0.001,
+        &kinetree_pose::HingeLimits::default(),
+    )
+    .expect("a fit");
     assert!(
         far.chi2_per_dof > 10.0 * bound(far.dof),
         "two joints away: chi2/dof {}",
@@ -509,8 +523,15 @@ fn what_does_not_turn_on_one_hinge_does_not_fit_one() {
                 .count()
         })
         .expect("a keypoint of link 2");
-    let mixed = kinetree_pose::hinged_body(&data.tracks, &poses, Some(0), &[11, other], 0.001)
-        .expect("a fit");
+    let mixed = kinetree_pose::hinged_body(
+        &data.tracks,
+        &poses,
+        Some(0),
+        &[11, other],
+        0.001,
+        &kinetree_pose::HingeLimits::default(),
+    )
+    .expect("a fit");
     let (rigidity, rigidity_dof) = kinetree_pose::group_rigidity(&data.tracks, &[11, other], 0.001);
     assert!(
         rigidity > 10.0 * bound(rigidity_dof),
@@ -536,8 +557,15 @@ fn a_hinge_fills_the_frames_a_link_lacks_in_its_own_body_frame() {
         .filter(|(_, placed)| **placed)
         .map(|(&i, _)| i)
         .collect();
-    let hinge =
-        kinetree_pose::hinged_body(&data.tracks, &poses, None, &seen, 0.001).expect("a hinge");
+    let hinge = kinetree_pose::hinged_body(
+        &data.tracks,
+        &poses,
+        None,
+        &seen,
+        0.001,
+        &kinetree_pose::HingeLimits::default(),
+    )
+    .expect("a hinge");
     let (filled, n) = kinetree_pose::filled_from_hinge(own, &hinge);
     assert_eq!(filled.n_registered(), own.n_registered() + n);
     assert!(
@@ -580,7 +608,14 @@ fn a_hinge_on_bad_input_is_refused() {
     let poses = true_body_poses(&data);
     let n = poses.bodies.len();
     let fit = |parent, points: &[usize], sigma| {
-        kinetree_pose::hinged_body(&data.tracks, &poses, parent, points, sigma)
+        kinetree_pose::hinged_body(
+            &data.tracks,
+            &poses,
+            parent,
+            points,
+            sigma,
+            &kinetree_pose::HingeLimits::default(),
+        )
     };
     assert!(
         fit(Some(0), &[11, 15], 0.001).is_some(),

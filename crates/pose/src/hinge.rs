@@ -15,16 +15,39 @@ use kinetree_core::nalgebra::{
 };
 use kinetree_core::{BodyPoses, BodyTrack, PoseQuality, Tracks};
 
-/// Fewest frames in which the parent is posed and a keypoint of the group is visible.
+/// Default of [`HingeLimits::min_frames`].
 pub const MIN_HINGE_FRAMES: usize = 10;
 
-/// The keypoint tracks must spread at least this many noise std-devs (RMS about their
-/// means) across the axis in the weaker in-plane direction, else the plane of the circles,
-/// hence the axis, is not determined.
+/// Default of [`HingeLimits::min_spread_in_sigma`].
 pub const MIN_HINGE_SPREAD_IN_SIGMA: f64 = 5.0;
 
-/// A keypoint nearer the axis than this many noise std-devs does not tell the angle.
+/// Default of [`HingeLimits::min_lever_in_sigma`].
 pub const MIN_LEVER_IN_SIGMA: f64 = 3.0;
+
+/// When [`hinged_body`] can fit a hinge at all.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HingeLimits {
+    /// Fewest frames in which the parent is posed and a keypoint of the group is visible
+    /// (default 10).
+    pub min_frames: usize,
+    /// The keypoint tracks must spread at least this many noise std-devs (RMS about their
+    /// means) across the axis in the weaker in-plane direction, else the plane of the
+    /// circles, hence the axis, is not determined (default 5).
+    pub min_spread_in_sigma: f64,
+    /// A keypoint nearer the axis than this many noise std-devs does not tell the angle
+    /// (default 3).
+    pub min_lever_in_sigma: f64,
+}
+
+impl Default for HingeLimits {
+    fn default() -> Self {
+        Self {
+            min_frames: MIN_HINGE_FRAMES,
+            min_spread_in_sigma: MIN_HINGE_SPREAD_IN_SIGMA,
+            min_lever_in_sigma: MIN_LEVER_IN_SIGMA,
+        }
+    }
+}
 
 /// Rounds of alternation between the angles and the shape after the first estimate.
 const REFINE_ROUNDS: usize = 10;
@@ -317,6 +340,7 @@ pub fn hinged_body(
     parent: Option<usize>,
     points: &[usize],
     sigma: f64,
+    limits: &HingeLimits,
 ) -> Option<Hinge> {
     let m = points.len();
     let nt = poses.n_frames;
@@ -350,7 +374,7 @@ pub fn hinged_body(
         }
     }
     let counts: Vec<usize> = z.iter().map(|zk| zk.iter().flatten().count()).collect();
-    if frames.len() < MIN_HINGE_FRAMES || counts.iter().any(|&c| c < 3) {
+    if frames.len() < limits.min_frames || counts.iter().any(|&c| c < 3) {
         return None;
     }
     let n_samples: usize = counts.iter().sum();
@@ -369,7 +393,7 @@ pub fn hinged_body(
     let eig = scatter.symmetric_eigen();
     let mut order = [0usize, 1, 2];
     order.sort_by(|&x, &y| eig.eigenvalues[x].total_cmp(&eig.eigenvalues[y]));
-    if eig.eigenvalues[order[1]] / (n_samples as f64) < (MIN_HINGE_SPREAD_IN_SIGMA * sigma).powi(2)
+    if eig.eigenvalues[order[1]] / (n_samples as f64) < (limits.min_spread_in_sigma * sigma).powi(2)
     {
         return None;
     }
@@ -418,7 +442,7 @@ pub fn hinged_body(
         .zip(&counts)
         .map(|(zk, &c)| zk.iter().flatten().map(lever).sum::<f64>() / c as f64)
         .collect();
-    let tells = |k: usize| radius[k] >= MIN_LEVER_IN_SIGMA * sigma;
+    let tells = |k: usize| radius[k] >= limits.min_lever_in_sigma * sigma;
     // Phase offsets of the keypoints, linked through frames where two are seen together,
     // starting from the best seen keypoint off the axis.
     let first = (0..m).filter(|&k| tells(k)).max_by(|&x, &y| {

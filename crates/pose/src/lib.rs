@@ -10,8 +10,8 @@ pub use attach::{
     ATTACH_BOUND, MIN_SHARED_FRAMES, attach_unassigned, explains_point, misfit_bound, point_misfit,
 };
 pub use hinge::{
-    Hinge, MIN_HINGE_FRAMES, MIN_HINGE_SPREAD_IN_SIGMA, MIN_LEVER_IN_SIGMA, filled_from_hinge,
-    group_rigidity, hinged_body,
+    Hinge, HingeLimits, MIN_HINGE_FRAMES, MIN_HINGE_SPREAD_IN_SIGMA, MIN_LEVER_IN_SIGMA,
+    filled_from_hinge, group_rigidity, hinged_body,
 };
 pub use kabsch::{centroid, kabsch, rotation_cov_per_sigma2, rotation_std_per_sigma, spread};
 pub use reference::{KabschParams, KabschPoses};

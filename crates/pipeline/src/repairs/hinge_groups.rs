@@ -35,6 +35,12 @@ pub struct HingeGroupsParams {
     pub explained_bound_in_std: f64,
     /// Slack on that bound (default 2).
     pub explained_slack: f64,
+    /// As [`super::HingesParams::min_fit_frames`] (default 10).
+    pub min_fit_frames: usize,
+    /// As [`super::HingesParams::min_spread_in_sigma`] (default 5).
+    pub min_spread_in_sigma: f64,
+    /// As [`super::HingesParams::min_lever_in_sigma`] (default 3).
+    pub min_lever_in_sigma: f64,
 }
 
 impl Default for HingeGroupsParams {
@@ -50,6 +56,9 @@ impl Default for HingeGroupsParams {
             max_rms_in_sigma: b.max_rms_in_sigma,
             explained_bound_in_std: kinetree_pose::ATTACH_BOUND.0,
             explained_slack: kinetree_pose::ATTACH_BOUND.1,
+            min_fit_frames: b.fit.min_frames,
+            min_spread_in_sigma: b.fit.min_spread_in_sigma,
+            min_lever_in_sigma: b.fit.min_lever_in_sigma,
         }
     }
 }
@@ -81,6 +90,11 @@ impl HingeGroupsParams {
             bound_in_std: self.bound_in_std,
             min_arc_in_std: self.min_arc_in_std,
             max_rms_in_sigma: self.max_rms_in_sigma,
+            fit: kinetree_pose::HingeLimits {
+                min_frames: self.min_fit_frames,
+                min_spread_in_sigma: self.min_spread_in_sigma,
+                min_lever_in_sigma: self.min_lever_in_sigma,
+            },
         }
     }
 }

@@ -32,6 +32,8 @@ pub struct HingeBounds {
     /// lever arm, so a poorly posed parent passes almost any hinge (`docs/decisions.md`,
     /// `hinges.max_rms_in_sigma`).
     pub max_rms_in_sigma: f64,
+    /// When a hinge can be fitted at all: frames, spread across the axis, lever arm.
+    pub fit: kinetree_pose::HingeLimits,
 }
 
 impl Default for HingeBounds {
@@ -41,6 +43,7 @@ impl Default for HingeBounds {
             bound_in_std: 4.0,
             min_arc_in_std: 20.0,
             max_rms_in_sigma: 3.0,
+            fit: kinetree_pose::HingeLimits::default(),
         }
     }
 }
@@ -50,7 +53,22 @@ impl HingeBounds {
         in_range(repair, "slack", self.slack, 0.1, 100.0)?;
         in_range(repair, "bound_in_std", self.bound_in_std, 0.0, 20.0)?;
         in_range(repair, "min_arc_in_std", self.min_arc_in_std, 0.0, 1e6)?;
-        in_range(repair, "max_rms_in_sigma", self.max_rms_in_sigma, 0.0, 1e6)
+        in_range(repair, "max_rms_in_sigma", self.max_rms_in_sigma, 0.0, 1e6)?;
+        super::count_in_range(repair, "min_fit_frames", self.fit.min_frames, 3, 1_000_000)?;
+        in_range(
+            repair,
+            "min_spread_in_sigma",
+            self.fit.min_spread_in_sigma,
+            0.0,
+            1e6,
+        )?;
+        in_range(
+            repair,
+            "min_lever_in_sigma",
+            self.fit.min_lever_in_sigma,
+            0.0,
+            1e6,
+        )
     }
 
     pub(crate) fn bound(&self, dof: f64) -> f64 {
@@ -78,6 +96,15 @@ pub struct HingesParams {
     pub min_arc_in_std: f64,
     /// Largest RMS misfit of the hinge ([`HingeBounds::max_rms_in_sigma`], default 3.0).
     pub max_rms_in_sigma: f64,
+    /// Fewest frames with the parent posed and a keypoint seen for a hinge fit
+    /// ([`kinetree_pose::HingeLimits::min_frames`], default 10).
+    pub min_fit_frames: usize,
+    /// Least spread of the keypoint tracks across the axis
+    /// ([`kinetree_pose::HingeLimits::min_spread_in_sigma`], default 5).
+    pub min_spread_in_sigma: f64,
+    /// Least lever arm of a keypoint that tells the angle
+    /// ([`kinetree_pose::HingeLimits::min_lever_in_sigma`], default 3).
+    pub min_lever_in_sigma: f64,
 }
 
 impl Default for HingesParams {
@@ -90,6 +117,9 @@ impl Default for HingesParams {
             bound_in_std: HingeBounds::default().bound_in_std,
             min_arc_in_std: HingeBounds::default().min_arc_in_std,
             max_rms_in_sigma: HingeBounds::default().max_rms_in_sigma,
+            min_fit_frames: kinetree_pose::MIN_HINGE_FRAMES,
+            min_spread_in_sigma: kinetree_pose::MIN_HINGE_SPREAD_IN_SIGMA,
+            min_lever_in_sigma: kinetree_pose::MIN_LEVER_IN_SIGMA,
         }
     }
 }
@@ -113,6 +143,11 @@ impl HingesParams {
             bound_in_std: self.bound_in_std,
             min_arc_in_std: self.min_arc_in_std,
             max_rms_in_sigma: self.max_rms_in_sigma,
+            fit: kinetree_pose::HingeLimits {
+                min_frames: self.min_fit_frames,
+                min_spread_in_sigma: self.min_spread_in_sigma,
+                min_lever_in_sigma: self.min_lever_in_sigma,
+            },
         }
     }
 }
@@ -183,13 +218,14 @@ impl Hinges {
             return None;
         }
         let chi2 = hinge.chi2_per_dof * hinge.dof;
+        let limits = self.params.bounds().fit;
         points
             .iter()
             .filter(|p| !done.contains(p))
             .filter_map(|&p| {
                 let rest: Vec<usize> = points.iter().copied().filter(|&q| q != p).collect();
                 let without =
-                    kinetree_pose::hinged_body(tracks, poses, hinge.parent, &rest, sigma)?;
+                    kinetree_pose::hinged_body(tracks, poses, hinge.parent, &rest, sigma, &limits)?;
                 let dof = hinge.dof - without.dof;
                 let gain = (chi2 - without.chi2_per_dof * without.dof) / dof;
                 (dof >= 1.0 && gain > self.params.bounds().bound(dof)).then_some((gain, p))
@@ -221,7 +257,9 @@ pub(crate) fn best_hinge(
     std::iter::once(None)
         .chain((0..poses.bodies.len()).map(Some))
         .filter(|&parent| parent.is_none() || parent != skip)
-        .filter_map(|parent| kinetree_pose::hinged_body(tracks, poses, parent, group, sigma))
+        .filter_map(|parent| {
+            kinetree_pose::hinged_body(tracks, poses, parent, group, sigma, &bounds.fit)
+        })
         .filter(|h| {
             h.chi2_per_dof <= bounds.bound(h.dof)
                 && h.arc_in_std >= bounds.min_arc_in_std
