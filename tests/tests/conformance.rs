@@ -78,6 +78,19 @@ fn clusterers_conform() {
             .expect("params");
     let v = check_clustering(&spectral, &q_matrix);
     assert!(v.is_empty(), "spectral: {v:?}");
+    let linfa_kmeans = kinetree_clustering::Spectral::new(kinetree_clustering::SpectralParams {
+        kmeans: kinetree_clustering::KMeansImpl::Linfa,
+        ..Default::default()
+    })
+    .expect("params");
+    let v = check_clustering(&linfa_kmeans, &q_matrix);
+    assert!(v.is_empty(), "spectral with linfa's k-means: {v:?}");
+    let gmm = kinetree_clustering::SpectralGmm::new(Default::default()).expect("params");
+    let v = check_clustering(&gmm, &q_matrix);
+    assert!(v.is_empty(), "spectral_gmm: {v:?}");
+    let dbscan = kinetree_clustering::SpectralDbscan::new(Default::default()).expect("params");
+    let v = check_clustering(&dbscan, &q_matrix);
+    assert!(v.is_empty(), "spectral_dbscan: {v:?}");
 }
 
 #[test]

@@ -22,6 +22,14 @@ fn clusterers() -> Vec<(&'static str, ClusteringConfig)> {
         ),
         ("dbscan", ClusteringConfig::Dbscan(Default::default())),
         ("spectral", ClusteringConfig::Spectral(Default::default())),
+        (
+            "spectral_gmm",
+            ClusteringConfig::SpectralGmm(Default::default()),
+        ),
+        (
+            "spectral_dbscan",
+            ClusteringConfig::SpectralDbscan(Default::default()),
+        ),
     ]
 }
 
@@ -267,7 +275,8 @@ fn every_clusterer_on_one_body_and_a_point_seen_once() {
     }
 }
 
-/// Every clusterer takes a number of bodies when told (`n_clusters`), on the dissimilarity
+/// Every clusterer that can (not `spectral_dbscan`, which counts the bodies itself) takes a
+/// number of bodies when told (`n_clusters`), on the dissimilarity
 /// matrix of a simulated 4-body chain: the true count gives the true bodies, one fewer gives
 /// one fewer body; DBSCAN names the counts it can reach when the asked one is impossible.
 #[test]
@@ -313,6 +322,16 @@ fn every_clusterer_cuts_to_a_given_number_of_bodies() {
                 "spectral",
                 Box::new(
                     Spectral::new(SpectralParams {
+                        n_clusters: Some(k),
+                        ..Default::default()
+                    })
+                    .expect("params"),
+                ),
+            ),
+            (
+                "spectral_gmm",
+                Box::new(
+                    kinetree_clustering::SpectralGmm::new(kinetree_clustering::SpectralGmmParams {
                         n_clusters: Some(k),
                         ..Default::default()
                     })

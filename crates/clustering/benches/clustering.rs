@@ -3,7 +3,8 @@
 //! seen together (NaN). Run with `cargo bench -p kinetree-clustering`.
 
 use kinetree_clustering::{
-    Dbscan, DbscanParams, Hierarchical, HierarchicalParams, Spectral, SpectralParams,
+    Dbscan, DbscanParams, Hierarchical, HierarchicalParams, KMeansImpl, Spectral, SpectralDbscan,
+    SpectralDbscanParams, SpectralGmm, SpectralGmmParams, SpectralParams,
 };
 use kinetree_core::{Clustering, ClusteringInput, DissimilarityMatrix};
 
@@ -68,5 +69,28 @@ fn dbscan(bencher: divan::Bencher, &args: &(usize, f64)) {
 #[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
 fn spectral(bencher: divan::Bencher, &args: &(usize, f64)) {
     let stage = Spectral::new(SpectralParams::default()).expect("params");
+    time_stage(bencher, &stage, args);
+}
+
+/// The spectral stage with linfa-clustering's k-means in place of kinetree's.
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn spectral_linfa_kmeans(bencher: divan::Bencher, &args: &(usize, f64)) {
+    let stage = Spectral::new(SpectralParams {
+        kmeans: KMeansImpl::Linfa,
+        ..SpectralParams::default()
+    })
+    .expect("params");
+    time_stage(bencher, &stage, args);
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn spectral_gmm(bencher: divan::Bencher, &args: &(usize, f64)) {
+    let stage = SpectralGmm::new(SpectralGmmParams::default()).expect("params");
+    time_stage(bencher, &stage, args);
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn spectral_dbscan(bencher: divan::Bencher, &args: &(usize, f64)) {
+    let stage = SpectralDbscan::new(SpectralDbscanParams::default()).expect("params");
     time_stage(bencher, &stage, args);
 }

@@ -2,16 +2,22 @@
 
 mod dbscan;
 mod diagnostics;
+#[cfg(feature = "linfa")]
+mod embedded;
 mod hierarchical;
 mod reassign;
 mod spectral;
+#[cfg(test)]
+mod test_support;
 mod unknown;
 
 pub use dbscan::{Dbscan, DbscanParams};
 pub use diagnostics::{SegmentationDiagnostics, diagnostics};
+#[cfg(feature = "linfa")]
+pub use embedded::{SpectralDbscan, SpectralDbscanParams, SpectralGmm, SpectralGmmParams};
 pub use hierarchical::{Hierarchical, HierarchicalParams, Linkage};
 pub use reassign::reassign_points;
-pub use spectral::{DENSE_LIMIT, Spectral, SpectralParams};
+pub use spectral::{DENSE_LIMIT, KMeansImpl, Spectral, SpectralParams};
 pub use unknown::fill_unknown;
 
 /// The checks every clusterer makes on its input: one value per pair, none infinite (NaN marks

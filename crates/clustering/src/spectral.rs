@@ -1,10 +1,23 @@
 //! Spectral clustering on the dissimilarity matrix: affinity graph, normalised Laplacian
 //! eigenvectors (faer), number of bodies from the eigengap, k-means on the embedding.
 
-use kinetree_core::{Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation};
+use kinetree_core::{
+    Clustering, ClusteringInput, DissimilarityMatrix, Error, MIN_BODY_POINTS, Result, Segmentation,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+
+/// Which k-means the spectral clusterer runs on its embedding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KMeansImpl {
+    /// kinetree's own Lloyd iterations (the default; faster, the same labels on the sweeps).
+    #[default]
+    Kinetree,
+    /// linfa-clustering's `KMeans`.
+    Linfa,
+}
 
 /// Parameters of [`Spectral`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -18,8 +31,15 @@ pub struct SpectralParams {
     pub n_clusters: Option<usize>,
     /// The eigengap looks at most this many clusters.
     pub max_clusters: usize,
+    /// The k-means implementation (default `kinetree`; `linfa` runs linfa-clustering's).
+    pub kmeans: KMeansImpl,
     /// k-means restarts (k-means++ seeding each); the lowest inertia wins.
     pub kmeans_restarts: usize,
+    /// A linfa k-means run stops when its centroids move less than this (default 1e-6; the
+    /// rows have unit length); kinetree's stops when no label changes.
+    pub kmeans_tolerance: f64,
+    /// ... or after this many iterations (default 300).
+    pub kmeans_max_iterations: usize,
     /// Clusters with fewer points are discarded (at least 3, the minimum for a pose).
     pub min_points: usize,
     /// Up to this many points the eigenvectors come from a dense eigendecomposition, above it
@@ -34,7 +54,10 @@ impl Default for SpectralParams {
             width: 0.05,
             n_clusters: None,
             max_clusters: 40,
+            kmeans: KMeansImpl::Kinetree,
             kmeans_restarts: 10,
+            kmeans_tolerance: 1e-6,
+            kmeans_max_iterations: 300,
             min_points: MIN_BODY_POINTS,
             dense_limit: DENSE_LIMIT,
         }
@@ -71,8 +94,23 @@ impl SpectralParams {
         if self.max_clusters == 0 {
             return bad("max_clusters", "must be at least 1".into());
         }
-        if self.kmeans_restarts == 0 {
-            return bad("kmeans_restarts", "must be at least 1".into());
+        if !(1..=10_000).contains(&self.kmeans_restarts) {
+            return bad(
+                "kmeans_restarts",
+                format!("must be in 1..=10000, got {}", self.kmeans_restarts),
+            );
+        }
+        if !(self.kmeans_tolerance.is_finite() && self.kmeans_tolerance > 0.0) {
+            return bad(
+                "kmeans_tolerance",
+                format!("must be finite and positive, got {}", self.kmeans_tolerance),
+            );
+        }
+        if !(1..=1_000_000).contains(&self.kmeans_max_iterations) {
+            return bad(
+                "kmeans_max_iterations",
+                format!("must be in 1..=1000000, got {}", self.kmeans_max_iterations),
+            );
         }
         if self.min_points < MIN_BODY_POINTS {
             return bad(
@@ -84,6 +122,17 @@ impl SpectralParams {
             );
         }
         Ok(())
+    }
+
+    /// The embedding settings of these parameters.
+    pub(crate) fn embedding(&self) -> EmbeddingSettings {
+        EmbeddingSettings {
+            cut: self.cut,
+            width: self.width,
+            n_clusters: self.n_clusters,
+            max_clusters: self.max_clusters,
+            dense_limit: self.dense_limit,
+        }
     }
 }
 
@@ -103,15 +152,15 @@ impl SpectralParams {
 ///   clusters is where the gap between consecutive eigenvalues is largest (at most
 ///   `max_clusters`), unless `n_clusters` is given.
 /// - k-means with k-means++ seeding on the row-normalised eigenvectors, `kmeans_restarts`
-///   times from the input seed; the lowest inertia wins.
+///   times from the input seed; the lowest inertia wins (kinetree's own, or with
+///   `kmeans = "linfa"` linfa-clustering's `KMeans`).
 ///
 /// Points with no affinity to anything stay unassigned. The eigenvectors come from faer: a
 /// dense symmetric eigendecomposition up to `dense_limit` points, above that block subspace
 /// iteration on `I + D^-1/2 W D^-1/2` (whose largest eigenvalues are the ones we need) from a
 /// fixed start, so the result is deterministic.
 ///
-/// k-means is our own (about 50 lines) rather than linfa-clustering's: linfa pulls ndarray
-/// 0.16 and rand 0.8 beside our rand 0.9, and a minute of cold build (shared/notes/crates.md).
+/// The same embedding feeds [`crate::SpectralGmm`] and [`crate::SpectralDbscan`].
 #[derive(Debug, Clone)]
 pub struct Spectral {
     params: SpectralParams,
@@ -145,75 +194,157 @@ impl Clustering for Spectral {
     }
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
-        let m = input.dissimilarity;
-        let n = m.n_points;
-        crate::check_matrix(m)?;
-        let cut = self.params.cut.unwrap_or(m.suggested_cut);
-        if !(cut.is_finite() && cut > 0.0) {
-            return Err(Error::InvalidParameter {
-                name: "cut".into(),
-                message: format!(
-                    "the measure's suggested cut {cut} cannot scale an affinity; set `cut`"
-                ),
-            });
-        }
-        let width = self.params.width * cut;
-        // Dense affinity over all points, then restricted to those with any affinity.
-        let mut w = vec![0.0f64; n * n];
-        for i in 0..n {
-            for j in i + 1..n {
-                if let Some(d) = m.get(i, j)
-                    && d < cut + TAIL_WIDTHS * width
-                {
-                    let a = 1.0 / (1.0 + ((d - cut) / width).exp());
-                    w[i * n + j] = a;
-                    w[j * n + i] = a;
-                }
+        let e = match embed(input.dissimilarity, &self.params.embedding())? {
+            Embedded::Trivial(raw) => {
+                return Ok(Segmentation::from_raw(&raw, self.params.min_points));
             }
-        }
-        let degree: Vec<f64> = (0..n).map(|i| w[i * n..(i + 1) * n].iter().sum()).collect();
-        let keep: Vec<usize> = (0..n).filter(|&i| degree[i] > 1e-9).collect();
-        let k_pts = keep.len();
-        let mut raw = vec![None; n];
-        if k_pts <= 1 {
-            if let Some(&i) = keep.first() {
-                raw[i] = Some(0);
-            }
-            return Ok(Segmentation::from_raw(&raw, self.params.min_points));
-        }
-        let inv_sqrt: Vec<f64> = keep.iter().map(|&i| 1.0 / degree[i].sqrt()).collect();
-        // Shifted normalised affinity I + D^-1/2 W D^-1/2: eigenvalues in [0, 2], the
-        // Laplacian's smallest at the top.
-        let shifted = faer::Mat::<f64>::from_fn(k_pts, k_pts, |a, b| {
-            let v = w[keep[a] * n + keep[b]] * inv_sqrt[a] * inv_sqrt[b];
-            if a == b { 1.0 + v } else { v }
-        });
-        drop(w);
-        let n_eig = (self.params.n_clusters.unwrap_or(self.params.max_clusters) + 1).min(k_pts);
-        let (lap_values, vectors) =
-            smallest_laplacian_eigen(&shifted, n_eig, self.params.dense_limit)?;
-        let k = match self.params.n_clusters {
-            Some(c) => c.min(k_pts),
-            None => eigengap(&lap_values),
+            Embedded::Rows(e) => e,
         };
-        // Row-normalised embedding on the first k eigenvectors.
-        let mut emb = vec![0.0f64; k_pts * k];
-        for a in 0..k_pts {
-            let row = &mut emb[a * k..(a + 1) * k];
-            for (c, x) in row.iter_mut().enumerate() {
-                *x = vectors[c][a];
-            }
-            let norm = row.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if norm > 0.0 {
-                row.iter_mut().for_each(|x| *x /= norm);
-            }
-        }
-        let labels = kmeans(&emb, k, k, self.params.kmeans_restarts, input.seed);
-        for (a, &i) in keep.iter().enumerate() {
-            raw[i] = Some(labels[a]);
-        }
-        Ok(Segmentation::from_raw(&raw, self.params.min_points))
+        let labels = kmeans(&e, &self.params, input.seed)?;
+        Ok(Segmentation::from_raw(
+            &e.labels_of_all(labels.into_iter().map(Some)),
+            self.params.min_points,
+        ))
     }
+}
+
+/// What the spectral stages share: the affinity, the eigenvectors and the eigengap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct EmbeddingSettings {
+    /// As [`SpectralParams::cut`].
+    pub(crate) cut: Option<f64>,
+    /// As [`SpectralParams::width`].
+    pub(crate) width: f64,
+    /// As [`SpectralParams::n_clusters`].
+    pub(crate) n_clusters: Option<usize>,
+    /// As [`SpectralParams::max_clusters`].
+    pub(crate) max_clusters: usize,
+    /// As [`SpectralParams::dense_limit`].
+    pub(crate) dense_limit: usize,
+}
+
+/// The row-normalised spectral embedding of the points with any affinity.
+#[derive(Debug, Clone)]
+pub(crate) struct Embedding {
+    /// Points of the matrix.
+    pub(crate) n_points: usize,
+    /// The points embedded (the others have no affinity to anything and stay unassigned).
+    pub(crate) keep: Vec<usize>,
+    /// Their rows, `keep.len() x dim`, row-major, each of unit length (or zero).
+    pub(crate) rows: Vec<f64>,
+    /// The embedding's dimension: the number of clusters, from the eigengap or `n_clusters`.
+    pub(crate) dim: usize,
+}
+
+impl Embedding {
+    /// The rows as an ndarray matrix, for linfa.
+    ///
+    /// # Errors
+    /// [`Error::Numerical`] when the rows do not fill the shape (never, by construction).
+    #[cfg(feature = "linfa")]
+    pub(crate) fn records(&self) -> Result<ndarray::Array2<f64>> {
+        ndarray::Array2::from_shape_vec((self.keep.len(), self.dim), self.rows.clone())
+            .map_err(|e| Error::Numerical(format!("spectral embedding: {e}")))
+    }
+
+    /// A label per point of the matrix from a label per embedded row (`None` for points not
+    /// embedded).
+    pub(crate) fn labels_of_all(
+        &self,
+        labels: impl Iterator<Item = Option<usize>>,
+    ) -> Vec<Option<usize>> {
+        let mut raw = vec![None; self.n_points];
+        for (&i, l) in self.keep.iter().zip(labels) {
+            raw[i] = l;
+        }
+        raw
+    }
+}
+
+/// The affinity graph's embedding, or the labels when at most one point has any affinity.
+#[derive(Debug, Clone)]
+pub(crate) enum Embedded {
+    /// Labels of every point (nothing to embed).
+    Trivial(Vec<Option<usize>>),
+    /// The embedding.
+    Rows(Embedding),
+}
+
+/// The affinity of every pair, the normalised Laplacian's smallest eigenvectors, the number of
+/// clusters (eigengap, or `n_clusters`), and the row-normalised embedding on that many
+/// eigenvectors.
+///
+/// # Errors
+/// The matrix checks' errors; [`Error::InvalidParameter`] for a cut that cannot scale the
+/// affinity; [`Error::Degenerate`] when the eigenvectors cannot be found.
+pub(crate) fn embed(m: &DissimilarityMatrix, s: &EmbeddingSettings) -> Result<Embedded> {
+    let n = m.n_points;
+    crate::check_matrix(m)?;
+    let cut = s.cut.unwrap_or(m.suggested_cut);
+    if !(cut.is_finite() && cut > 0.0) {
+        return Err(Error::InvalidParameter {
+            name: "cut".into(),
+            message: format!(
+                "the measure's suggested cut {cut} cannot scale an affinity; set `cut`"
+            ),
+        });
+    }
+    let width = s.width * cut;
+    // Dense affinity over all points, then restricted to those with any affinity.
+    let mut w = vec![0.0f64; n * n];
+    for i in 0..n {
+        for j in i + 1..n {
+            if let Some(d) = m.get(i, j)
+                && d < cut + TAIL_WIDTHS * width
+            {
+                let a = 1.0 / (1.0 + ((d - cut) / width).exp());
+                w[i * n + j] = a;
+                w[j * n + i] = a;
+            }
+        }
+    }
+    let degree: Vec<f64> = (0..n).map(|i| w[i * n..(i + 1) * n].iter().sum()).collect();
+    let keep: Vec<usize> = (0..n).filter(|&i| degree[i] > 1e-9).collect();
+    let k_pts = keep.len();
+    if k_pts <= 1 {
+        let mut raw = vec![None; n];
+        if let Some(&i) = keep.first() {
+            raw[i] = Some(0);
+        }
+        return Ok(Embedded::Trivial(raw));
+    }
+    let inv_sqrt: Vec<f64> = keep.iter().map(|&i| 1.0 / degree[i].sqrt()).collect();
+    // Shifted normalised affinity I + D^-1/2 W D^-1/2: eigenvalues in [0, 2], the
+    // Laplacian's smallest at the top.
+    let shifted = faer::Mat::<f64>::from_fn(k_pts, k_pts, |a, b| {
+        let v = w[keep[a] * n + keep[b]] * inv_sqrt[a] * inv_sqrt[b];
+        if a == b { 1.0 + v } else { v }
+    });
+    drop(w);
+    let n_eig = (s.n_clusters.unwrap_or(s.max_clusters) + 1).min(k_pts);
+    let (lap_values, vectors) = smallest_laplacian_eigen(&shifted, n_eig, s.dense_limit)?;
+    let dim = match s.n_clusters {
+        Some(c) => c.min(k_pts),
+        None => eigengap(&lap_values),
+    };
+    // Row-normalised embedding on the first `dim` eigenvectors.
+    let mut rows = vec![0.0f64; k_pts * dim];
+    for a in 0..k_pts {
+        let row = &mut rows[a * dim..(a + 1) * dim];
+        for (c, x) in row.iter_mut().enumerate() {
+            *x = vectors[c][a];
+        }
+        let norm = row.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm > 0.0 {
+            row.iter_mut().for_each(|x| *x /= norm);
+        }
+    }
+    Ok(Embedded::Rows(Embedding {
+        n_points: n,
+        keep,
+        rows,
+        dim,
+    }))
 }
 
 /// The `count` smallest eigenvalues of the Laplacian `2 I - shifted` (ascending) and their
@@ -313,10 +444,59 @@ fn eigengap(values: &[f64]) -> usize {
     best.0
 }
 
+/// k-means on the embedding's rows into `dim` clusters (at most one per row) with the
+/// implementation `p.kmeans` names. Returns a label per row.
+///
+/// # Errors
+/// [`Error::Numerical`] when linfa's fit fails.
+pub(crate) fn kmeans(e: &Embedding, p: &SpectralParams, seed: u64) -> Result<Vec<usize>> {
+    let n = e.keep.len();
+    let k = e.dim.min(n);
+    if k <= 1 {
+        return Ok(vec![0; n]);
+    }
+    match p.kmeans {
+        KMeansImpl::Kinetree => Ok(kmeans_kinetree(
+            &e.rows,
+            e.dim,
+            k,
+            p.kmeans_restarts,
+            p.kmeans_max_iterations,
+            seed,
+        )),
+        #[cfg(feature = "linfa")]
+        KMeansImpl::Linfa => kmeans_linfa(
+            e,
+            k,
+            p.kmeans_restarts,
+            p.kmeans_tolerance,
+            p.kmeans_max_iterations,
+            seed,
+        ),
+        #[cfg(not(feature = "linfa"))]
+        KMeansImpl::Linfa => Err(Error::Config(
+            "clustering.kmeans = \"linfa\" needs kinetree-clustering's `linfa` feature".into(),
+        )),
+    }
+}
+
 /// k-means (Lloyd) into `k` clusters of rows of dimension `dim` stored row-major, with
-/// k-means++ seeding, `restarts` runs from a `ChaCha8` stream seeded by `seed`; the lowest
-/// inertia wins (ties to the earliest run). Returns a label per row.
-pub(crate) fn kmeans(rows: &[f64], dim: usize, k: usize, restarts: usize, seed: u64) -> Vec<usize> {
+/// k-means++ seeding, `restarts` runs from a `ChaCha8` stream seeded by `seed`, each until no
+/// label changes or `max_iterations`; the lowest inertia wins (ties to the earliest run).
+/// Returns a label per row.
+///
+/// Written here although linfa-clustering has `KMeans` ([`kmeans_linfa`]): in one run of the
+/// clustering bench the spectral stage took 2.0 times as long with linfa's at 1000 points and
+/// 1.27 times at 3000, with the same labels on every run of the noise-and-clusterers sweep
+/// (`docs/decisions.md`, `clustering.spectral.kmeans`).
+fn kmeans_kinetree(
+    rows: &[f64],
+    dim: usize,
+    k: usize,
+    restarts: usize,
+    max_iterations: usize,
+    seed: u64,
+) -> Vec<usize> {
     let n = rows.len() / dim.max(1);
     if k <= 1 || n <= 1 {
         return vec![0; n];
@@ -355,7 +535,7 @@ pub(crate) fn kmeans(rows: &[f64], dim: usize, k: usize, restarts: usize, seed: 
         let kc = centres.len() / dim;
         let mut labels = vec![0usize; n];
         let mut inertia = f64::INFINITY;
-        for _ in 0..300 {
+        for _ in 0..max_iterations {
             let mut changed = false;
             inertia = 0.0;
             for (i, l) in labels.iter_mut().enumerate() {
@@ -394,51 +574,43 @@ pub(crate) fn kmeans(rows: &[f64], dim: usize, k: usize, restarts: usize, seed: 
     best.map(|b| b.1).unwrap_or_else(|| vec![0; n])
 }
 
+/// k-means with linfa-clustering's `KMeans` into `k` clusters of the embedding's rows:
+/// k-means++ seeding, `restarts` runs from a `Xoshiro256Plus` stream seeded by `seed`, the
+/// lowest inertia wins; each run stops when the centroids move less than `tolerance` or after
+/// `max_iterations`. Returns a label per row.
+///
+/// # Errors
+/// [`Error::Numerical`] with linfa's error when the fit fails.
+#[cfg(feature = "linfa")]
+fn kmeans_linfa(
+    e: &Embedding,
+    k: usize,
+    restarts: usize,
+    tolerance: f64,
+    max_iterations: usize,
+    seed: u64,
+) -> Result<Vec<usize>> {
+    use linfa::prelude::{Fit, Predict};
+    use rand_xoshiro::rand_core::SeedableRng;
+    let records = e.records()?;
+    let data = linfa::DatasetBase::from(records.clone());
+    let model = linfa_clustering::KMeans::params_with_rng(
+        k,
+        rand_xoshiro::Xoshiro256Plus::seed_from_u64(seed),
+    )
+    .n_runs(restarts)
+    .tolerance(tolerance)
+    .max_n_iterations(max_iterations as u64)
+    .init_method(linfa_clustering::KMeansInit::KMeansPlusPlus)
+    .fit(&data)
+    .map_err(|err| Error::Numerical(format!("spectral clustering's k-means: {err}")))?;
+    Ok(model.predict(&records).to_vec())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinetree_core::{DissimilarityMatrix, condensed_index, n_pairs};
-
-    /// Blocks of the given sizes, with a few unknown pairs.
-    fn blocks(sizes: &[usize]) -> (DissimilarityMatrix, Vec<usize>) {
-        let truth: Vec<usize> = sizes
-            .iter()
-            .enumerate()
-            .flat_map(|(b, &s)| std::iter::repeat_n(b, s))
-            .collect();
-        let n = truth.len();
-        let mut values = vec![0.0; n_pairs(n)];
-        for i in 0..n {
-            for j in i + 1..n {
-                // Like the F-test q: spread over 0-0.8 inside a body, 0.95-1 across (a
-                // deterministic jitter), and every 11th pair unknown.
-                let u = ((i * 31 + j * 17) % 13) as f64 / 12.0;
-                let value = if truth[i] == truth[j] {
-                    0.8 * u
-                } else {
-                    1.0 - 0.05 * u
-                };
-                values[condensed_index(n, i, j)] = if (i + j) % 11 == 0 { f64::NAN } else { value };
-            }
-        }
-        let m = DissimilarityMatrix {
-            n_points: n,
-            values,
-            suggested_cut: 0.8,
-            measure: "test".into(),
-        };
-        (m, truth)
-    }
-
-    fn same_partition(seg: &Segmentation, truth: &[usize]) -> bool {
-        let n = truth.len();
-        (0..n).all(|i| {
-            (0..n).all(|j| {
-                let a = seg.body_of(i).zip(seg.body_of(j)).map(|(x, y)| x == y);
-                a == Some(truth[i] == truth[j])
-            })
-        })
-    }
+    use crate::test_support::{blocks, same_partition};
 
     #[test]
     fn subspace_iteration_matches_the_dense_eigendecomposition() {
@@ -485,7 +657,8 @@ mod tests {
         }
     }
 
-    /// With the dense eigendecomposition and, `dense_limit = 0`, with subspace iteration.
+    /// With the dense eigendecomposition and, `dense_limit = 0`, with subspace iteration; with
+    /// kinetree's k-means and linfa's.
     #[test]
     fn eigengap_finds_the_number_of_blocks() {
         for sizes in [
@@ -493,9 +666,14 @@ mod tests {
             vec![3, 10, 30, 60, 80, 90, 100, 70, 57],
         ] {
             let (m, truth) = blocks(&sizes);
-            for dense_limit in [DENSE_LIMIT, 0] {
+            for (dense_limit, kmeans) in [
+                (DENSE_LIMIT, KMeansImpl::Kinetree),
+                (0, KMeansImpl::Kinetree),
+                (DENSE_LIMIT, KMeansImpl::Linfa),
+            ] {
                 let s = Spectral::new(SpectralParams {
                     dense_limit,
+                    kmeans,
                     ..SpectralParams::default()
                 })
                 .expect("params");
@@ -520,17 +698,39 @@ mod tests {
 
     #[test]
     fn kmeans_separates_three_groups_and_depends_only_on_the_seed() {
+        // Three groups in three dimensions (the embedding's dimension is the cluster count).
         let rows: Vec<f64> = (0..30)
             .flat_map(|i| {
                 let c = (i % 3) as f64 * 10.0;
-                [c + (i as f64 * 0.01), -c]
+                [c + (i as f64 * 0.01), -c, 0.0]
             })
             .collect();
-        let l = kmeans(&rows, 2, 3, 5, 3);
-        assert_eq!(l, kmeans(&rows, 2, 3, 5, 3), "same seed, same labels");
-        for i in 0..30 {
-            for j in 0..30 {
-                assert_eq!(l[i] == l[j], i % 3 == j % 3, "rows {i} {j}");
+        let e = Embedding {
+            n_points: 30,
+            keep: (0..30).collect(),
+            rows,
+            dim: 3,
+        };
+        for kmeans_impl in [KMeansImpl::Kinetree, KMeansImpl::Linfa] {
+            let p = SpectralParams {
+                kmeans: kmeans_impl,
+                kmeans_restarts: 5,
+                ..SpectralParams::default()
+            };
+            let l = kmeans(&e, &p, 3).expect("fits");
+            assert_eq!(
+                l,
+                kmeans(&e, &p, 3).expect("fits"),
+                "same seed, same labels"
+            );
+            for i in 0..30 {
+                for j in 0..30 {
+                    assert_eq!(
+                        l[i] == l[j],
+                        i % 3 == j % 3,
+                        "{kmeans_impl:?}: rows {i} {j}"
+                    );
+                }
             }
         }
     }

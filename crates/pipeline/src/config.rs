@@ -65,6 +65,14 @@ pub enum ClusteringConfig {
     Dbscan(DbscanParams),
     /// Spectral clustering (normalised Laplacian, eigengap, k-means).
     Spectral(SpectralParams),
+    /// A Gaussian mixture on the spectral embedding (linfa-clustering), as many components
+    /// as the eigengap finds.
+    #[cfg(feature = "linfa")]
+    SpectralGmm(kinetree_clustering::SpectralGmmParams),
+    /// DBSCAN on the spectral embedding (linfa-clustering), which finds the number of bodies
+    /// itself.
+    #[cfg(feature = "linfa")]
+    SpectralDbscan(kinetree_clustering::SpectralDbscanParams),
 }
 
 impl Default for ClusteringConfig {
@@ -83,6 +91,10 @@ impl ClusteringConfig {
             Self::Hierarchical(p) => Box::new(Hierarchical::new(*p)?),
             Self::Dbscan(p) => Box::new(Dbscan::new(*p)?),
             Self::Spectral(p) => Box::new(Spectral::new(*p)?),
+            #[cfg(feature = "linfa")]
+            Self::SpectralGmm(p) => Box::new(kinetree_clustering::SpectralGmm::new(*p)?),
+            #[cfg(feature = "linfa")]
+            Self::SpectralDbscan(p) => Box::new(kinetree_clustering::SpectralDbscan::new(*p)?),
         })
     }
 }
@@ -253,6 +265,17 @@ impl PipelineConfig {
             ClusteringConfig::Hierarchical(p) => p.n_clusters,
             ClusteringConfig::Dbscan(p) => p.n_clusters,
             ClusteringConfig::Spectral(p) => p.n_clusters,
+            #[cfg(feature = "linfa")]
+            ClusteringConfig::SpectralGmm(p) => p.n_clusters,
+            #[cfg(feature = "linfa")]
+            ClusteringConfig::SpectralDbscan(_) => {
+                return Err(Error::InvalidParameter {
+                    name: "pipeline.halves.kind".into(),
+                    message: "spectral_dbscan finds its own number of clusters; the slot needs \
+                              one that cuts a group in two (n_clusters = 2)"
+                        .into(),
+                });
+            }
         };
         if halves != Some(2) {
             return Err(Error::InvalidParameter {

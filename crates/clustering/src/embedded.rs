@@ -1,0 +1,395 @@
+//! Clusterers on the spectral embedding from linfa-clustering: a Gaussian mixture with as many
+//! components as the eigengap finds, and DBSCAN, which finds the number of bodies itself.
+//! Both share the affinity, the eigenvectors and the row-normalised embedding of
+//! [`crate::Spectral`].
+
+use crate::spectral::{Embedded, Embedding, EmbeddingSettings, embed};
+use kinetree_core::{Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation};
+use linfa::prelude::{Fit, Transformer};
+use rand_xoshiro::rand_core::SeedableRng;
+use serde::{Deserialize, Serialize};
+
+/// The checks shared by the embedding's parameters.
+fn check_embedding(s: &EmbeddingSettings, min_points: usize) -> Result<()> {
+    let bad = |name: &str, message: String| {
+        Err(Error::InvalidParameter {
+            name: name.into(),
+            message,
+        })
+    };
+    if let Some(c) = s.cut
+        && !(c.is_finite() && c > 0.0)
+    {
+        return bad("cut", format!("must be finite and positive, got {c}"));
+    }
+    if !(s.width.is_finite() && s.width > 0.0) {
+        return bad(
+            "width",
+            format!("must be finite and positive, got {}", s.width),
+        );
+    }
+    if s.n_clusters == Some(0) {
+        return bad("n_clusters", "must be at least 1".into());
+    }
+    if !(1..=100_000).contains(&s.max_clusters) {
+        return bad(
+            "max_clusters",
+            format!("must be in 1..=100000, got {}", s.max_clusters),
+        );
+    }
+    if min_points < MIN_BODY_POINTS {
+        return bad(
+            "min_points",
+            format!("must be at least {MIN_BODY_POINTS}, got {min_points}"),
+        );
+    }
+    Ok(())
+}
+
+/// Parameters of [`SpectralGmm`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SpectralGmmParams {
+    /// As [`crate::SpectralParams::cut`].
+    pub cut: Option<f64>,
+    /// As [`crate::SpectralParams::width`] (default 0.05).
+    pub width: f64,
+    /// As [`crate::SpectralParams::n_clusters`]: components instead of the eigengap's count.
+    pub n_clusters: Option<usize>,
+    /// As [`crate::SpectralParams::max_clusters`] (default 40).
+    pub max_clusters: usize,
+    /// As [`crate::SpectralParams::min_points`] (default 3).
+    pub min_points: usize,
+    /// As [`crate::SpectralParams::dense_limit`] (default 1200).
+    pub dense_limit: usize,
+    /// Added to the diagonal of every covariance (default 1e-6: the rows of one body nearly
+    /// coincide, and their covariance alone would be singular).
+    pub reg_covariance: f64,
+    /// Most EM iterations (default 100); a mixture that has not converged by then is an
+    /// error.
+    pub max_iterations: usize,
+    /// EM stops when the mean log-likelihood gains less than this (default 1e-3).
+    pub tolerance: f64,
+}
+
+impl Default for SpectralGmmParams {
+    fn default() -> Self {
+        let s = crate::SpectralParams::default();
+        Self {
+            cut: s.cut,
+            width: s.width,
+            n_clusters: s.n_clusters,
+            max_clusters: s.max_clusters,
+            min_points: s.min_points,
+            dense_limit: s.dense_limit,
+            reg_covariance: 1e-6,
+            max_iterations: 100,
+            tolerance: 1e-3,
+        }
+    }
+}
+
+impl SpectralGmmParams {
+    fn embedding(&self) -> EmbeddingSettings {
+        EmbeddingSettings {
+            cut: self.cut,
+            width: self.width,
+            n_clusters: self.n_clusters,
+            max_clusters: self.max_clusters,
+            dense_limit: self.dense_limit,
+        }
+    }
+
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming the parameter.
+    pub fn validate(&self) -> Result<()> {
+        check_embedding(&self.embedding(), self.min_points)?;
+        let bad = |name: &str, v: f64| Error::InvalidParameter {
+            name: name.into(),
+            message: format!("must be finite and positive, got {v}"),
+        };
+        if !(self.reg_covariance.is_finite() && self.reg_covariance > 0.0) {
+            return Err(bad("reg_covariance", self.reg_covariance));
+        }
+        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
+            return Err(bad("tolerance", self.tolerance));
+        }
+        if !(1..=1_000_000).contains(&self.max_iterations) {
+            return Err(Error::InvalidParameter {
+                name: "max_iterations".into(),
+                message: format!("must be in 1..=1000000, got {}", self.max_iterations),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A Gaussian mixture (linfa-clustering's `GaussianMixtureModel`, full covariances, k-means
+/// start) on the spectral embedding, with as many components as the eigengap finds bodies
+/// (or `n_clusters`); each point goes to its most responsible component. Seeded from the
+/// input seed.
+#[derive(Debug, Clone)]
+pub struct SpectralGmm {
+    params: SpectralGmmParams,
+}
+
+impl SpectralGmm {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: SpectralGmmParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+
+    /// The mixture's labels of the embedded rows (`None` for a row no component explains
+    /// with a finite responsibility).
+    fn labels(&self, e: &Embedding, seed: u64) -> Result<Vec<Option<usize>>> {
+        let n = e.keep.len();
+        let k = e.dim.min(n);
+        if k <= 1 {
+            return Ok(vec![Some(0); n]);
+        }
+        let records = e.records()?;
+        let data = linfa::DatasetBase::from(records.clone());
+        let gmm = linfa_clustering::GaussianMixtureModel::params(k)
+            .with_rng(rand_xoshiro::Xoshiro256Plus::seed_from_u64(seed))
+            .reg_covariance(self.params.reg_covariance)
+            .tolerance(self.params.tolerance)
+            .max_n_iterations(self.params.max_iterations as u64)
+            .fit(&data)
+            .map_err(|err| Error::Numerical(format!("spectral_gmm: the mixture failed: {err}")))?;
+        // Responsibilities rather than `predict`, whose argmax panics on NaN.
+        let resp = gmm.predict_proba(&records);
+        Ok(resp
+            .rows()
+            .into_iter()
+            .map(|r| {
+                r.iter()
+                    .enumerate()
+                    .filter(|(_, p)| p.is_finite())
+                    .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
+                    .map(|(c, _)| c)
+            })
+            .collect())
+    }
+}
+
+impl Clustering for SpectralGmm {
+    fn name(&self) -> &str {
+        "spectral_gmm"
+    }
+
+    fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
+        let e = match embed(input.dissimilarity, &self.params.embedding())? {
+            Embedded::Trivial(raw) => {
+                return Ok(Segmentation::from_raw(&raw, self.params.min_points));
+            }
+            Embedded::Rows(e) => e,
+        };
+        let labels = self.labels(&e, input.seed)?;
+        Ok(Segmentation::from_raw(
+            &e.labels_of_all(labels.into_iter()),
+            self.params.min_points,
+        ))
+    }
+}
+
+/// Parameters of [`SpectralDbscan`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SpectralDbscanParams {
+    /// As [`crate::SpectralParams::cut`].
+    pub cut: Option<f64>,
+    /// As [`crate::SpectralParams::width`] (default 0.05).
+    pub width: f64,
+    /// The embedding's dimension instead of the eigengap's count (DBSCAN still finds the
+    /// number of bodies itself).
+    pub n_clusters: Option<usize>,
+    /// As [`crate::SpectralParams::max_clusters`] (default 40).
+    pub max_clusters: usize,
+    /// Clusters with fewer points are discarded (at least 3, the minimum for a pose).
+    pub min_points: usize,
+    /// As [`crate::SpectralParams::dense_limit`] (default 1200).
+    pub dense_limit: usize,
+    /// Neighbourhood radius in the embedding, whose rows have unit length (default 0.3: the
+    /// rows of one body nearly coincide, those of two bodies are nearly orthogonal, about
+    /// 1.4 apart).
+    pub eps: f64,
+    /// Rows within `eps` (the row itself included) that make a core row (default 3, at least
+    /// 2).
+    pub core_points: usize,
+}
+
+impl Default for SpectralDbscanParams {
+    fn default() -> Self {
+        let s = crate::SpectralParams::default();
+        Self {
+            cut: s.cut,
+            width: s.width,
+            n_clusters: s.n_clusters,
+            max_clusters: s.max_clusters,
+            min_points: s.min_points,
+            dense_limit: s.dense_limit,
+            eps: 0.3,
+            core_points: 3,
+        }
+    }
+}
+
+impl SpectralDbscanParams {
+    fn embedding(&self) -> EmbeddingSettings {
+        EmbeddingSettings {
+            cut: self.cut,
+            width: self.width,
+            n_clusters: self.n_clusters,
+            max_clusters: self.max_clusters,
+            dense_limit: self.dense_limit,
+        }
+    }
+
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming the parameter.
+    pub fn validate(&self) -> Result<()> {
+        check_embedding(&self.embedding(), self.min_points)?;
+        if !(self.eps.is_finite() && self.eps > 0.0 && self.eps <= 2.0) {
+            return Err(Error::InvalidParameter {
+                name: "eps".into(),
+                message: format!(
+                    "must be in (0, 2] (rows have unit length), got {}",
+                    self.eps
+                ),
+            });
+        }
+        if !(2..=1_000_000).contains(&self.core_points) {
+            return Err(Error::InvalidParameter {
+                name: "core_points".into(),
+                message: format!("must be in 2..=1000000, got {}", self.core_points),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// DBSCAN (linfa-clustering's `Dbscan`, a k-d tree, strict `distance < eps`) on the spectral
+/// embedding's rows; the number of bodies is the number of dense groups DBSCAN finds, and its
+/// noise rows stay unassigned. No random choice: the seed is not used.
+#[derive(Debug, Clone)]
+pub struct SpectralDbscan {
+    params: SpectralDbscanParams,
+}
+
+impl SpectralDbscan {
+    /// # Errors
+    /// When the parameters are invalid.
+    pub fn new(params: SpectralDbscanParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+impl Clustering for SpectralDbscan {
+    fn name(&self) -> &str {
+        "spectral_dbscan"
+    }
+
+    fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
+        let e = match embed(input.dissimilarity, &self.params.embedding())? {
+            Embedded::Trivial(raw) => {
+                return Ok(Segmentation::from_raw(&raw, self.params.min_points));
+            }
+            Embedded::Rows(e) => e,
+        };
+        let records = e.records()?;
+        let labels = linfa_clustering::Dbscan::params(self.params.core_points)
+            .tolerance(self.params.eps)
+            .transform(&records)
+            .map_err(|err| Error::InvalidParameter {
+                name: "spectral_dbscan".into(),
+                message: err.to_string(),
+            })?;
+        Ok(Segmentation::from_raw(
+            &e.labels_of_all(labels.iter().copied()),
+            self.params.min_points,
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_support::{blocks, same_partition};
+
+    #[test]
+    fn both_find_the_blocks_and_depend_only_on_the_seed() {
+        let gmm = SpectralGmm::new(SpectralGmmParams::default()).expect("params");
+        let dbscan = SpectralDbscan::new(SpectralDbscanParams::default()).expect("params");
+        for sizes in [
+            vec![3, 5, 8, 13, 21, 40],
+            vec![3, 10, 30, 60, 80, 90, 100, 70, 57],
+        ] {
+            let (m, truth) = blocks(&sizes);
+            for stage in [&gmm as &dyn Clustering, &dbscan] {
+                let run = |seed| {
+                    stage
+                        .cluster(&ClusteringInput {
+                            dissimilarity: &m,
+                            seed,
+                        })
+                        .expect("clusters")
+                };
+                let seg = run(1);
+                assert_eq!(seg.n_bodies(), sizes.len(), "{} {sizes:?}", stage.name());
+                assert!(same_partition(&seg, &truth), "{} {sizes:?}", stage.name());
+                assert_eq!(seg, run(1), "{}: same seed, same result", stage.name());
+            }
+        }
+    }
+
+    #[test]
+    fn invalid_parameters_are_typed_errors() {
+        let gmm = [
+            SpectralGmmParams {
+                reg_covariance: 0.0,
+                ..Default::default()
+            },
+            SpectralGmmParams {
+                max_iterations: 0,
+                ..Default::default()
+            },
+            SpectralGmmParams {
+                width: f64::NAN,
+                ..Default::default()
+            },
+        ];
+        for p in gmm {
+            assert!(
+                matches!(SpectralGmm::new(p), Err(Error::InvalidParameter { .. })),
+                "{p:?}"
+            );
+        }
+        let dbscan = [
+            SpectralDbscanParams {
+                eps: 0.0,
+                ..Default::default()
+            },
+            SpectralDbscanParams {
+                core_points: 1,
+                ..Default::default()
+            },
+            SpectralDbscanParams {
+                min_points: 2,
+                ..Default::default()
+            },
+        ];
+        for p in dbscan {
+            assert!(
+                matches!(SpectralDbscan::new(p), Err(Error::InvalidParameter { .. })),
+                "{p:?}"
+            );
+        }
+    }
+}
