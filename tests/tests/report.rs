@@ -82,8 +82,8 @@ where pairs on one body vary as much as pairs across a joint near its axis. Hier
 (average linkage) and spectral clustering agree almost everywhere; DBSCAN, whose density
 criterion has little to work with on bodies of 4-12 points, is level with them up to 3 mm
 and a run behind at 1 cm (the pipeline's pairwise split of mixed bodies and DBSCAN's
-regrouping of its leftovers closed the gap: 17/20 against 14/20 joints exact at 3 mm before
-them). The two clusterers on the spectral embedding from linfa-clustering agree with spectral
+regrouping of its leftovers keep it there; without them it had 14/20 joints exact at 3 mm).
+The two clusterers on the spectral embedding from linfa-clustering agree with spectral
 clustering's k-means: the Gaussian mixture (`spectral_gmm`, as many components as the
 eigengap) on every run; DBSCAN on the embedded rows (`spectral_dbscan`, which counts the bodies
 itself) on every run up to 3 mm, and on 16 of 20 at 1 cm (mean ARI 0.817 against 0.820).

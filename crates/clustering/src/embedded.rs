@@ -3,48 +3,11 @@
 //! Both share the affinity, the eigenvectors and the row-normalised embedding of
 //! [`crate::Spectral`].
 
-use crate::spectral::{Embedded, Embedding, EmbeddingSettings, embed};
-use kinetree_core::{Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation};
+use crate::spectral::{Embedded, Embedding, EmbeddingSettings, check_embedding, embed};
+use kinetree_core::{Clustering, ClusteringInput, Error, Result, Segmentation};
 use linfa::prelude::{Fit, Transformer};
 use rand_xoshiro::rand_core::SeedableRng;
 use serde::{Deserialize, Serialize};
-
-/// The checks shared by the embedding's parameters.
-fn check_embedding(s: &EmbeddingSettings, min_points: usize) -> Result<()> {
-    let bad = |name: &str, message: String| {
-        Err(Error::InvalidParameter {
-            name: name.into(),
-            message,
-        })
-    };
-    if let Some(c) = s.cut
-        && !(c.is_finite() && c > 0.0)
-    {
-        return bad("cut", format!("must be finite and positive, got {c}"));
-    }
-    if !(s.width.is_finite() && s.width > 0.0) {
-        return bad(
-            "width",
-            format!("must be finite and positive, got {}", s.width),
-        );
-    }
-    if s.n_clusters == Some(0) {
-        return bad("n_clusters", "must be at least 1".into());
-    }
-    if !(1..=100_000).contains(&s.max_clusters) {
-        return bad(
-            "max_clusters",
-            format!("must be in 1..=100000, got {}", s.max_clusters),
-        );
-    }
-    if min_points < MIN_BODY_POINTS {
-        return bad(
-            "min_points",
-            format!("must be at least {MIN_BODY_POINTS}, got {min_points}"),
-        );
-    }
-    Ok(())
-}
 
 /// Parameters of [`SpectralGmm`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

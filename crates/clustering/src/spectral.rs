@@ -69,7 +69,8 @@ impl SpectralParams {
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] for a non-finite or non-positive `cut` or `width`, zero
-    /// clusters or restarts, or `min_points < 3`.
+    /// clusters, `max_clusters` beyond 100000, `min_points < 3`, or restarts, tolerance or
+    /// iterations out of range.
     pub fn validate(&self) -> Result<()> {
         let bad = |name: &str, message: String| {
             Err(Error::InvalidParameter {
@@ -77,23 +78,7 @@ impl SpectralParams {
                 message,
             })
         };
-        if let Some(c) = self.cut
-            && !(c.is_finite() && c > 0.0)
-        {
-            return bad("cut", format!("must be finite and positive, got {c}"));
-        }
-        if !(self.width.is_finite() && self.width > 0.0) {
-            return bad(
-                "width",
-                format!("must be finite and positive, got {}", self.width),
-            );
-        }
-        if self.n_clusters == Some(0) {
-            return bad("n_clusters", "must be at least 1".into());
-        }
-        if self.max_clusters == 0 {
-            return bad("max_clusters", "must be at least 1".into());
-        }
+        check_embedding(&self.embedding(), self.min_points)?;
         if !(1..=10_000).contains(&self.kmeans_restarts) {
             return bad(
                 "kmeans_restarts",
@@ -110,15 +95,6 @@ impl SpectralParams {
             return bad(
                 "kmeans_max_iterations",
                 format!("must be in 1..=1000000, got {}", self.kmeans_max_iterations),
-            );
-        }
-        if self.min_points < MIN_BODY_POINTS {
-            return bad(
-                "min_points",
-                format!(
-                    "must be at least {MIN_BODY_POINTS}, got {}",
-                    self.min_points
-                ),
             );
         }
         Ok(())
@@ -206,6 +182,46 @@ impl Clustering for Spectral {
             self.params.min_points,
         ))
     }
+}
+
+/// The checks shared by the spectral stages' parameters: the embedding's and `min_points`.
+///
+/// # Errors
+/// [`Error::InvalidParameter`] naming the parameter.
+pub(crate) fn check_embedding(s: &EmbeddingSettings, min_points: usize) -> Result<()> {
+    let bad = |name: &str, message: String| {
+        Err(Error::InvalidParameter {
+            name: name.into(),
+            message,
+        })
+    };
+    if let Some(c) = s.cut
+        && !(c.is_finite() && c > 0.0)
+    {
+        return bad("cut", format!("must be finite and positive, got {c}"));
+    }
+    if !(s.width.is_finite() && s.width > 0.0) {
+        return bad(
+            "width",
+            format!("must be finite and positive, got {}", s.width),
+        );
+    }
+    if s.n_clusters == Some(0) {
+        return bad("n_clusters", "must be at least 1".into());
+    }
+    if !(1..=100_000).contains(&s.max_clusters) {
+        return bad(
+            "max_clusters",
+            format!("must be in 1..=100000, got {}", s.max_clusters),
+        );
+    }
+    if min_points < MIN_BODY_POINTS {
+        return bad(
+            "min_points",
+            format!("must be at least {MIN_BODY_POINTS}, got {min_points}"),
+        );
+    }
+    Ok(())
 }
 
 /// What the spectral stages share: the affinity, the eigenvectors and the eigengap.
