@@ -215,6 +215,26 @@ fn bad_pipeline_parameters_are_typed_errors() {
         Pipeline::from_config(&cfg),
         Err(Error::InvalidParameter { ref name, .. }) if name == "model_error_m"
     ));
+    // The clusterers on the spectral embedding: their `embedding` table is checked like the
+    // rest, and DBSCAN cannot be the halves slot.
+    let gmm = "clustering = { kind = \"spectral_gmm\", embedding = { max_clusters = 30 } }\n";
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(gmm).expect("parses");
+    Pipeline::from_config(&cfg).expect("valid");
+    let typo = "clustering = { kind = \"spectral_gmm\", embedding = { max_cluster = 30 } }\n";
+    let e = kinetree_pipeline::config::pipeline_from_toml(typo).expect_err("typo in a key");
+    assert!(e.to_string().contains("max_cluster"), "{e}");
+    let wide = "clustering = { kind = \"spectral_dbscan\", eps = 5.0 }\n";
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(wide).expect("parses");
+    assert!(matches!(
+        Pipeline::from_config(&cfg),
+        Err(Error::InvalidParameter { ref name, .. }) if name == "eps"
+    ));
+    let halves = "halves = { kind = \"spectral_dbscan\" }\n";
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(halves).expect("parses");
+    assert!(matches!(
+        Pipeline::from_config(&cfg),
+        Err(Error::InvalidParameter { ref name, .. }) if name == "pipeline.halves.kind"
+    ));
     let text = "[experiment]\nname = \"x\"\n[data]\nkind = \"paper_arm\"\nsede = 3\n";
     let e = ExperimentConfig::from_toml(text).expect_err("typo in a key");
     assert!(

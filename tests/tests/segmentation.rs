@@ -332,7 +332,10 @@ fn every_clusterer_cuts_to_a_given_number_of_bodies() {
                 "spectral_gmm",
                 Box::new(
                     kinetree_clustering::SpectralGmm::new(kinetree_clustering::SpectralGmmParams {
-                        n_clusters: Some(k),
+                        embedding: kinetree_clustering::EmbeddingParams {
+                            n_clusters: Some(k),
+                            ..Default::default()
+                        },
                         ..Default::default()
                     })
                     .expect("params"),

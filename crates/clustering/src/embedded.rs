@@ -3,8 +3,8 @@
 //! Both share the affinity, the eigenvectors and the row-normalised embedding of
 //! [`crate::Spectral`].
 
-use crate::spectral::{Embedded, Embedding, EmbeddingSettings, check_embedding, embed};
-use kinetree_core::{Clustering, ClusteringInput, Error, Result, Segmentation};
+use crate::spectral::{Embedded, Embedding, EmbeddingParams, check_embedding, embed};
+use kinetree_core::{Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation};
 use linfa::prelude::{Fit, Transformer};
 use rand_xoshiro::rand_core::SeedableRng;
 use serde::{Deserialize, Serialize};
@@ -13,18 +13,11 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SpectralGmmParams {
-    /// As [`crate::SpectralParams::cut`].
-    pub cut: Option<f64>,
-    /// As [`crate::SpectralParams::width`] (default 0.05).
-    pub width: f64,
-    /// As [`crate::SpectralParams::n_clusters`]: components instead of the eigengap's count.
-    pub n_clusters: Option<usize>,
-    /// As [`crate::SpectralParams::max_clusters`] (default 40).
-    pub max_clusters: usize,
-    /// As [`crate::SpectralParams::min_points`] (default 3).
+    /// The embedding (`[pipeline.clustering.embedding]`; as [`crate::SpectralParams`]):
+    /// `n_clusters` sets the components instead of the eigengap.
+    pub embedding: EmbeddingParams,
+    /// Clusters with fewer points are discarded (at least 3, the minimum for a pose).
     pub min_points: usize,
-    /// As [`crate::SpectralParams::dense_limit`] (default 1200).
-    pub dense_limit: usize,
     /// Added to the diagonal of every covariance (default 1e-6: the rows of one body nearly
     /// coincide, and their covariance alone would be singular).
     pub reg_covariance: f64,
@@ -37,14 +30,9 @@ pub struct SpectralGmmParams {
 
 impl Default for SpectralGmmParams {
     fn default() -> Self {
-        let s = crate::SpectralParams::default();
         Self {
-            cut: s.cut,
-            width: s.width,
-            n_clusters: s.n_clusters,
-            max_clusters: s.max_clusters,
-            min_points: s.min_points,
-            dense_limit: s.dense_limit,
+            embedding: EmbeddingParams::default(),
+            min_points: MIN_BODY_POINTS,
             reg_covariance: 1e-6,
             max_iterations: 100,
             tolerance: 1e-3,
@@ -53,22 +41,12 @@ impl Default for SpectralGmmParams {
 }
 
 impl SpectralGmmParams {
-    fn embedding(&self) -> EmbeddingSettings {
-        EmbeddingSettings {
-            cut: self.cut,
-            width: self.width,
-            n_clusters: self.n_clusters,
-            max_clusters: self.max_clusters,
-            dense_limit: self.dense_limit,
-        }
-    }
-
     /// Checks the ranges.
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] naming the parameter.
     pub fn validate(&self) -> Result<()> {
-        check_embedding(&self.embedding(), self.min_points)?;
+        check_embedding(&self.embedding, self.min_points)?;
         let bad = |name: &str, v: f64| Error::InvalidParameter {
             name: name.into(),
             message: format!("must be finite and positive, got {v}"),
@@ -145,7 +123,7 @@ impl Clustering for SpectralGmm {
     }
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
-        let e = match embed(input.dissimilarity, &self.params.embedding())? {
+        let e = match embed(input.dissimilarity, &self.params.embedding)? {
             Embedded::Trivial(raw) => {
                 return Ok(Segmentation::from_raw(&raw, self.params.min_points));
             }
@@ -163,19 +141,12 @@ impl Clustering for SpectralGmm {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SpectralDbscanParams {
-    /// As [`crate::SpectralParams::cut`].
-    pub cut: Option<f64>,
-    /// As [`crate::SpectralParams::width`] (default 0.05).
-    pub width: f64,
-    /// The embedding's dimension instead of the eigengap's count (DBSCAN still finds the
-    /// number of bodies itself).
-    pub n_clusters: Option<usize>,
-    /// As [`crate::SpectralParams::max_clusters`] (default 40).
-    pub max_clusters: usize,
+    /// The embedding (`[pipeline.clustering.embedding]`; as [`crate::SpectralParams`]):
+    /// `n_clusters` sets its dimension instead of the eigengap (DBSCAN still finds the number
+    /// of bodies itself).
+    pub embedding: EmbeddingParams,
     /// Clusters with fewer points are discarded (at least 3, the minimum for a pose).
     pub min_points: usize,
-    /// As [`crate::SpectralParams::dense_limit`] (default 1200).
-    pub dense_limit: usize,
     /// Neighbourhood radius in the embedding, whose rows have unit length (default 0.3: the
     /// rows of one body nearly coincide, those of two bodies are nearly orthogonal, about
     /// 1.4 apart).
@@ -187,14 +158,9 @@ pub struct SpectralDbscanParams {
 
 impl Default for SpectralDbscanParams {
     fn default() -> Self {
-        let s = crate::SpectralParams::default();
         Self {
-            cut: s.cut,
-            width: s.width,
-            n_clusters: s.n_clusters,
-            max_clusters: s.max_clusters,
-            min_points: s.min_points,
-            dense_limit: s.dense_limit,
+            embedding: EmbeddingParams::default(),
+            min_points: MIN_BODY_POINTS,
             eps: 0.3,
             core_points: 3,
         }
@@ -202,22 +168,12 @@ impl Default for SpectralDbscanParams {
 }
 
 impl SpectralDbscanParams {
-    fn embedding(&self) -> EmbeddingSettings {
-        EmbeddingSettings {
-            cut: self.cut,
-            width: self.width,
-            n_clusters: self.n_clusters,
-            max_clusters: self.max_clusters,
-            dense_limit: self.dense_limit,
-        }
-    }
-
     /// Checks the ranges.
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] naming the parameter.
     pub fn validate(&self) -> Result<()> {
-        check_embedding(&self.embedding(), self.min_points)?;
+        check_embedding(&self.embedding, self.min_points)?;
         if !(self.eps.is_finite() && self.eps > 0.0 && self.eps <= 2.0) {
             return Err(Error::InvalidParameter {
                 name: "eps".into(),
@@ -260,7 +216,7 @@ impl Clustering for SpectralDbscan {
     }
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
-        let e = match embed(input.dissimilarity, &self.params.embedding())? {
+        let e = match embed(input.dissimilarity, &self.params.embedding)? {
             Embedded::Trivial(raw) => {
                 return Ok(Segmentation::from_raw(&raw, self.params.min_points));
             }
@@ -324,7 +280,10 @@ mod tests {
                 ..Default::default()
             },
             SpectralGmmParams {
-                width: f64::NAN,
+                embedding: EmbeddingParams {
+                    width: f64::NAN,
+                    ..Default::default()
+                },
                 ..Default::default()
             },
         ];

@@ -17,7 +17,7 @@ pub use diagnostics::{SegmentationDiagnostics, diagnostics};
 pub use embedded::{SpectralDbscan, SpectralDbscanParams, SpectralGmm, SpectralGmmParams};
 pub use hierarchical::{Hierarchical, HierarchicalParams, Linkage};
 pub use reassign::reassign_points;
-pub use spectral::{DENSE_LIMIT, KMeansImpl, Spectral, SpectralParams};
+pub use spectral::{DENSE_LIMIT, EmbeddingParams, KMeansImpl, Spectral, SpectralParams};
 pub use unknown::fill_unknown;
 
 /// The checks every clusterer makes on its input: one value per pair, none infinite (NaN marks

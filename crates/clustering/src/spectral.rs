@@ -101,8 +101,9 @@ impl SpectralParams {
     }
 
     /// The embedding settings of these parameters.
-    pub(crate) fn embedding(&self) -> EmbeddingSettings {
-        EmbeddingSettings {
+    /// The embedding parameters among these.
+    pub fn embedding(&self) -> EmbeddingParams {
+        EmbeddingParams {
             cut: self.cut,
             width: self.width,
             n_clusters: self.n_clusters,
@@ -188,7 +189,7 @@ impl Clustering for Spectral {
 ///
 /// # Errors
 /// [`Error::InvalidParameter`] naming the parameter.
-pub(crate) fn check_embedding(s: &EmbeddingSettings, min_points: usize) -> Result<()> {
+pub(crate) fn check_embedding(s: &EmbeddingParams, min_points: usize) -> Result<()> {
     let bad = |name: &str, message: String| {
         Err(Error::InvalidParameter {
             name: name.into(),
@@ -224,19 +225,29 @@ pub(crate) fn check_embedding(s: &EmbeddingSettings, min_points: usize) -> Resul
     Ok(())
 }
 
-/// What the spectral stages share: the affinity, the eigenvectors and the eigengap.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct EmbeddingSettings {
+/// The spectral embedding's parameters (the affinity, the eigenvectors and the eigengap),
+/// shared by the spectral stages: flat in [`SpectralParams`], the `embedding` table of
+/// [`crate::SpectralGmmParams`] and [`crate::SpectralDbscanParams`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EmbeddingParams {
     /// As [`SpectralParams::cut`].
-    pub(crate) cut: Option<f64>,
-    /// As [`SpectralParams::width`].
-    pub(crate) width: f64,
-    /// As [`SpectralParams::n_clusters`].
-    pub(crate) n_clusters: Option<usize>,
-    /// As [`SpectralParams::max_clusters`].
-    pub(crate) max_clusters: usize,
-    /// As [`SpectralParams::dense_limit`].
-    pub(crate) dense_limit: usize,
+    pub cut: Option<f64>,
+    /// As [`SpectralParams::width`] (default 0.05).
+    pub width: f64,
+    /// As [`SpectralParams::n_clusters`]: the embedding's dimension instead of the eigengap's
+    /// count.
+    pub n_clusters: Option<usize>,
+    /// As [`SpectralParams::max_clusters`] (default 40).
+    pub max_clusters: usize,
+    /// As [`SpectralParams::dense_limit`] (default 1200).
+    pub dense_limit: usize,
+}
+
+impl Default for EmbeddingParams {
+    fn default() -> Self {
+        SpectralParams::default().embedding()
+    }
 }
 
 /// The row-normalised spectral embedding of the points with any affinity.
@@ -293,7 +304,7 @@ pub(crate) enum Embedded {
 /// # Errors
 /// The matrix checks' errors; [`Error::InvalidParameter`] for a cut that cannot scale the
 /// affinity; [`Error::Degenerate`] when the eigenvectors cannot be found.
-pub(crate) fn embed(m: &DissimilarityMatrix, s: &EmbeddingSettings) -> Result<Embedded> {
+pub(crate) fn embed(m: &DissimilarityMatrix, s: &EmbeddingParams) -> Result<Embedded> {
     let n = m.n_points;
     crate::check_matrix(m)?;
     let cut = s.cut.unwrap_or(m.suggested_cut);

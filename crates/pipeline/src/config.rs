@@ -266,7 +266,7 @@ impl PipelineConfig {
             ClusteringConfig::Dbscan(p) => p.n_clusters,
             ClusteringConfig::Spectral(p) => p.n_clusters,
             #[cfg(feature = "linfa")]
-            ClusteringConfig::SpectralGmm(p) => p.n_clusters,
+            ClusteringConfig::SpectralGmm(p) => p.embedding.n_clusters,
             #[cfg(feature = "linfa")]
             ClusteringConfig::SpectralDbscan(_) => {
                 return Err(Error::InvalidParameter {
