@@ -329,3 +329,65 @@ fn a_reference_pose_that_is_no_rigid_transform_is_a_typed_error() {
     let e = kinetree_fit::Observer::new(&m).expect_err("observer");
     assert!(e.to_string().contains("reference_pose"), "{e}");
 }
+
+/// Sizes and fractions of a random mechanism out of range, and a sweep asking for more seeds
+/// than it can hold, are typed errors naming the key, not panics.
+#[test]
+fn random_data_and_sweep_sizes_out_of_range_are_typed_errors() {
+    use kinetree_pipeline::config::DataConfig;
+    let cases = [
+        (
+            kinetree_synth::RandomParams {
+                prismatic_fraction: f64::NAN,
+                ..Default::default()
+            },
+            "data.prismatic_fraction",
+        ),
+        (
+            kinetree_synth::RandomParams {
+                n_joints: 100_000,
+                ..Default::default()
+            },
+            "data.n_joints",
+        ),
+        (
+            kinetree_synth::RandomParams {
+                extra_points: 1_000_000_000,
+                ..Default::default()
+            },
+            "data.extra_points",
+        ),
+        (
+            kinetree_synth::RandomParams {
+                n_frames: 1_000_000_000_000,
+                ..Default::default()
+            },
+            "data.n_frames",
+        ),
+        (
+            kinetree_synth::RandomParams {
+                dropout: 1.5,
+                ..Default::default()
+            },
+            "data.dropout",
+        ),
+    ];
+    for (params, key) in cases {
+        let e = kinetree_pipeline::load_data(&DataConfig::Random(params), Path::new("."))
+            .expect_err(key);
+        assert!(
+            matches!(e, Error::InvalidParameter { ref name, .. } if name == key),
+            "{key}: {e}"
+        );
+    }
+    // The sweep refuses the size before it expands the grid.
+    let text = "[experiment]\nname = \"x\"\n[sweep]\nseeds = 9223372036854775807\n[data]\nkind = \"random\"\n";
+    let e = kinetree_pipeline::sweep::Sweep::from_toml(text).expect_err("too many seeds");
+    assert!(e.to_string().contains("sweep.seeds"), "{e}");
+    // A sweep point with bad data fails as a run, without a panic.
+    let text = "[experiment]\nname = \"x\"\n[sweep]\nseeds = 1\n[data]\nkind = \"random\"\nprismatic_fraction = nan\n";
+    let sweep = kinetree_pipeline::sweep::Sweep::from_toml(text).expect("parses");
+    let c = sweep.config(0, 0).expect("config");
+    let e = kinetree_pipeline::run_experiment(&c, Path::new(".")).expect_err("bad data");
+    assert!(e.to_string().contains("data.prismatic_fraction"), "{e}");
+}

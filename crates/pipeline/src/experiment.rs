@@ -49,6 +49,9 @@ pub fn load_data(data: &DataConfig, base_dir: &Path) -> Result<(Tracks, Option<G
         };
         return Ok((kinetree_io::read_tracks(&path)?, None));
     }
+    if let DataConfig::Random(p) = data {
+        p.validate()?;
+    }
     let s = scenario(data).ok_or_else(|| kinetree_core::Error::Config("no scenario".into()))?;
     let d = simulate(&s)?;
     Ok((d.tracks, Some(d.truth)))

@@ -73,6 +73,10 @@ pub enum Seeds {
     List(Vec<u64>),
 }
 
+/// The most seeds a grid point may ask for (`[sweep] seeds = n`): a million runs of the
+/// smallest mechanism take days on a workstation, and the run list is held in memory.
+const MAX_SEEDS: u64 = 1_000_000;
+
 fn default_seeds() -> Seeds {
     Seeds::Count(1)
 }
@@ -320,6 +324,14 @@ impl Sweep {
                 timing: false,
             },
         };
+        if let Seeds::Count(n) = spec.seeds
+            && n > MAX_SEEDS
+        {
+            return Err(Error::InvalidParameter {
+                name: "sweep.seeds".into(),
+                message: format!("at most {MAX_SEEDS} seeds a grid point, got {n}"),
+            });
+        }
         let mut preset: Vec<(String, toml::Value)> = spec
             .grid
             .iter()
@@ -458,9 +470,14 @@ impl Sweep {
             seconds: None,
         };
         let started = std::time::Instant::now();
+        // The scenario is asked for after the run, which has checked the data's parameters.
         let outcome = self.config(p, seed).and_then(|c| {
-            let sigma = crate::experiment::scenario(&c.data).map(|s| s.noise_sigma_m);
-            run_experiment(&c, base_dir).map(|o| (o, sigma))
+            run_experiment(&c, base_dir).map(|o| {
+                (
+                    o,
+                    crate::experiment::scenario(&c.data).map(|s| s.noise_sigma_m),
+                )
+            })
         });
         if self.spec.timing {
             run.seconds = Some(started.elapsed().as_secs_f64());

@@ -101,6 +101,40 @@ impl Default for RandomParams {
     }
 }
 
+impl RandomParams {
+    /// Checks the ranges: at most 200 joints, 10 000 extra keypoints a body and 1 000 000
+    /// frames; a prismatic fraction and a dropout in `[0, 1]`; a noise level from 0 to 1 m.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming `data.<parameter>`.
+    pub fn validate(&self) -> kinetree_core::Result<()> {
+        let bad = |name: &str, message: String| kinetree_core::Error::InvalidParameter {
+            name: format!("data.{name}"),
+            message,
+        };
+        let within = |name: &str, v: f64, lo: f64, hi: f64| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(bad(name, format!("must be within [{lo}, {hi}], got {v}")))
+            }
+        };
+        let count = |name: &str, v: usize, lo: usize, hi: usize| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(bad(name, format!("must be within [{lo}, {hi}], got {v}")))
+            }
+        };
+        count("n_joints", self.n_joints, 0, 200)?;
+        count("extra_points", self.extra_points, 0, 10_000)?;
+        count("n_frames", self.n_frames, 2, 1_000_000)?;
+        within("prismatic_fraction", self.prismatic_fraction, 0.0, 1.0)?;
+        within("dropout", self.dropout, 0.0, 1.0)?;
+        within("noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)
+    }
+}
+
 /// A random mechanism of box links growing from a static base along the axis directions,
 /// with random 3D joint axes and sine trajectories.
 ///
