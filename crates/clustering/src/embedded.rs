@@ -3,7 +3,7 @@
 //! Both share the affinity, the eigenvectors and the row-normalised embedding of
 //! [`crate::Spectral`].
 
-use crate::spectral::{Embedded, Embedding, EmbeddingParams, check_embedding, embed};
+use crate::spectral::{Embedding, EmbeddingParams, check_embedding, cluster_embedding};
 use kinetree_core::{Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation};
 use linfa::prelude::{Fit, Transformer};
 use rand_xoshiro::rand_core::SeedableRng;
@@ -92,8 +92,7 @@ impl SpectralGmm {
         if k <= 1 {
             return Ok(vec![Some(0); n]);
         }
-        let records = e.records()?;
-        let data = linfa::DatasetBase::from(records.clone());
+        let data = linfa::DatasetBase::from(e.records()?);
         let gmm = linfa_clustering::GaussianMixtureModel::params(k)
             .with_rng(rand_xoshiro::Xoshiro256Plus::seed_from_u64(seed))
             .reg_covariance(self.params.reg_covariance)
@@ -102,7 +101,7 @@ impl SpectralGmm {
             .fit(&data)
             .map_err(|err| Error::Numerical(format!("spectral_gmm: the mixture failed: {err}")))?;
         // Responsibilities rather than `predict`, whose argmax panics on NaN.
-        let resp = gmm.predict_proba(&records);
+        let resp = gmm.predict_proba(data.records());
         Ok(resp
             .rows()
             .into_iter()
@@ -123,17 +122,12 @@ impl Clustering for SpectralGmm {
     }
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
-        let e = match embed(input.dissimilarity, &self.params.embedding)? {
-            Embedded::Trivial(raw) => {
-                return Ok(Segmentation::from_raw(&raw, self.params.min_points));
-            }
-            Embedded::Rows(e) => e,
-        };
-        let labels = self.labels(&e, input.seed)?;
-        Ok(Segmentation::from_raw(
-            &e.labels_of_all(labels.into_iter()),
+        cluster_embedding(
+            input.dissimilarity,
+            &self.params.embedding,
             self.params.min_points,
-        ))
+            |e| self.labels(e, input.seed),
+        )
     }
 }
 
@@ -216,24 +210,21 @@ impl Clustering for SpectralDbscan {
     }
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
-        let e = match embed(input.dissimilarity, &self.params.embedding)? {
-            Embedded::Trivial(raw) => {
-                return Ok(Segmentation::from_raw(&raw, self.params.min_points));
-            }
-            Embedded::Rows(e) => e,
-        };
-        let records = e.records()?;
-        let labels = linfa_clustering::Dbscan::params(self.params.core_points)
-            .tolerance(self.params.eps)
-            .transform(&records)
-            .map_err(|err| Error::InvalidParameter {
-                name: "spectral_dbscan".into(),
-                message: err.to_string(),
-            })?;
-        Ok(Segmentation::from_raw(
-            &e.labels_of_all(labels.iter().copied()),
+        cluster_embedding(
+            input.dissimilarity,
+            &self.params.embedding,
             self.params.min_points,
-        ))
+            |e| {
+                let labels = linfa_clustering::Dbscan::params(self.params.core_points)
+                    .tolerance(self.params.eps)
+                    .transform(&e.records()?)
+                    .map_err(|err| Error::InvalidParameter {
+                        name: "spectral_dbscan".into(),
+                        message: err.to_string(),
+                    })?;
+                Ok(labels.to_vec())
+            },
+        )
     }
 }
 

@@ -171,17 +171,17 @@ impl Clustering for Spectral {
     }
 
     fn cluster(&self, input: &ClusteringInput<'_>) -> Result<Segmentation> {
-        let e = match embed(input.dissimilarity, &self.params.embedding())? {
-            Embedded::Trivial(raw) => {
-                return Ok(Segmentation::from_raw(&raw, self.params.min_points));
-            }
-            Embedded::Rows(e) => e,
-        };
-        let labels = kmeans(&e, &self.params, input.seed)?;
-        Ok(Segmentation::from_raw(
-            &e.labels_of_all(labels.into_iter().map(Some)),
+        cluster_embedding(
+            input.dissimilarity,
+            &self.params.embedding(),
             self.params.min_points,
-        ))
+            |e| {
+                Ok(kmeans(e, &self.params, input.seed)?
+                    .into_iter()
+                    .map(Some)
+                    .collect())
+            },
+        )
     }
 }
 
@@ -286,6 +286,28 @@ impl Embedding {
         }
         raw
     }
+}
+
+/// Clusters `m` on its spectral embedding: `label_rows` labels each embedded row (`None`:
+/// unassigned), points with no affinity stay unassigned, and clusters under `min_points`
+/// points are discarded.
+///
+/// # Errors
+/// As [`embed`], and `label_rows`'s.
+pub(crate) fn cluster_embedding(
+    m: &DissimilarityMatrix,
+    s: &EmbeddingParams,
+    min_points: usize,
+    label_rows: impl FnOnce(&Embedding) -> Result<Vec<Option<usize>>>,
+) -> Result<Segmentation> {
+    let raw = match embed(m, s)? {
+        Embedded::Trivial(raw) => raw,
+        Embedded::Rows(e) => {
+            let labels = label_rows(&e)?;
+            e.labels_of_all(labels.into_iter())
+        }
+    };
+    Ok(Segmentation::from_raw(&raw, min_points))
 }
 
 /// The affinity graph's embedding, or the labels when at most one point has any affinity.
@@ -619,8 +641,7 @@ fn kmeans_linfa(
 ) -> Result<Vec<usize>> {
     use linfa::prelude::{Fit, Predict};
     use rand_xoshiro::rand_core::SeedableRng;
-    let records = e.records()?;
-    let data = linfa::DatasetBase::from(records.clone());
+    let data = linfa::DatasetBase::from(e.records()?);
     let model = linfa_clustering::KMeans::params_with_rng(
         k,
         rand_xoshiro::Xoshiro256Plus::seed_from_u64(seed),
@@ -631,7 +652,7 @@ fn kmeans_linfa(
     .init_method(linfa_clustering::KMeansInit::KMeansPlusPlus)
     .fit(&data)
     .map_err(|err| Error::Numerical(format!("spectral clustering's k-means: {err}")))?;
-    Ok(model.predict(&records).to_vec())
+    Ok(model.predict(data.records()).to_vec())
 }
 
 #[cfg(test)]
