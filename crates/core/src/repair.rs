@@ -278,10 +278,7 @@ impl Draft {
             ));
         }
         if order.iter().enumerate().any(|(k, &b)| k != b) {
-            self.segmentation = self
-                .segmentation
-                .renumbered(order)
-                .ok_or_else(|| shape("its body_order is no permutation of the bodies"))?;
+            self.segmentation = self.segmentation.relabeled(&new_id);
             if let Some(poses) = &mut self.poses {
                 let mut old: Vec<Option<crate::BodyTrack>> = std::mem::take(&mut poses.bodies)
                     .into_iter()

@@ -124,12 +124,17 @@ impl Segmentation {
     /// unless `order` is a permutation of the bodies. Not canonical: any edit renumbers
     /// canonically again.
     pub fn renumbered(&self, order: &[usize]) -> Option<Self> {
-        let new_id = inverse_permutation(order, self.n_bodies)?;
-        Some(Self {
+        Some(self.relabeled(&inverse_permutation(order, self.n_bodies)?))
+    }
+
+    /// The same partition with body `b` renumbered `new_id[b]`; `new_id` must be a
+    /// permutation of the bodies ([`inverse_permutation`] of an order).
+    pub(crate) fn relabeled(&self, new_id: &[usize]) -> Self {
+        Self {
             labels: self.labels.iter().map(|l| l.map(|b| new_id[b])).collect(),
             n_bodies: self.n_bodies,
             discarded_groups: self.discarded_groups.clone(),
-        })
+        }
     }
 
     /// `self.discarded_groups` without `points` (now assigned), empty groups removed.
