@@ -22,8 +22,11 @@ pub struct ExperimentOutcome {
 }
 
 /// The scenario behind synthetic data, `None` for files.
-pub fn scenario(data: &DataConfig) -> Option<Scenario> {
-    match data {
+///
+/// # Errors
+/// A random mechanism's parameters out of range ([`kinetree_synth::RandomParams::validate`]).
+pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
+    Ok(match data {
         DataConfig::PaperArm(p) => {
             let mut s = paper_arm(p.seed);
             s.noise_sigma_m = p.noise_sigma_m;
@@ -31,9 +34,12 @@ pub fn scenario(data: &DataConfig) -> Option<Scenario> {
             s.n_frames = p.n_frames;
             Some(s)
         }
-        DataConfig::Random(p) => Some(random_scenario(p)),
+        DataConfig::Random(p) => {
+            p.validate()?;
+            Some(random_scenario(p))
+        }
         DataConfig::File(_) => None,
-    }
+    })
 }
 
 /// Loads (or simulates) an experiment's tracks; file paths are relative to `base_dir`.
@@ -49,10 +55,7 @@ pub fn load_data(data: &DataConfig, base_dir: &Path) -> Result<(Tracks, Option<G
         };
         return Ok((kinetree_io::read_tracks(&path)?, None));
     }
-    if let DataConfig::Random(p) = data {
-        p.validate()?;
-    }
-    let s = scenario(data).ok_or_else(|| kinetree_core::Error::Config("no scenario".into()))?;
+    let s = scenario(data)?.ok_or_else(|| kinetree_core::Error::Config("no scenario".into()))?;
     let d = simulate(&s)?;
     Ok((d.tracks, Some(d.truth)))
 }

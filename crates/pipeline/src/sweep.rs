@@ -470,14 +470,9 @@ impl Sweep {
             seconds: None,
         };
         let started = std::time::Instant::now();
-        // The scenario is asked for after the run, which has checked the data's parameters.
         let outcome = self.config(p, seed).and_then(|c| {
-            run_experiment(&c, base_dir).map(|o| {
-                (
-                    o,
-                    crate::experiment::scenario(&c.data).map(|s| s.noise_sigma_m),
-                )
-            })
+            let sigma = crate::experiment::scenario(&c.data)?.map(|s| s.noise_sigma_m);
+            run_experiment(&c, base_dir).map(|o| (o, sigma))
         });
         if self.spec.timing {
             run.seconds = Some(started.elapsed().as_secs_f64());
