@@ -90,6 +90,27 @@ pub enum Error {
         /// Why it is invalid.
         message: String,
     },
+    /// A model (read from JSON or built by hand) that breaks the schema's rules; `field` is
+    /// its path in the JSON, e.g. `joints[2].axis`.
+    #[error("invalid model: `{field}` {message}")]
+    InvalidModel {
+        /// The field's path in the model JSON.
+        field: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// Work or memory beyond a limit, refused before anything is allocated.
+    #[error("{what}: needs about {estimate}, above the limit of {limit}; {hint}")]
+    TooLarge {
+        /// What was asked for.
+        what: String,
+        /// The estimate, with its unit.
+        estimate: String,
+        /// The limit, with its unit.
+        limit: String,
+        /// How to raise the limit.
+        hint: String,
+    },
     /// An experiment or pipeline configuration that cannot be used.
     #[error("configuration error: {0}")]
     Config(String),

@@ -3,6 +3,8 @@
 //! The schema is documented in `docs/model-schema.md`; bump [`SCHEMA_VERSION`] on any change
 //! that breaks readers.
 
+mod check;
+
 use crate::{PairDof, Warning};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};

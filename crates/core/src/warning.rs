@@ -116,6 +116,12 @@ pub enum Warning {
         /// The chosen root (model numbering).
         root: usize,
     },
+    /// A body that shares too few frames with every other body for a pair test: it has no
+    /// parent and no joint (the model is a forest, the others rooted at `root_body`).
+    BodyDetached {
+        /// The body (model numbering).
+        body: usize,
+    },
     /// The spanning tree had to use an edge that is not a single-DoF joint.
     MultiDofJoint {
         /// Parent body (model numbering).
@@ -249,6 +255,10 @@ impl std::fmt::Display for Warning {
             Warning::NoStaticBody { root } => write!(
                 f,
                 "no body is static relative to the camera; the tree is rooted at body {root}, the one that moves least"
+            ),
+            Warning::BodyDetached { body } => write!(
+                f,
+                "body {body} has no pair test with any other body (too few shared frames); it has no parent and no joint"
             ),
             Warning::MultiDofJoint { parent, child, dof } => write!(
                 f,

@@ -15,9 +15,20 @@ pub fn joint_name(parent: usize, child: usize) -> String {
     format!("body{parent}_to_body{child}")
 }
 
-/// Text safe inside an XML comment (no `--`) and on one line.
+/// Text safe inside an XML comment and on one line: XML forbids `--` inside a comment and a
+/// `-` just before its closing `-->`, so a space goes after every `-` that another `-` or the
+/// end follows; line breaks become spaces.
 fn comment_text(s: &str) -> String {
-    s.replace("--", "- -").replace(['\n', '\r'], " ")
+    let mut out = String::with_capacity(s.len());
+    let mut chars = s.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '\n' | '\r' => out.push(' '),
+            '-' if matches!(chars.peek(), Some('-') | None) => out.push_str("- "),
+            c => out.push(c),
+        }
+    }
+    out
 }
 
 /// Text safe inside a DOT double-quoted string.
@@ -126,13 +137,15 @@ fn frames_and_offsets(model: &Model) -> Result<(Vec<JointFrame>, Vec<Vector3<f64
 ///
 /// Types: `revolute` with `lower`/`upper` from the observed range, `continuous` when the
 /// range exceeds one turn, `prismatic` with the range in metres, and `floating` for a
-/// multi-DoF joint (the ranks are in the model JSON). Effort and velocity limits are not
-/// observable from keypoints and are written as 0. Keypoint labels go into comments.
+/// multi-DoF joint (the ranks are in the model JSON) or a detached body (hung from the
+/// root). Effort and velocity limits are not observable from keypoints and are written as 0.
+/// Keypoint labels go into comments.
 ///
 /// # Errors
-/// [`Error::InvalidParameter`] when a joint has no reference pose or a non-finite one, or a
-/// joint's parent is not a body of the model.
+/// [`Error::InvalidModel`] for a model [`Model::validate`] refuses, and
+/// [`Error::InvalidParameter`] when a joint has no reference pose (schema 1).
 pub fn to_urdf(model: &Model) -> Result<String> {
+    model.validate()?;
     let nb = model.bodies.len();
     let (frames, offset) = frames_and_offsets(model)?;
     let mut s = String::new();
@@ -212,6 +225,22 @@ pub fn to_urdf(model: &Model) -> Result<String> {
             );
         }
         let _ = writeln!(s, "  </joint>");
+    }
+    // URDF is one tree: a detached body (no pair test with any other) hangs from the root by
+    // a floating joint, which claims nothing about their relative motion.
+    for b in &model.bodies {
+        if b.id != model.root_body && b.parent.is_none() {
+            let _ = writeln!(
+                s,
+                r#"  <joint name="{}" type="floating">"#,
+                joint_name(model.root_body, b.id)
+            );
+            let _ = writeln!(s, "    <!-- detached body: no joint was observed -->");
+            let _ = writeln!(s, r#"    <origin xyz="0 0 0" rpy="0 0 0"/>"#);
+            let _ = writeln!(s, r#"    <parent link="{}"/>"#, link_name(model.root_body));
+            let _ = writeln!(s, r#"    <child link="{}"/>"#, link_name(b.id));
+            let _ = writeln!(s, "  </joint>");
+        }
     }
     let _ = writeln!(s, "</robot>");
     Ok(s)

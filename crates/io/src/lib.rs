@@ -349,17 +349,20 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     inner().map_err(|e| e.in_file(path))
 }
 
-/// Reads a model JSON file.
+/// Reads a model JSON file and checks it with [`Model::validate`].
 ///
 /// # Errors
-/// [`Error::File`] wrapping the I/O error, or [`Error::Malformed`] with the line and column.
+/// [`Error::File`] wrapping the I/O error, [`Error::Malformed`] with the line and column, or
+/// [`Error::InvalidModel`] naming the field that breaks the schema's rules.
 pub fn read_model(path: &Path) -> Result<Model> {
     let inner = || -> Result<Model> {
         let reader = BufReader::new(File::open(path)?);
-        serde_json::from_reader(reader).map_err(|e| Error::Malformed {
+        let model: Model = serde_json::from_reader(reader).map_err(|e| Error::Malformed {
             position: format!("line {}, column {}", e.line(), e.column()),
             message: e.to_string(),
-        })
+        })?;
+        model.validate()?;
+        Ok(model)
     };
     inner().map_err(|e| e.in_file(path))
 }

@@ -122,6 +122,9 @@ pub(crate) fn assemble(
         });
     }
     for &b in &order {
+        if b != tree.root && tree.parent[b].is_none() {
+            warnings.push(Warning::BodyDetached { body: new_id[b] });
+        }
         let missing = poses.n_frames - poses.bodies[b].n_registered();
         if missing > 0 {
             warnings.push(Warning::FramesUnregistered {

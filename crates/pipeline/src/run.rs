@@ -215,6 +215,8 @@ impl Pipeline {
         };
         let mut model = found.model;
         model.trace = trace;
+        // The model must be one `kinetree_io::read_model` accepts back.
+        model.validate()?;
         Ok(Discovery {
             model,
             stats: g.stats,

@@ -1,0 +1,297 @@
+//! Hostile and careless input: damaged models, text that breaks output formats, sizes beyond
+//! the limits, outputs over inputs. Each class gets a typed error (or a warning), never a
+//! panic or a silently wrong file.
+
+use kinetree_core::{Error, Model};
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_synth::{paper_arm, simulate};
+use serde_json::{Value, json};
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("kinetree-hostile-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir.join(name)
+}
+
+/// The paper arm's discovered model, once for every test of the file.
+fn arm_model() -> &'static Model {
+    static MODEL: OnceLock<Model> = OnceLock::new();
+    MODEL.get_or_init(|| {
+        let data = simulate(&paper_arm(0)).expect("simulate");
+        Pipeline::from_config(&PipelineConfig::default())
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover")
+            .model
+    })
+}
+
+/// Writes `value` as a model file and reads it back.
+fn read_back(name: &str, value: &Value) -> kinetree_core::Result<Model> {
+    let path = tmp(name);
+    std::fs::write(&path, serde_json::to_string(value).expect("json")).expect("write");
+    kinetree_io::read_model(&path)
+}
+
+/// One way of damaging a model: what it does, the JSON edit, and the field the error must
+/// name.
+type Damage = (&'static str, fn(&mut Value), &'static str);
+
+fn damages() -> Vec<Damage> {
+    vec![
+        (
+            "schema version 999",
+            |m| m["schema_version"] = json!(999),
+            "schema_version",
+        ),
+        (
+            "schema version 0",
+            |m| m["schema_version"] = json!(0),
+            "schema_version",
+        ),
+        (
+            "a body id that is not its position",
+            |m| m["bodies"][1]["id"] = json!(7),
+            "bodies[1].id",
+        ),
+        (
+            "a joint to body 99",
+            |m| m["joints"][0]["child"] = json!(99),
+            "joints[0].child",
+        ),
+        (
+            "a joint from a body other than the parent",
+            |m| {
+                let child = m["joints"][1]["child"].clone();
+                m["joints"][0]["child"] = child;
+            },
+            "joints[0].parent",
+        ),
+        (
+            "a parent cycle",
+            |m| {
+                // Body 1's parent becomes body 2, whose ancestors include body 1.
+                m["bodies"][1]["parent"] = json!(3);
+            },
+            "bodies[1].parent",
+        ),
+        (
+            "a root with a parent",
+            |m| m["bodies"][0]["parent"] = json!(1),
+            "bodies[0].parent",
+        ),
+        (
+            "a second root",
+            |m| m["bodies"][2]["parent"] = Value::Null,
+            "bodies[2].parent",
+        ),
+        (
+            "the root beyond the bodies",
+            |m| m["root_body"] = json!(40),
+            "root_body",
+        ),
+        (
+            "the static body beyond the bodies",
+            |m| m["static_body"] = json!(40),
+            "static_body",
+        ),
+        (
+            "a zero axis",
+            |m| m["joints"][0]["axis_in_parent"] = json!([0.0, 0.0, 0.0]),
+            "joints[0].axis_in_parent",
+        ),
+        (
+            "a null axis on a revolute joint",
+            |m| m["joints"][0]["axis_in_parent"] = Value::Null,
+            "joints[0].axis_in_parent",
+        ),
+        (
+            "a long camera-frame axis",
+            |m| m["joints"][1]["axis"] = json!([2.0, 0.0, 0.0]),
+            "joints[1].axis",
+        ),
+        (
+            "a null pivot on a revolute joint",
+            |m| m["joints"][0]["point_in_parent"] = Value::Null,
+            "joints[0].point_in_parent",
+        ),
+        (
+            "inverted limits",
+            |m| m["joints"][0]["range"] = json!([1.0, -1.0]),
+            "joints[0].range",
+        ),
+        (
+            "a reference frame beyond the frames",
+            |m| m["joints"][0]["reference_frame"] = json!(1_000_000),
+            "joints[0].reference_frame",
+        ),
+        (
+            "a zero quaternion",
+            |m| m["joints"][0]["reference_pose"]["rotation_xyzw"] = json!([0.0, 0.0, 0.0, 0.0]),
+            "joints[0].reference_pose",
+        ),
+        (
+            "positions of the wrong length",
+            |m| m["joints"][0]["positions"] = json!([0.0, 0.1]),
+            "joints[0].positions",
+        ),
+        (
+            "a negative standard deviation",
+            |m| m["joints"][0]["position_std"][0] = json!(-1.0),
+            "joints[0].position_std[0]",
+        ),
+        (
+            "a point on body 99",
+            |m| m["point_body"][0] = json!(99),
+            "point_body[0]",
+        ),
+        (
+            "point_body of the wrong length",
+            |m| {
+                m["point_body"].as_array_mut().expect("array").pop();
+            },
+            "point_body",
+        ),
+        (
+            "a body point beyond the points",
+            |m| m["bodies"][1]["points"][0] = json!(500),
+            "bodies[1].points[0]",
+        ),
+        (
+            "body points out of order",
+            |m| {
+                m["bodies"][1]["points"]
+                    .as_array_mut()
+                    .expect("array")
+                    .reverse();
+            },
+            "bodies[1].points",
+        ),
+        (
+            "a missing joint",
+            |m| {
+                m["joints"].as_array_mut().expect("array").pop();
+            },
+            "joints",
+        ),
+        (
+            "a zero noise level",
+            |m| m["noise"]["sigma_m"] = json!(0.0),
+            "noise.sigma_m",
+        ),
+        (
+            "negative position limits",
+            |m| m["position_limits"]["max_std_rad"] = json!(-1.0),
+            "position_limits.max_std_rad",
+        ),
+        (
+            "labels of the wrong count",
+            |m| m["point_labels"] = json!(["a", "b"]),
+            "point_labels",
+        ),
+        (
+            "a chain through body 40",
+            |m| m["chain"] = json!([0, 40]),
+            "chain[1]",
+        ),
+        (
+            "a pair test of body 40",
+            |m| m["pairs"][0]["b"] = json!(40),
+            "pairs[0]",
+        ),
+        (
+            "no bodies",
+            |m| m["bodies"] = json!([]),
+            "n_frames, n_points, bodies",
+        ),
+    ]
+}
+
+#[test]
+fn damaged_models_are_refused_naming_the_field() {
+    let model = arm_model();
+    let good = serde_json::to_value(model).expect("json");
+    assert!(
+        model.bodies.len() >= 3,
+        "the damages need three bodies, found {}",
+        model.bodies.len()
+    );
+    read_back("good.json", &good).expect("the discovered model reads back");
+    for (what, damage, field) in damages() {
+        let mut m = good.clone();
+        damage(&mut m);
+        let e = read_back("damaged.json", &m).expect_err(what);
+        match e.root() {
+            Error::InvalidModel { field: found, .. } => {
+                assert_eq!(found, field, "{what}: {e}");
+            }
+            other => panic!("{what}: expected an invalid-model error, got {other:?}"),
+        }
+        assert!(e.to_string().contains("damaged.json"), "{what}: {e}");
+        // An in-memory model with the same damage is refused by the exporter too.
+        if let Ok(bad) = serde_json::from_value::<Model>(m) {
+            assert!(
+                kinetree_io::export::to_urdf(&bad).is_err(),
+                "{what}: exported"
+            );
+        }
+    }
+}
+
+#[test]
+fn text_in_a_model_cannot_break_the_urdf() {
+    let mut model = arm_model().clone();
+    let hostile = [
+        "a--b",
+        "trailing-",
+        "---",
+        "<tag> & \"quote\" 'x'",
+        "line\nbreak",
+        "-->",
+    ];
+    model.point_labels = Some(
+        (0..model.n_points)
+            .map(|i| hostile[i % hostile.len()].to_string())
+            .collect(),
+    );
+    model.generator = "kinetree -- evil -->".into();
+    let text = kinetree_io::export::to_urdf(&model).expect("export");
+    urdf_rs::read_from_string(&text).expect("the URDF parses");
+    for comment in text.split("<!--").skip(1) {
+        let body = comment.split("-->").next().expect("closed");
+        assert!(
+            !body.contains("--") && !body.ends_with('-'),
+            "comment {body:?} breaks XML"
+        );
+    }
+}
+
+#[test]
+fn a_detached_body_is_a_valid_forest_and_exports_as_one_tree() {
+    let mut model = arm_model().clone();
+    let last = model.bodies.len() - 1;
+    model.bodies[last].parent = None;
+    model.joints.retain(|j| j.child != last);
+    let e = model
+        .validate()
+        .expect_err("a second root without a warning");
+    assert!(
+        matches!(e, Error::InvalidModel { ref field, .. } if *field == format!("bodies[{last}].parent")),
+        "{e}"
+    );
+    model
+        .warnings
+        .push(kinetree_core::Warning::BodyDetached { body: last });
+    model.validate().expect("a detached body with its warning");
+    let text = kinetree_io::export::to_urdf(&model).expect("export");
+    let robot = urdf_rs::read_from_string(&text).expect("parses");
+    assert_eq!(robot.joints.len(), model.bodies.len() - 1, "one tree");
+    let hung = robot
+        .joints
+        .iter()
+        .find(|j| j.child.link == kinetree_io::export::link_name(last))
+        .expect("the detached body's joint");
+    assert!(matches!(hung.joint_type, urdf_rs::JointType::Floating));
+}
