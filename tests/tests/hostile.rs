@@ -295,3 +295,31 @@ fn a_detached_body_is_a_valid_forest_and_exports_as_one_tree() {
         .expect("the detached body's joint");
     assert!(matches!(hung.joint_type, urdf_rs::JointType::Floating));
 }
+
+#[test]
+fn a_failed_write_leaves_the_previous_file_whole() {
+    let path = tmp("atomic-model.json");
+    let model = arm_model();
+    kinetree_io::write_json(&path, model).expect("first write");
+    let before = std::fs::read(&path).expect("read");
+    // A write that fails half-way, as a full disk or a file-size limit makes it.
+    let e = kinetree_io::write_atomically(&path, |w| {
+        use std::io::Write;
+        w.write_all(&before[..before.len() / 2])?;
+        Err(Error::Io(std::io::Error::new(
+            std::io::ErrorKind::StorageFull,
+            "no space left on device",
+        )))
+    })
+    .expect_err("the write fails");
+    assert!(e.to_string().contains("atomic-model.json"), "{e}");
+    assert_eq!(std::fs::read(&path).expect("read"), before, "file changed");
+    let dir = path.parent().expect("dir");
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
+        .expect("list")
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".part"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+    assert!(kinetree_io::read_model(&path).is_ok());
+}

@@ -17,18 +17,70 @@ macro_rules! emitln {
     };
 }
 
-/// Prints to stdout; a closed pipe (`kinetree run | head`) ends the program quietly instead of
-/// panicking as `print!` does.
+/// Set once stdout has failed: the rest of the report is dropped, the work goes on.
+static STDOUT_GONE: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Prints to stdout. A closed pipe (`kinetree discover ... | head`) or another write error
+/// stops the printing but not the program, so the files it writes are still written (`print!`
+/// would panic); other errors are said once on stderr.
 fn emit(text: &str) {
     use std::io::Write;
+    use std::sync::atomic::Ordering;
+    if STDOUT_GONE.load(Ordering::Relaxed) {
+        return;
+    }
     let mut out = std::io::stdout().lock();
     if let Err(e) = out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
-        if e.kind() == std::io::ErrorKind::BrokenPipe {
-            std::process::exit(0);
+        STDOUT_GONE.store(true, Ordering::Relaxed);
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            eprintln!(
+                "error writing to stdout: {e}; the report is dropped, files are still written"
+            );
         }
-        eprintln!("error writing to stdout: {e}");
-        std::process::exit(1);
     }
+}
+
+/// Most worker threads accepted from `RAYON_NUM_THREADS` (outputs do not depend on the count;
+/// far more threads than cores only cost memory, and beyond a few thousand the system refuses
+/// them mid-run).
+const MAX_THREADS: usize = 1024;
+
+/// Sets up the worker pool from `RAYON_NUM_THREADS` (unset or 0: one per core), refusing a
+/// value that is not a count or is above [`MAX_THREADS`] instead of failing inside the pool.
+fn configure_threads() -> Result<()> {
+    let threads = match std::env::var("RAYON_NUM_THREADS") {
+        Err(std::env::VarError::NotPresent) => 0,
+        Err(std::env::VarError::NotUnicode(v)) => {
+            bail!("RAYON_NUM_THREADS={v:?} is not a thread count")
+        }
+        Ok(v) => match v.trim().parse::<usize>() {
+            Ok(n) if n <= MAX_THREADS => n,
+            Ok(n) => bail!("RAYON_NUM_THREADS={n} is above the limit of {MAX_THREADS} threads"),
+            Err(_) => bail!("RAYON_NUM_THREADS={v:?} is not a thread count (0 for one per core)"),
+        },
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+        .context("starting the worker threads")
+}
+
+/// Refuses an output path that names one of the inputs: writing it would destroy the input.
+fn refuse_overwriting(output: &Path, inputs: &[&Path]) -> Result<()> {
+    let Ok(out) = std::fs::canonicalize(output) else {
+        // No file there yet, so it is none of the inputs.
+        return Ok(());
+    };
+    for input in inputs {
+        if std::fs::canonicalize(input).is_ok_and(|i| i == out) {
+            bail!(
+                "the output {} is the input {}; choose another output with -o",
+                output.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Formats of `kinetree export`.
@@ -245,6 +297,7 @@ fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Resu
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
+    configure_threads()?;
     match cli.command {
         Command::Run { config, results } => run(config, &results),
         Command::Discover {
@@ -264,6 +317,9 @@ fn main() -> Result<()> {
             if noise_sigma.is_some() {
                 cfg.noise_sigma_m = noise_sigma;
             }
+            let mut inputs = vec![tracks.as_path()];
+            inputs.extend(pipeline.as_deref());
+            refuse_overwriting(&output, &inputs)?;
             let t = kinetree_io::read_tracks(&tracks)?;
             let d = Pipeline::from_config(&cfg)?.run(&t)?;
             emit(&summary(&d.model));
@@ -282,6 +338,7 @@ fn main() -> Result<()> {
             format,
             output,
         } => {
+            refuse_overwriting(&output, &[&model])?;
             let m = kinetree_io::read_model(&model)?;
             let text = match format {
                 ExportFormat::Urdf => kinetree_io::export::to_urdf(&m)
@@ -289,8 +346,7 @@ fn main() -> Result<()> {
                 ExportFormat::Dot => kinetree_io::export::to_dot(&m),
                 ExportFormat::Json => serde_json::to_string_pretty(&m)?,
             };
-            std::fs::write(&output, text)
-                .with_context(|| format!("writing {}", output.display()))?;
+            kinetree_io::write_text(&output, &text)?;
             emitln!("wrote {}", output.display());
             Ok(())
         }
@@ -305,6 +361,7 @@ fn main() -> Result<()> {
             circle_gain,
             output,
         } => {
+            refuse_overwriting(&output, &[&track])?;
             let samples = match point {
                 Some(i) => {
                     let t = kinetree_io::read_tracks(&track)?;
@@ -380,6 +437,7 @@ fn main() -> Result<()> {
 
 fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -> Result<()> {
     use std::io::Write;
+    refuse_overwriting(output, &[model_path, tracks_path])?;
     let model = kinetree_io::read_model(model_path)?;
     let tracks = kinetree_io::read_tracks(tracks_path)?;
     if tracks.n_points() != model.n_points {
@@ -409,23 +467,22 @@ fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -
             )?;
         }
     }
-    let mut w = std::io::BufWriter::new(
-        std::fs::File::create(output).with_context(|| format!("creating {}", output.display()))?,
-    );
     let header: Vec<String> = model
         .joints
         .iter()
         .map(|j| format!("{}_{}_{}", j.joint_type, j.parent, j.child))
         .collect();
-    writeln!(w, "frame,{}", header.join(","))?;
-    for t in 0..tracks.n_frames() {
-        let row: Vec<String> = columns
-            .iter()
-            .map(|c| c[t].map(|v| format!("{v:?}")).unwrap_or_default())
-            .collect();
-        writeln!(w, "{t},{}", row.join(","))?;
-    }
-    w.flush()?;
+    kinetree_io::write_atomically(output, |w| {
+        writeln!(w, "frame,{}", header.join(","))?;
+        for t in 0..tracks.n_frames() {
+            let row: Vec<String> = columns
+                .iter()
+                .map(|c| c[t].map(|v| format!("{v:?}")).unwrap_or_default())
+                .collect();
+            writeln!(w, "{t},{}", row.join(","))?;
+        }
+        Ok(())
+    })?;
     emitln!(
         "wrote {} frames x {} joints to {}",
         tracks.n_frames(),

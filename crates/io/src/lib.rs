@@ -143,13 +143,54 @@ fn read_npy_inner(path: &Path) -> Result<Tracks> {
     Tracks::new(t, n, xyz)
 }
 
-/// Writes tracks as a float64 `(T, N, 3)` `.npy` array (C order, NaN for occluded points).
+/// Writes a file all at once or not at all: `write` fills a temporary file beside `path`,
+/// which is then renamed over it. A failed write (disk full, a file-size limit, an error in
+/// `write`) leaves any file already at `path` as it was.
+///
+/// # Errors
+/// [`Error::File`] naming `path`, wrapping the I/O error or `write`'s own.
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<&mut File>) -> Result<()>,
+) -> Result<()> {
+    let inner = || -> Result<()> {
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(".kinetree-").suffix(".part");
+        // A temporary file is private (0600); the result is an ordinary output file.
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644));
+        let mut temp = builder.tempfile_in(dir)?;
+        {
+            let mut w = BufWriter::new(temp.as_file_mut());
+            write(&mut w)?;
+            w.flush()?;
+        }
+        temp.as_file().sync_all()?;
+        temp.persist(path).map_err(|e| Error::Io(e.error))?;
+        Ok(())
+    };
+    inner().map_err(|e| e.in_file(path))
+}
+
+/// Writes `text` to `path` with [`write_atomically`].
+///
+/// # Errors
+/// As [`write_atomically`].
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    write_atomically(path, |w| Ok(w.write_all(text.as_bytes())?))
+}
+
+/// Writes tracks as a float64 `(T, N, 3)` `.npy` array (C order, NaN for occluded points),
+/// atomically.
 ///
 /// # Errors
 /// [`Error::File`] wrapping the I/O error.
 pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
-    let inner = || -> std::io::Result<()> {
-        let file = BufWriter::new(File::create(path)?);
+    write_atomically(path, |file| {
         let mut w = npyz::WriteOptions::new()
             .default_dtype()
             .shape(&[tracks.n_frames() as u64, tracks.n_points() as u64, 3])
@@ -158,8 +199,7 @@ pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
         w.extend(tracks.raw().iter().copied())?;
         w.finish()?;
         Ok(())
-    };
-    inner().map_err(|e| Error::Io(e).in_file(path))
+    })
 }
 
 /// Reads `frame,point,x,y,z` rows (header required; one row per visible observation;
@@ -305,13 +345,12 @@ fn read_csv_inner(path: &Path) -> Result<Tracks> {
 }
 
 /// Writes tracks as `frame,point,x,y,z` rows, one per visible observation, after a
-/// `# frames=T points=N` size line.
+/// `# frames=T points=N` size line, atomically.
 ///
 /// # Errors
 /// [`Error::File`] wrapping the I/O error.
 pub fn write_csv(path: &Path, tracks: &Tracks) -> Result<()> {
-    let inner = || -> std::io::Result<()> {
-        let mut w = BufWriter::new(File::create(path)?);
+    write_atomically(path, |w| {
         writeln!(
             w,
             "# frames={} points={}",
@@ -326,27 +365,23 @@ pub fn write_csv(path: &Path, tracks: &Tracks) -> Result<()> {
                 }
             }
         }
-        w.flush()
-    };
-    inner().map_err(|e| Error::Io(e).in_file(path))
+        Ok(())
+    })
 }
 
-/// Writes any serialisable value as pretty JSON.
+/// Writes any serialisable value as pretty JSON, atomically.
 ///
 /// # Errors
 /// [`Error::File`] wrapping the I/O or serialisation error.
 pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
-    let inner = || -> Result<()> {
-        let mut w = BufWriter::new(File::create(path)?);
-        serde_json::to_writer_pretty(&mut w, value).map_err(|e| Error::Malformed {
+    write_atomically(path, |w| {
+        serde_json::to_writer_pretty(&mut *w, value).map_err(|e| Error::Malformed {
             position: "serialisation".into(),
             message: e.to_string(),
         })?;
         w.write_all(b"\n")?;
-        w.flush()?;
         Ok(())
-    };
-    inner().map_err(|e| e.in_file(path))
+    })
 }
 
 /// Reads a model JSON file and checks it with [`Model::validate`].

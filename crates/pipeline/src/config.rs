@@ -352,6 +352,31 @@ pub struct ExperimentMeta {
     pub description: String,
 }
 
+impl ExperimentMeta {
+    /// Checks that `name` is one plain folder name, so the results stay under `--results`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming `experiment.name` when it is empty, `.` or `..`,
+    /// or holds a path separator or a control character.
+    pub fn validate(&self) -> Result<()> {
+        let n = &self.name;
+        let bad = n.is_empty()
+            || n == "."
+            || n == ".."
+            || n.chars().any(|c| c == '/' || c == '\\' || c.is_control());
+        if bad {
+            return Err(Error::InvalidParameter {
+                name: "experiment.name".into(),
+                message: format!(
+                    "{n:?} must be one folder name (no `/`, `\\`, `..` or control characters): \
+                     results go to <results>/<name>/"
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
 /// An experiment config file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -371,7 +396,9 @@ impl ExperimentConfig {
     /// # Errors
     /// [`Error::Config`] with the parser's message (line and key).
     pub fn from_toml(text: &str) -> Result<Self> {
-        parse_naming_key(text, "")
+        let cfg: Self = parse_naming_key(text, "")?;
+        cfg.experiment.validate()?;
+        Ok(cfg)
     }
 
     /// The config with every default filled in, as TOML.

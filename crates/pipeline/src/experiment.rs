@@ -108,10 +108,7 @@ pub fn write_results(
     dir: &Path,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| kinetree_core::Error::Io(e).in_file(dir))?;
-    let write = |name: &str, text: &str| -> Result<()> {
-        let p = dir.join(name);
-        std::fs::write(&p, text).map_err(|e| kinetree_core::Error::Io(e).in_file(&p))
-    };
+    let write = |name: &str, text: &str| kinetree_io::write_text(&dir.join(name), text);
     write("resolved.toml", &cfg.resolved_toml()?)?;
     kinetree_io::write_json(&dir.join("model.json"), &outcome.discovery.model)?;
     let model = &outcome.discovery.model;

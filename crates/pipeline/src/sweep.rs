@@ -679,10 +679,7 @@ pub fn run_sweep(
     let name = sweep.name()?;
     let runs = sweep.run(base_dir, progress);
     std::fs::create_dir_all(dir).map_err(|e| Error::Io(e).in_file(dir))?;
-    let write = |file: &str, body: &str| -> Result<()> {
-        let p = dir.join(file);
-        std::fs::write(&p, body).map_err(|e| Error::Io(e).in_file(&p))
-    };
+    let write = |file: &str, body: &str| kinetree_io::write_text(&dir.join(file), body);
     let first = sweep.config(0, sweep.seeds().first().copied().unwrap_or(0))?;
     let mut resolved: toml::Table = first
         .resolved_toml()?

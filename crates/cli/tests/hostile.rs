@@ -1,0 +1,209 @@
+//! The `kinetree` binary under careless use: outputs naming inputs, closed pipes, absurd thread
+//! counts, experiment names that leave the results folder. Each is refused with a message or
+//! survived with the files written; none panics or loses a file.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+fn kinetree() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_kinetree"));
+    c.env("RUST_BACKTRACE", "0");
+    c
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "kinetree-cli-hostile-{}-{name}",
+        std::process::id()
+    ));
+    std::fs::create_dir_all(&d).expect("dir");
+    d
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Fails the test unless the command failed cleanly (exit 1, no panic) with `needle` in its
+/// message.
+fn refused(out: &Output, needle: &str) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(err.contains(needle), "expected {needle:?} in {err}");
+}
+
+/// A simulated paper arm in `dir`, with a model discovered from it.
+fn simulated(dir: &Path) -> (PathBuf, PathBuf) {
+    let out = kinetree()
+        .args(["simulate", "--frames", "60", "-o"])
+        .arg(dir)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let model = dir.join("model.json");
+    let out = kinetree()
+        .arg("discover")
+        .arg(dir.join("tracks.npy"))
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", stderr(&out));
+    (dir.join("tracks.npy"), model)
+}
+
+#[test]
+fn an_output_naming_an_input_is_refused_and_the_input_kept() {
+    let dir = tmp("overwrite");
+    let (tracks, model) = simulated(&dir);
+    let before = (
+        std::fs::read(&tracks).expect("tracks"),
+        std::fs::read(&model).expect("model"),
+    );
+    // The same file through another spelling of its path.
+    let dotted = dir.join(".").join("tracks.npy");
+    let cases: Vec<Vec<std::ffi::OsString>> = vec![
+        vec![
+            "discover".into(),
+            tracks.clone().into(),
+            "-o".into(),
+            dotted.into(),
+        ],
+        vec![
+            "observe".into(),
+            model.clone().into(),
+            tracks.clone().into(),
+            "-o".into(),
+            model.clone().into(),
+        ],
+        vec![
+            "observe".into(),
+            model.clone().into(),
+            tracks.clone().into(),
+            "-o".into(),
+            tracks.clone().into(),
+        ],
+        vec![
+            "export".into(),
+            model.clone().into(),
+            "--format".into(),
+            "json".into(),
+            "-o".into(),
+            model.clone().into(),
+        ],
+        vec![
+            "fit-track".into(),
+            tracks.clone().into(),
+            "--point".into(),
+            "3".into(),
+            "-o".into(),
+            tracks.clone().into(),
+        ],
+    ];
+    for args in cases {
+        let out = kinetree().args(&args).output().expect("runs");
+        refused(&out, "is the input");
+    }
+    let after = (
+        std::fs::read(&tracks).expect("tracks"),
+        std::fs::read(&model).expect("model"),
+    );
+    assert!(before == after, "an input changed");
+}
+
+#[test]
+fn a_closed_stdout_does_not_stop_the_model_being_written() {
+    let dir = tmp("pipe");
+    let (tracks, _) = simulated(&dir);
+    let model = dir.join("piped.json");
+    let mut child = kinetree()
+        .arg("discover")
+        .arg(&tracks)
+        .arg("-o")
+        .arg(&model)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawns");
+    // Close the reading end at once, as `| true` does.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("waits");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&model).expect("model written"))
+            .expect("json");
+    assert!(written["bodies"].as_array().is_some_and(|b| b.len() >= 2));
+}
+
+#[test]
+fn thread_counts_that_are_no_count_or_beyond_the_limit_are_refused() {
+    let dir = tmp("threads");
+    for (value, needle) in [
+        ("100000", "above the limit"),
+        ("many", "not a thread count"),
+        ("-3", "not a thread count"),
+    ] {
+        let out = kinetree()
+            .env("RAYON_NUM_THREADS", value)
+            .args(["simulate", "-o"])
+            .arg(&dir)
+            .output()
+            .expect("runs");
+        refused(&out, needle);
+    }
+    let out = kinetree()
+        .env("RAYON_NUM_THREADS", "3")
+        .args(["simulate", "-o"])
+        .arg(&dir)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", stderr(&out));
+}
+
+#[test]
+fn an_experiment_name_must_stay_inside_the_results_folder() {
+    let dir = tmp("names");
+    let results = dir.join("results");
+    for name in ["../escaped", "/abs", "a/b", "..", ""] {
+        let config = dir.join("exp.toml");
+        std::fs::write(
+            &config,
+            format!("[experiment]\nname = {name:?}\n\n[data]\nkind = \"paper_arm\"\n"),
+        )
+        .expect("write");
+        let out = kinetree()
+            .arg("run")
+            .arg(&config)
+            .arg("--results")
+            .arg(&results)
+            .output()
+            .expect("runs");
+        refused(&out, "experiment.name");
+    }
+    assert!(!dir.join("escaped").exists());
+}
+
+#[test]
+fn a_write_cut_short_by_a_file_size_limit_keeps_the_old_model() {
+    let dir = tmp("fsize");
+    let (tracks, model) = simulated(&dir);
+    let before = std::fs::read(&model).expect("model");
+    assert!(before.len() > 16 * 1024, "the model must exceed the limit");
+    // `ulimit -f 8`: files of at most 8 blocks (4 or 8 KiB); the write beyond it fails.
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -f 8 && exec \"$0\" discover \"$1\" -o \"$2\"")
+        .arg(env!("CARGO_BIN_EXE_kinetree"))
+        .arg(&tracks)
+        .arg(&model)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("runs");
+    assert!(!out.status.success(), "the write should have failed");
+    assert_eq!(
+        std::fs::read(&model).expect("model"),
+        before,
+        "model changed"
+    );
+}
