@@ -373,7 +373,7 @@ fn random_data_and_sweep_sizes_out_of_range_are_typed_errors() {
         ),
     ];
     for (params, key) in cases {
-        let e = kinetree_pipeline::load_data(&DataConfig::Random(params), Path::new("."))
+        let e = kinetree_pipeline::load_data(&DataConfig::Random(params), Path::new("."), 8.0)
             .expect_err(key);
         assert!(
             matches!(e, Error::InvalidParameter { ref name, .. } if name == key),

@@ -323,3 +323,179 @@ fn a_failed_write_leaves_the_previous_file_whole() {
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     assert!(kinetree_io::read_model(&path).is_ok());
 }
+
+const SMALL_SWEEP: &str = r#"
+[experiment]
+name = "resumable"
+
+[sweep]
+seeds = [1, 2]
+timing = true
+
+[sweep.grid]
+"data.noise_sigma_m" = [0.001, 0.002]
+
+[data]
+kind = "random"
+n_joints = 1
+n_frames = 60
+"#;
+
+#[test]
+fn an_interrupted_sweep_keeps_its_finished_runs_and_resumes_with_the_rest() {
+    use kinetree_pipeline::sweep::{Sweep, run_sweep, runs_csv};
+    let sweep = Sweep::from_toml(SMALL_SWEEP).expect("parses");
+    let dir = tmp("sweep-resume");
+    let full = run_sweep(&sweep, std::path::Path::new("."), &dir, &|_, _| {}, false).expect("runs");
+    let csv_path = dir.join("runs.csv");
+    let complete = std::fs::read_to_string(&csv_path).expect("runs.csv");
+    let without_time = |text: &str| -> Vec<String> {
+        text.lines()
+            .map(|l| l.rsplit_once(',').map_or(l, |(head, _)| head).to_string())
+            .collect()
+    };
+    // As an interruption leaves it: two finished rows, out of order, and a row cut short.
+    let lines: Vec<&str> = complete.lines().collect();
+    let cut = &lines[2][..lines[2].len() / 2];
+    std::fs::write(
+        &csv_path,
+        format!("{}\n{}\n{}\n{cut}", lines[0], lines[3], lines[1]),
+    )
+    .expect("write");
+    let ran = std::sync::atomic::AtomicUsize::new(0);
+    let count = |_: usize, _: usize| {
+        ran.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    };
+    let resumed = run_sweep(&sweep, std::path::Path::new("."), &dir, &count, true).expect("resume");
+    assert_eq!(
+        ran.into_inner(),
+        full.len() - 2,
+        "only the missing runs ran"
+    );
+    let after = std::fs::read_to_string(&csv_path).expect("runs.csv");
+    assert_eq!(without_time(&after), without_time(&complete));
+    assert_eq!(
+        without_time(&runs_csv(&sweep, &resumed)),
+        without_time(&complete)
+    );
+    // A runs.csv of another sweep is not taken for this one's.
+    let other = SMALL_SWEEP.replace("0.002]", "0.003]");
+    let other = Sweep::from_toml(&other).expect("parses");
+    let e = run_sweep(&other, std::path::Path::new("."), &dir, &|_, _| {}, true)
+        .expect_err("another sweep's runs");
+    assert!(e.to_string().contains("runs.csv"), "{e}");
+}
+
+#[test]
+fn a_sweep_beyond_the_run_limit_is_refused_before_it_expands() {
+    use kinetree_pipeline::sweep::Sweep;
+    // 10^6 grid points would take minutes to expand and hours to run.
+    let values: Vec<String> = (0..1000)
+        .map(|k| format!("{}", 1e-4 * (k + 1) as f64))
+        .collect();
+    let text = format!(
+        "[experiment]\nname = \"huge\"\n\n[sweep]\nseeds = 1000\n\n[sweep.grid]\n\"data.noise_sigma_m\" = [{}]\n\n[data]\nkind = \"random\"\n",
+        values.join(", ")
+    );
+    let e = Sweep::from_toml(&text).expect_err("a million runs");
+    match &e {
+        Error::TooLarge {
+            estimate, limit, ..
+        } => {
+            assert_eq!(estimate, "1000000 runs");
+            assert_eq!(limit, "10000 runs");
+        }
+        other => panic!("expected TooLarge, got {other:?}"),
+    }
+    Sweep::from_toml_within(SMALL_SWEEP, 4).expect("four runs within four");
+    assert!(Sweep::from_toml_within(SMALL_SWEEP, 3).is_err());
+}
+
+fn write_npy_header_only(path: &std::path::Path, shape: &[u64]) {
+    // A valid header claiming `shape`, followed by one value: what a damaged or hostile file
+    // looks like.
+    let dims: Vec<String> = shape.iter().map(u64::to_string).collect();
+    let dict = format!(
+        "{{'descr': '<f8', 'fortran_order': False, 'shape': ({}), }}",
+        dims.join(", ")
+    );
+    let mut header = dict.into_bytes();
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(b' ');
+    }
+    header.push(b'\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(&header);
+    bytes.extend_from_slice(&0.5f64.to_le_bytes());
+    std::fs::write(path, bytes).expect("write");
+}
+
+#[test]
+fn sizes_beyond_memory_are_refused_before_they_are_allocated() {
+    // A CSV size line asking for 10^7 frames of 214 points: about 50 GiB.
+    let csv = tmp("huge.csv");
+    std::fs::write(
+        &csv,
+        "# frames=10000000 points=214\nframe,point,x,y,z\n0,0,1,2,3\n",
+    )
+    .expect("write");
+    let e = kinetree_io::read_tracks(&csv).expect_err("50 GiB");
+    assert!(matches!(e.root(), Error::TooLarge { .. }), "{e}");
+    assert!(e.to_string().contains("huge.csv"), "{e}");
+    // The limit is a parameter: a declared 1000 x 214 (5 MiB) reads within 1 GiB, not
+    // within 100 KiB.
+    std::fs::write(
+        &csv,
+        "# frames=1000 points=214\nframe,point,x,y,z\n0,0,1,2,3\n",
+    )
+    .expect("write");
+    kinetree_io::read_tracks_within(&csv, 1.0).expect("a small declared size reads");
+    assert!(
+        kinetree_io::read_tracks_within(&csv, 1e-4).is_err(),
+        "below 5 MiB"
+    );
+
+    // An npy header claiming more data than the file holds.
+    let npy = tmp("lying.npy");
+    write_npy_header_only(&npy, &[100_000, 100_000, 3]);
+    let e = kinetree_io::read_tracks(&npy).expect_err("lying header");
+    assert!(
+        matches!(e.root(), Error::Malformed { position, .. } if position == "header"),
+        "{e}"
+    );
+    write_npy_header_only(&npy, &[u64::MAX, 2, 3]);
+    assert!(
+        kinetree_io::read_tracks(&npy).is_err(),
+        "an overflowing shape"
+    );
+
+    // 20 000 points in 3 frames: a small file, but a discovery of about 12 GiB.
+    let n = 20_000;
+    let xyz: Vec<f64> = (0..3 * n * 3).map(|k| (k % 97) as f64 * 1e-2).collect();
+    let tracks = kinetree_core::Tracks::new(3, n, xyz).expect("tracks");
+    let e = Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&tracks)
+        .expect_err("12 GiB");
+    match &e {
+        Error::TooLarge { what, limit, .. } => {
+            assert!(what.contains("20000 points"), "{e}");
+            assert_eq!(limit, "8.0 GiB");
+        }
+        other => panic!("expected TooLarge, got {other:?}"),
+    }
+    // Simulated data are checked the same way before they are simulated.
+    let data = kinetree_pipeline::config::DataConfig::Random(kinetree_synth::RandomParams {
+        n_joints: 200,
+        extra_points: 10_000,
+        n_frames: 1_000_000,
+        ..kinetree_synth::RandomParams::default()
+    });
+    let e =
+        kinetree_pipeline::load_data(&data, std::path::Path::new("."), 8.0).expect_err("terabytes");
+    assert!(matches!(e, Error::TooLarge { .. }), "{e}");
+    let mut config = PipelineConfig::default();
+    config.max_memory_gib = f64::NAN;
+    assert!(Pipeline::from_config(&config).is_err(), "a NaN limit");
+}

@@ -100,6 +100,11 @@ enum ExportFormat {
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Memory limit in GiB (default 8): tracks, simulations and discoveries whose estimated
+    /// memory exceeds it are refused before they are allocated. For `run`, it replaces the
+    /// experiment's `pipeline.max_memory_gib`.
+    #[arg(long, global = true, value_name = "GIB")]
+    max_memory: Option<f64>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -111,6 +116,13 @@ enum Command {
         /// Folder under which `<experiment name>/` is written.
         #[arg(long, default_value = "results")]
         results: PathBuf,
+        /// Sweeps: keep the runs already in `<results>/<name>/runs.csv` (a sweep appends each
+        /// run there as it ends) and run only the others.
+        #[arg(long)]
+        resume: bool,
+        /// Sweeps: the most runs (grid points x seeds) accepted.
+        #[arg(long, default_value_t = kinetree_pipeline::sweep::DEFAULT_MAX_RUNS)]
+        max_runs: u64,
     },
     /// Discover the structure in a tracks file (.npy, .csv or .c3d) and write the model JSON.
     Discover {
@@ -202,13 +214,24 @@ enum Command {
         /// Extra random occlusion fraction.
         #[arg(long, default_value_t = 0.0)]
         dropout: f64,
-        /// Number of frames (random mechanisms).
-        #[arg(long, default_value_t = 200)]
-        frames: usize,
+        /// Number of frames (default: 100 for the paper arm, 200 for random mechanisms).
+        #[arg(long)]
+        frames: Option<usize>,
     },
 }
 
-fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
+/// How `kinetree run` treats a sweep.
+struct SweepFlags {
+    resume: bool,
+    max_runs: u64,
+}
+
+fn run(
+    config: Option<PathBuf>,
+    results: &Path,
+    max_memory: Option<f64>,
+    flags: &SweepFlags,
+) -> Result<()> {
     let (text, base) = match &config {
         Some(p) => (
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
@@ -217,12 +240,26 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
         None => (PAPER_EXPERIMENT_TOML.to_string(), PathBuf::from(".")),
     };
     if kinetree_pipeline::sweep::is_sweep(&text) {
-        return sweep(&text, config.as_deref(), &base, results);
+        if max_memory.is_some() {
+            bail!(
+                "--max-memory is not taken by a sweep; set `pipeline.max_memory_gib` in its config"
+            );
+        }
+        return sweep(&text, config.as_deref(), &base, results, flags);
     }
-    let cfg = ExperimentConfig::from_toml(&text).with_context(|| match &config {
+    if flags.resume {
+        bail!(
+            "--resume is for sweeps; {} is a single experiment",
+            where_config(config.as_deref())
+        );
+    }
+    let mut cfg = ExperimentConfig::from_toml(&text).with_context(|| match &config {
         Some(p) => format!("in {}", p.display()),
         None => "in the embedded paper experiment".into(),
     })?;
+    if let Some(m) = max_memory {
+        cfg.pipeline.max_memory_gib = m;
+    }
     let outcome = run_experiment(&cfg, &base)?;
     let model = &outcome.discovery.model;
     emitln!(
@@ -265,13 +302,31 @@ fn run(config: Option<PathBuf>, results: &Path) -> Result<()> {
 
 /// Runs a sweep config: a progress bar on stderr, then `runs.csv`, `table.md` and
 /// `resolved.toml` under `results/<name>/`.
-fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Result<()> {
+fn where_config(config: Option<&Path>) -> String {
+    config.map_or("the embedded paper experiment".into(), |p| {
+        p.display().to_string()
+    })
+}
+
+fn sweep(
+    text: &str,
+    config: Option<&Path>,
+    base: &Path,
+    results: &Path,
+    flags: &SweepFlags,
+) -> Result<()> {
     use std::io::Write;
-    let where_ = || config.map_or("the config".into(), |p| p.display().to_string());
-    let parsed = kinetree_pipeline::sweep::Sweep::from_toml(text)
-        .with_context(|| format!("in {}", where_()))?;
+    let parsed = kinetree_pipeline::sweep::Sweep::from_toml_within(text, flags.max_runs)
+        .with_context(|| format!("in {}", where_config(config)))?;
     let name = parsed.name()?;
     let dir = results.join(&name);
+    eprintln!(
+        "sweep {name}: {} grid point(s) x {} seed(s) = {} runs, into {}",
+        parsed.points.len(),
+        parsed.seeds().len(),
+        parsed.n_runs(),
+        dir.display()
+    );
     let progress = |done: usize, total: usize| {
         let width = 40;
         let filled = done * width / total.max(1);
@@ -287,7 +342,7 @@ fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Resu
         }
         let _ = err.flush();
     };
-    let runs = kinetree_pipeline::sweep::run_sweep(&parsed, base, &dir, &progress)?;
+    let runs = kinetree_pipeline::sweep::run_sweep(&parsed, base, &dir, &progress, flags.resume)?;
     emit(&kinetree_pipeline::sweep::table_markdown(
         &name, &parsed, &runs,
     ));
@@ -295,11 +350,47 @@ fn sweep(text: &str, config: Option<&Path>, base: &Path, results: &Path) -> Resu
     Ok(())
 }
 
-fn main() -> Result<()> {
+/// Runs the command; an error is printed as its message and the causes that message does not
+/// already contain (a file error's message quotes its cause), and the exit code is 1.
+fn main() -> std::process::ExitCode {
+    match run_command() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            let mut shown: Vec<String> = Vec::new();
+            for cause in e.chain() {
+                let text = cause.to_string();
+                if !shown.iter().any(|s| s.contains(&text)) {
+                    shown.push(text);
+                }
+            }
+            eprintln!("error: {}", shown[0]);
+            for cause in &shown[1..] {
+                eprintln!("  caused by: {cause}");
+            }
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run_command() -> Result<()> {
     let cli = Cli::parse();
     configure_threads()?;
+    let max_memory = cli.max_memory;
+    let memory = max_memory.unwrap_or(kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB);
+    kinetree_core::limits::validate_limit("--max-memory", memory)?;
+    let read_tracks = |path: &Path| kinetree_io::read_tracks_within(path, memory);
     match cli.command {
-        Command::Run { config, results } => run(config, &results),
+        Command::Run {
+            config,
+            results,
+            resume,
+            max_runs,
+        } => run(
+            config,
+            &results,
+            max_memory,
+            &SweepFlags { resume, max_runs },
+        ),
         Command::Discover {
             tracks,
             noise_sigma,
@@ -317,10 +408,13 @@ fn main() -> Result<()> {
             if noise_sigma.is_some() {
                 cfg.noise_sigma_m = noise_sigma;
             }
+            if let Some(m) = max_memory {
+                cfg.max_memory_gib = m;
+            }
             let mut inputs = vec![tracks.as_path()];
             inputs.extend(pipeline.as_deref());
             refuse_overwriting(&output, &inputs)?;
-            let t = kinetree_io::read_tracks(&tracks)?;
+            let t = read_tracks(&tracks)?;
             let d = Pipeline::from_config(&cfg)?.run(&t)?;
             emit(&summary(&d.model));
             kinetree_io::write_json(&output, &d.model)?;
@@ -332,7 +426,7 @@ fn main() -> Result<()> {
             tracks,
             output,
             smooth,
-        } => observe(&model, &tracks, &output, smooth),
+        } => observe(&model, &tracks, &output, smooth, memory),
         Command::Export {
             model,
             format,
@@ -364,7 +458,7 @@ fn main() -> Result<()> {
             refuse_overwriting(&output, &[&track])?;
             let samples = match point {
                 Some(i) => {
-                    let t = kinetree_io::read_tracks(&track)?;
+                    let t = read_tracks(&track)?;
                     if i >= t.n_points() {
                         bail!("--point {i}: the file has {} points", t.n_points());
                     }
@@ -401,13 +495,13 @@ fn main() -> Result<()> {
                     seed,
                     noise_sigma_m: noise_sigma,
                     dropout,
-                    ..PaperArmData::default()
+                    n_frames: frames.unwrap_or(PaperArmData::default().n_frames),
                 }),
                 "random" => DataConfig::Random(kinetree_synth::RandomParams {
                     n_joints: joints,
                     prismatic_fraction,
                     tree,
-                    n_frames: frames,
+                    n_frames: frames.unwrap_or(200),
                     noise_sigma_m: noise_sigma,
                     dropout,
                     seed,
@@ -415,7 +509,7 @@ fn main() -> Result<()> {
                 }),
                 other => bail!("unknown mechanism `{other}`; use paper-arm or random"),
             };
-            let (tracks, truth) = kinetree_pipeline::load_data(&data, Path::new("."))?;
+            let (tracks, truth) = kinetree_pipeline::load_data(&data, Path::new("."), memory)?;
             std::fs::create_dir_all(&output)
                 .with_context(|| format!("creating {}", output.display()))?;
             kinetree_io::write_npy(&output.join("tracks.npy"), &tracks)?;
@@ -435,11 +529,17 @@ fn main() -> Result<()> {
     }
 }
 
-fn observe(model_path: &Path, tracks_path: &Path, output: &Path, smooth: bool) -> Result<()> {
+fn observe(
+    model_path: &Path,
+    tracks_path: &Path,
+    output: &Path,
+    smooth: bool,
+    max_memory_gib: f64,
+) -> Result<()> {
     use std::io::Write;
     refuse_overwriting(output, &[model_path, tracks_path])?;
     let model = kinetree_io::read_model(model_path)?;
-    let tracks = kinetree_io::read_tracks(tracks_path)?;
+    let tracks = kinetree_io::read_tracks_within(tracks_path, max_memory_gib)?;
     if tracks.n_points() != model.n_points {
         bail!(
             "{} has {} points but the model {} was discovered on {}",

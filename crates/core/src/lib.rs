@@ -5,6 +5,7 @@
 
 mod error;
 pub mod geom;
+pub mod limits;
 pub mod model;
 mod pairs;
 mod poses;

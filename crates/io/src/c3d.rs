@@ -184,7 +184,15 @@ impl Parameter {
 }
 
 /// Tracks from the bytes of a C3D file; see [`crate::read_c3d`].
+///
+/// # Errors
+/// As [`crate::read_c3d`].
 pub fn tracks(bytes: &[u8]) -> Result<Tracks> {
+    tracks_within(bytes, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB)
+}
+
+/// [`tracks`] refusing tracks above `max_memory_gib` before allocating them.
+pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks> {
     let header = slice(bytes, 0, 512, "header")?;
     if header[1] != 0x50 {
         return Err(malformed(
@@ -285,6 +293,11 @@ pub fn tracks(bytes: &[u8]) -> Result<Tracks> {
             ),
         ));
     }
+    kinetree_core::limits::check_memory(
+        &format!("reading {n_frames} frames x {n_points} points"),
+        kinetree_core::limits::tracks_bytes(n_frames as u64, n_points as u64),
+        max_memory_gib,
+    )?;
     let point_scale = if is_float { 1.0 } else { scale.abs() };
     let mut xyz = Vec::with_capacity(n_frames * n_points * 3);
     for t in 0..n_frames {

@@ -16,19 +16,33 @@ use std::path::Path;
 /// Largest frame or point index accepted in a CSV file (guards against absurd allocations).
 pub const MAX_CSV_INDEX: u64 = 10_000_000;
 
-/// Reads tracks from a `.npy`, `.csv` or `.c3d` file, chosen by extension.
+/// Reads tracks from a `.npy`, `.csv` or `.c3d` file, chosen by extension, within the default
+/// memory limit ([`read_tracks_within`]).
 ///
 /// # Errors
-/// [`Error::File`] wrapping the cause: I/O, an unknown extension, or the format's own errors.
+/// [`Error::File`] wrapping the cause: I/O, an unknown extension, the format's own errors, or
+/// [`Error::TooLarge`].
 pub fn read_tracks(path: &Path) -> Result<Tracks> {
+    read_tracks_within(path, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB)
+}
+
+/// [`read_tracks`] refusing, before allocating them, tracks whose size (as the file declares
+/// it) takes more than `max_memory_gib`.
+///
+/// # Errors
+/// As [`read_tracks`].
+pub fn read_tracks_within(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("npy") => read_npy(path),
-        Some("csv") => read_csv(path),
-        Some("c3d") => read_c3d(path),
+        Some("npy") => read_npy_inner(path, max_memory_gib).map_err(|e| e.in_file(path)),
+        Some("csv") => read_csv_inner(path, max_memory_gib).map_err(|e| e.in_file(path)),
+        Some("c3d") => {
+            let bytes = std::fs::read(path).map_err(|e| Error::from(e).in_file(path))?;
+            c3d::tracks_within(&bytes, max_memory_gib).map_err(|e| e.in_file(path))
+        }
         _ => Err(Error::Malformed {
             position: "file name".into(),
             message: "unknown extension; expected .npy, .csv or .c3d".into(),
@@ -93,10 +107,81 @@ pub fn read_point_track(path: &Path) -> Result<Vec<kinetree_core::nalgebra::Poin
 /// [`Error::DType`] for another element type, [`Error::Shape`] for another shape, and the
 /// validation errors of [`Tracks::new`], all inside [`Error::File`].
 pub fn read_npy(path: &Path) -> Result<Tracks> {
-    read_npy_inner(path).map_err(|e| e.in_file(path))
+    read_npy_inner(path, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB).map_err(|e| e.in_file(path))
 }
 
-fn read_npy_inner(path: &Path) -> Result<Tracks> {
+/// Checks a declared `n_frames x n_points` against the memory limit before it is allocated.
+fn check_size(n_frames: u64, n_points: u64, max_memory_gib: f64) -> Result<()> {
+    kinetree_core::limits::check_memory(
+        &format!("reading {n_frames} frames x {n_points} points"),
+        kinetree_core::limits::tracks_bytes(n_frames, n_points),
+        max_memory_gib,
+    )
+}
+
+/// The `shape` an npy header declares, read before npyz sees the file: npyz multiplies the
+/// dimensions unchecked (a panic in debug builds, a wrapped count in release ones), so a
+/// hostile header must be refused first. `None` when the header cannot be read this way;
+/// npyz then reports what is wrong with it.
+fn npy_declared_shape(path: &Path) -> Result<Option<Vec<u128>>> {
+    use std::io::Read;
+    let mut file = File::open(path)?;
+    let mut start = [0u8; 12];
+    if file.read_exact(&mut start).is_err() || &start[..6] != b"\x93NUMPY" {
+        return Ok(None);
+    }
+    let (len, skip) = match start[6] {
+        1 => (usize::from(u16::from_le_bytes([start[8], start[9]])), 10),
+        _ => (
+            u32::from_le_bytes([start[8], start[9], start[10], start[11]]) as usize,
+            12,
+        ),
+    };
+    // Headers are a few hundred bytes; a longer one is left to npyz.
+    if len > 1 << 16 {
+        return Ok(None);
+    }
+    let mut header = start[skip..].to_vec();
+    header.resize(len, 0);
+    if file.read_exact(&mut header[12 - skip..]).is_err() {
+        return Ok(None);
+    }
+    let text = String::from_utf8_lossy(&header);
+    let Some(after) = text.split_once("'shape'").map(|(_, a)| a) else {
+        return Ok(None);
+    };
+    let Some(inside) = after
+        .split_once('(')
+        .and_then(|(_, a)| a.split_once(')'))
+        .map(|(i, _)| i)
+    else {
+        return Ok(None);
+    };
+    let dims: Option<Vec<u128>> = inside
+        .split(',')
+        .map(str::trim)
+        .filter(|d| !d.is_empty())
+        .map(|d| d.trim_end_matches('L').parse().ok())
+        .collect();
+    Ok(dims)
+}
+
+fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
+    let file_len = std::fs::metadata(path)?.len();
+    if let Some(dims) = npy_declared_shape(path)? {
+        let bytes = dims
+            .iter()
+            .try_fold(8u128, |acc, &d| acc.checked_mul(d))
+            .filter(|&b| b <= u128::from(file_len));
+        if bytes.is_none() {
+            return Err(Error::Malformed {
+                position: "header".into(),
+                message: format!(
+                    "shape {dims:?} needs more float64 data than the file's {file_len} bytes"
+                ),
+            });
+        }
+    }
     let file = File::open(path)?;
     let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| Error::Malformed {
         position: "header".into(),
@@ -120,6 +205,18 @@ fn read_npy_inner(path: &Path) -> Result<Tracks> {
             found: format!("{shape:?}"),
         });
     }
+    // A header may claim any shape: the data must be in the file, and fit the limit, before
+    // they are allocated.
+    let data_bytes = shape.iter().try_fold(8u64, |acc, &d| acc.checked_mul(d));
+    if data_bytes.is_none_or(|b| b > file_len) {
+        return Err(Error::Malformed {
+            position: "header".into(),
+            message: format!(
+                "shape {shape:?} needs more float64 data than the file's {file_len} bytes"
+            ),
+        });
+    }
+    check_size(shape[0], shape[1], max_memory_gib)?;
     let (t, n) = (shape[0] as usize, shape[1] as usize);
     let order = npy.order();
     let data: Vec<f64> = npy.into_vec::<f64>().map_err(|e| Error::Malformed {
@@ -213,10 +310,10 @@ pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
 /// non-integer or out-of-range index, a non-numeric coordinate or a duplicate row;
 /// [`Error::NonFinite`] for inf or NaN coordinates; then the errors of [`Tracks::new`].
 pub fn read_csv(path: &Path) -> Result<Tracks> {
-    read_csv_inner(path).map_err(|e| e.in_file(path))
+    read_csv_inner(path, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB).map_err(|e| e.in_file(path))
 }
 
-fn read_csv_inner(path: &Path) -> Result<Tracks> {
+fn read_csv_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
     let reader = BufReader::new(File::open(path)?);
     let mut rows: Vec<(usize, usize, [f64; 3])> = Vec::new();
     let mut header_seen = false;
@@ -321,13 +418,8 @@ fn read_csv_inner(path: &Path) -> Result<Tracks> {
     let n = declared
         .1
         .unwrap_or_else(|| rows.iter().map(|r| r.1).max().unwrap_or(0) + 1);
-    let total = t
-        .checked_mul(n)
-        .filter(|&v| v <= 1 << 31)
-        .ok_or_else(|| Error::Shape {
-            expected: "T x N below 2^31 observations".into(),
-            found: format!("{t} x {n}"),
-        })?;
+    check_size(t as u64, n as u64, max_memory_gib)?;
+    let total = t * n;
     let mut xyz = vec![f64::NAN; total * 3];
     let mut seen = vec![false; total];
     for (line, (frame, point, p)) in rows.iter().enumerate() {

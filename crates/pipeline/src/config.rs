@@ -221,6 +221,10 @@ pub struct PipelineConfig {
     /// When the whole-tree fit reports a joint position unknown, and when it smooths one
     /// (`[pipeline.positions]`; the model carries them for later observations).
     pub positions: PositionLimits,
+    /// Memory a run may use, GiB (default
+    /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose
+    /// estimate exceeds it is refused before it allocates.
+    pub max_memory_gib: f64,
     /// Replaced by `repairs.hinges.enabled` and `repairs.hinge_groups.enabled`: setting it
     /// is an error that names them.
     #[serde(default, skip_serializing, deserialize_with = "replaced_hinged_bodies")]
@@ -241,6 +245,7 @@ impl Default for PipelineConfig {
             repairs: RepairsConfig::default(),
             runner: RunnerParams::default(),
             positions: PositionLimits::default(),
+            max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
             hinged_bodies: (),
         }
     }
@@ -285,6 +290,7 @@ impl PipelineConfig {
         }
         self.repairs.validate()?;
         self.runner.validate()?;
+        kinetree_core::limits::validate_limit("pipeline.max_memory_gib", self.max_memory_gib)?;
         self.positions.validate("pipeline.positions")
     }
 

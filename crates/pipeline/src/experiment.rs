@@ -24,10 +24,15 @@ pub struct ExperimentOutcome {
 /// The scenario behind synthetic data, `None` for files.
 ///
 /// # Errors
-/// A random mechanism's parameters out of range ([`kinetree_synth::RandomParams::validate`]).
+/// A mechanism's parameters out of range ([`kinetree_synth::RandomParams::validate`], and the
+/// same ranges of frames, dropout and noise for the paper arm), naming `data.<key>`.
 pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
     Ok(match data {
         DataConfig::PaperArm(p) => {
+            use kinetree_core::limits::{check_count, check_within};
+            check_count("data.n_frames", p.n_frames, 2, 1_000_000)?;
+            check_within("data.dropout", p.dropout, 0.0, 1.0)?;
+            check_within("data.noise_sigma_m", p.noise_sigma_m, 0.0, 1.0)?;
             let mut s = paper_arm(p.seed);
             s.noise_sigma_m = p.noise_sigma_m;
             s.dropout = p.dropout;
@@ -42,20 +47,42 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
     })
 }
 
-/// Loads (or simulates) an experiment's tracks; file paths are relative to `base_dir`.
+/// Loads (or simulates) an experiment's tracks; file paths are relative to `base_dir`. Data
+/// whose estimated memory exceeds `max_memory_gib` are refused before they are read or
+/// simulated.
 ///
 /// # Errors
-/// The simulator's or the reader's errors.
-pub fn load_data(data: &DataConfig, base_dir: &Path) -> Result<(Tracks, Option<GroundTruth>)> {
+/// The simulator's or the reader's errors; [`kinetree_core::Error::TooLarge`].
+pub fn load_data(
+    data: &DataConfig,
+    base_dir: &Path,
+    max_memory_gib: f64,
+) -> Result<(Tracks, Option<GroundTruth>)> {
+    kinetree_core::limits::validate_limit("max_memory_gib", max_memory_gib)?;
     if let DataConfig::File(f) = data {
         let path: PathBuf = if f.path.is_absolute() {
             f.path.clone()
         } else {
             base_dir.join(&f.path)
         };
-        return Ok((kinetree_io::read_tracks(&path)?, None));
+        return Ok((
+            kinetree_io::read_tracks_within(&path, max_memory_gib)?,
+            None,
+        ));
     }
     let s = scenario(data)?.ok_or_else(|| kinetree_core::Error::Config("no scenario".into()))?;
+    let points: usize = s
+        .mechanism
+        .bodies
+        .iter()
+        .map(|b| 8 + b.extra_points + b.interior_points)
+        .sum();
+    // The simulator holds the tracks, their noise-free copy and every body's pose per frame.
+    kinetree_core::limits::check_memory(
+        &format!("simulating {} frames x {points} points", s.n_frames),
+        3.0 * kinetree_core::limits::tracks_bytes(s.n_frames as u64, points as u64),
+        max_memory_gib,
+    )?;
     let d = simulate(&s)?;
     Ok((d.tracks, Some(d.truth)))
 }
@@ -65,7 +92,7 @@ pub fn load_data(data: &DataConfig, base_dir: &Path) -> Result<(Tracks, Option<G
 /// # Errors
 /// Any stage's error.
 pub fn run_experiment(cfg: &ExperimentConfig, base_dir: &Path) -> Result<ExperimentOutcome> {
-    let (tracks, truth) = load_data(&cfg.data, base_dir)?;
+    let (tracks, truth) = load_data(&cfg.data, base_dir, cfg.pipeline.max_memory_gib)?;
     let pipeline = Pipeline::from_config(&cfg.pipeline)?;
     let discovery = pipeline.run(&tracks)?;
     let evaluation = truth.as_ref().map(|t| evaluate(&discovery.model, t));

@@ -39,6 +39,8 @@ pub struct Pipeline {
     pub noise_estimator: NoiseEstimator,
     /// Seed for the stages.
     pub seed: u64,
+    /// Memory a run may use, GiB ([`PipelineConfig::max_memory_gib`]).
+    pub max_memory_gib: f64,
 }
 
 /// Everything a run produces: the model and the intermediate results behind it.
@@ -97,6 +99,7 @@ impl Pipeline {
             noise_sigma_m: c.noise_sigma_m,
             noise_estimator: c.noise_estimator,
             seed: c.seed,
+            max_memory_gib: c.max_memory_gib,
         })
     }
 
@@ -110,6 +113,11 @@ impl Pipeline {
     pub fn group(&self, tracks: &Tracks) -> Result<Grouping> {
         let mut warnings = Vec::new();
         let n = tracks.n_points();
+        kinetree_core::limits::check_memory(
+            &format!("discovering {} frames x {n} points", tracks.n_frames()),
+            kinetree_core::limits::discovery_bytes(tracks.n_frames() as u64, n as u64),
+            self.max_memory_gib,
+        )?;
         let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
         for (i, &v) in visible.iter().enumerate() {
             if v == 0 {

@@ -77,6 +77,11 @@ pub enum Seeds {
 /// smallest mechanism take days on a workstation, and the run list is held in memory.
 const MAX_SEEDS: u64 = 1_000_000;
 
+/// Default of the most runs (grid points x seeds) a sweep may have without the caller raising
+/// the limit (`kinetree run --max-runs`): the largest committed sweep has 600 runs of about a
+/// tenth of a second each, and 10 000 such runs take half an hour on two cores.
+pub const DEFAULT_MAX_RUNS: u64 = 10_000;
+
 fn default_seeds() -> Seeds {
     Seeds::Count(1)
 }
@@ -303,6 +308,15 @@ impl Sweep {
     /// non-empty list, or a grid point that is not a valid experiment config (unknown keys
     /// included).
     pub fn from_toml(text: &str) -> Result<Self> {
+        Self::from_toml_within(text, DEFAULT_MAX_RUNS)
+    }
+
+    /// [`Sweep::from_toml`] refusing, before the grid is expanded, a sweep of more than
+    /// `max_runs` runs.
+    ///
+    /// # Errors
+    /// As [`Sweep::from_toml`]; [`Error::TooLarge`] with the run count and the limit.
+    pub fn from_toml_within(text: &str, max_runs: u64) -> Result<Self> {
         let mut base: toml::Table = text
             .parse()
             .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
@@ -363,6 +377,23 @@ impl Sweep {
             ));
         }
         let keys: Vec<String> = spec.grid.keys().cloned().collect();
+        let n_seeds = match &spec.seeds {
+            Seeds::Count(n) => u128::from(*n),
+            Seeds::List(v) => v.len() as u128,
+        };
+        let n_points: u128 = keys
+            .iter()
+            .map(|k| spec.grid[k].as_array().map_or(1, |a| a.len() as u128))
+            .product();
+        let n_runs = n_points.saturating_mul(n_seeds);
+        if n_runs > u128::from(max_runs) {
+            return Err(Error::TooLarge {
+                what: format!("a sweep of {n_points} grid points x {n_seeds} seeds"),
+                estimate: format!("{n_runs} runs"),
+                limit: format!("{max_runs} runs"),
+                hint: "raise it with --max-runs <n> if the sweep is meant to be this large".into(),
+            });
+        }
         let mut points: Vec<Vec<toml::Value>> = vec![Vec::new()];
         for k in &keys {
             let values = spec.grid[k]
@@ -435,16 +466,36 @@ impl Sweep {
     /// Runs every grid point with every seed in parallel; `progress` is called after each
     /// run with (done, total).
     pub fn run(&self, base_dir: &Path, progress: &(dyn Fn(usize, usize) + Sync)) -> Vec<SweepRun> {
+        self.run_remaining(base_dir, &[], progress, &|_| {})
+    }
+
+    /// The number of runs: grid points times seeds.
+    pub fn n_runs(&self) -> usize {
+        self.points.len() * self.seeds().len()
+    }
+
+    /// Runs the (grid point, seed) pairs not in `done` in parallel, calling `finished` with
+    /// each run as it ends and `progress` with (runs done, all runs, `done` included).
+    pub fn run_remaining(
+        &self,
+        base_dir: &Path,
+        done: &[(usize, u64)],
+        progress: &(dyn Fn(usize, usize) + Sync),
+        finished: &(dyn Fn(&SweepRun) + Sync),
+    ) -> Vec<SweepRun> {
         let seeds = self.seeds();
+        let skip: std::collections::BTreeSet<(usize, u64)> = done.iter().copied().collect();
         let jobs: Vec<(usize, u64)> = (0..self.points.len())
             .flat_map(|p| seeds.iter().map(move |&s| (p, s)))
+            .filter(|job| !skip.contains(job))
             .collect();
-        let total = jobs.len();
-        let done = std::sync::atomic::AtomicUsize::new(0);
+        let total = self.n_runs();
+        let count = std::sync::atomic::AtomicUsize::new(total - jobs.len());
         jobs.par_iter()
             .map(|&(p, seed)| {
                 let run = self.run_one(p, seed, base_dir);
-                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                finished(&run);
+                let n = count.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress(n, total);
                 run
             })
@@ -526,48 +577,179 @@ fn csv_field(s: &str) -> String {
     }
 }
 
-/// `runs.csv`: one row per run, sorted by grid point and seed.
-pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
-    let mut runs: Vec<&SweepRun> = runs.iter().collect();
-    runs.sort_by_key(|r| (r.point, r.seed));
+/// The columns of `runs.csv` after the grid keys.
+const RUN_COLUMNS: [&str; 12] = [
+    "seed",
+    "error",
+    "bodies",
+    "ari",
+    "identifiable_ari",
+    "joints_exact",
+    "structure_exact",
+    "max_axis_error_deg",
+    "max_revolute_rms_rad",
+    "max_prismatic_rms_m",
+    "max_revolute_smoothed_rms_rad",
+    "max_prismatic_smoothed_rms_m",
+];
+
+/// The header line of `runs.csv`.
+fn csv_header(sweep: &Sweep) -> String {
     let mut s = String::new();
     for k in &sweep.keys {
         s.push_str(&csv_field(k));
         s.push(',');
     }
-    s.push_str("seed,error,bodies,ari,identifiable_ari,joints_exact,structure_exact,max_axis_error_deg,max_revolute_rms_rad,max_prismatic_rms_m,max_revolute_smoothed_rms_rad,max_prismatic_smoothed_rms_m");
+    s.push_str(&RUN_COLUMNS.join(","));
     s.push_str(if sweep.spec.timing {
         ",seconds\n"
     } else {
         "\n"
     });
+    s
+}
+
+/// One run's line of `runs.csv`.
+fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
+    let mut s = String::new();
+    for v in &r.values {
+        s.push_str(&csv_field(v));
+        s.push(',');
+    }
+    let _ = write!(
+        s,
+        "{},{},{},{},{},{},{},{},{},{},{},{}",
+        r.seed,
+        csv_field(r.error.as_deref().unwrap_or("")),
+        r.bodies.map_or(String::new(), |b| b.to_string()),
+        opt(r.ari),
+        opt(r.identifiable_ari),
+        r.joints_exact.map_or(String::new(), |b| b.to_string()),
+        r.structure_exact.map_or(String::new(), |b| b.to_string()),
+        opt(r.max_axis_error_deg),
+        opt(r.max_revolute_rms_rad),
+        opt(r.max_prismatic_rms_m),
+        opt(r.max_revolute_smoothed_rms_rad),
+        opt(r.max_prismatic_smoothed_rms_m),
+    );
+    if sweep.spec.timing {
+        let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
+    }
+    s.push('\n');
+    s
+}
+
+/// `runs.csv`: one row per run, sorted by grid point and seed.
+pub fn runs_csv(sweep: &Sweep, runs: &[SweepRun]) -> String {
+    let mut runs: Vec<&SweepRun> = runs.iter().collect();
+    runs.sort_by_key(|r| (r.point, r.seed));
+    let mut s = csv_header(sweep);
     for r in runs {
-        for v in &r.values {
-            s.push_str(&csv_field(v));
-            s.push(',');
-        }
-        let _ = write!(
-            s,
-            "{},{},{},{},{},{},{},{},{},{},{},{}",
-            r.seed,
-            csv_field(r.error.as_deref().unwrap_or("")),
-            r.bodies.map_or(String::new(), |b| b.to_string()),
-            opt(r.ari),
-            opt(r.identifiable_ari),
-            r.joints_exact.map_or(String::new(), |b| b.to_string()),
-            r.structure_exact.map_or(String::new(), |b| b.to_string()),
-            opt(r.max_axis_error_deg),
-            opt(r.max_revolute_rms_rad),
-            opt(r.max_prismatic_rms_m),
-            opt(r.max_revolute_smoothed_rms_rad),
-            opt(r.max_prismatic_smoothed_rms_m),
-        );
-        if sweep.spec.timing {
-            let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
-        }
-        s.push('\n');
+        s.push_str(&csv_row(sweep, r));
     }
     s
+}
+
+/// The runs of `sweep` already in a `runs.csv` (complete, or cut short while its rows were
+/// appended), for `--resume`. A row of another grid point or seed, or a file with other
+/// columns, is an error: the file belongs to another sweep.
+///
+/// # Errors
+/// [`Error::Malformed`] naming the line.
+pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
+    let bad = |line: usize, message: String| Error::Malformed {
+        position: format!("line {line}"),
+        message,
+    };
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .from_reader(text.as_bytes());
+    let mut records = reader.records();
+    let header: Vec<String> = match records.next() {
+        Some(Ok(h)) => h.iter().map(str::to_string).collect(),
+        Some(Err(e)) => return Err(bad(1, e.to_string())),
+        None => return Ok(Vec::new()),
+    };
+    if header.join(",") + "\n" != csv_header(sweep) {
+        return Err(bad(
+            1,
+            format!(
+                "the columns {header:?} are not this sweep's; resume in the folder the sweep wrote"
+            ),
+        ));
+    }
+    let nk = sweep.keys.len();
+    let mut runs = Vec::new();
+    for (k, record) in records.enumerate() {
+        let line = k + 2;
+        let record = match record {
+            Ok(r) => r,
+            // A line cut by an interrupted append is dropped; the run is done again.
+            Err(_) => continue,
+        };
+        if record.len() != header.len() {
+            continue;
+        }
+        let f: Vec<&str> = record.iter().collect();
+        let values: Vec<String> = f[..nk].iter().map(|v| (*v).to_string()).collect();
+        let point = sweep
+            .points
+            .iter()
+            .position(|p| p.iter().map(|v| v.to_string()).eq(values.iter().cloned()))
+            .ok_or_else(|| bad(line, format!("grid values {values:?} are not this sweep's")))?;
+        let rest = &f[nk..];
+        let num = |i: usize| -> Result<Option<f64>> {
+            let v = rest[i];
+            if v.is_empty() {
+                return Ok(None);
+            }
+            v.parse()
+                .map(Some)
+                .map_err(|_| bad(line, format!("{} `{v}` is not a number", RUN_COLUMNS[i])))
+        };
+        let flag = |i: usize| -> Result<Option<bool>> {
+            match rest[i] {
+                "" => Ok(None),
+                "true" => Ok(Some(true)),
+                "false" => Ok(Some(false)),
+                v => Err(bad(
+                    line,
+                    format!("{} `{v}` is not true or false", RUN_COLUMNS[i]),
+                )),
+            }
+        };
+        let seed: u64 = rest[0]
+            .parse()
+            .map_err(|_| bad(line, format!("seed `{}` is not a seed", rest[0])))?;
+        if !sweep.seeds().contains(&seed) {
+            return Err(bad(line, format!("seed {seed} is not one of this sweep's")));
+        }
+        runs.push(SweepRun {
+            point,
+            values,
+            seed,
+            error: (!rest[1].is_empty()).then(|| rest[1].to_string()),
+            bodies: num(2)?.map(|b| b as usize),
+            ari: num(3)?,
+            identifiable_ari: num(4)?,
+            joints_exact: flag(5)?,
+            structure_exact: flag(6)?,
+            max_axis_error_deg: num(7)?,
+            max_revolute_rms_rad: num(8)?,
+            max_prismatic_rms_m: num(9)?,
+            max_revolute_smoothed_rms_rad: num(10)?,
+            max_prismatic_smoothed_rms_m: num(11)?,
+            seconds: if sweep.spec.timing {
+                rest[12].parse().ok()
+            } else {
+                None
+            },
+        });
+    }
+    runs.sort_by_key(|r| (r.point, r.seed));
+    runs.dedup_by_key(|r| (r.point, r.seed));
+    Ok(runs)
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -668,17 +850,54 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
 /// filled in, and the `[sweep]` table), `runs.csv` and `table.md` under `dir`. Returns the
 /// runs.
 ///
+/// Each run's row is appended to `runs.csv` as it ends, so an interrupted sweep leaves the
+/// runs it finished; with `resume`, the runs already in `runs.csv` are kept and not run
+/// again ([`parse_runs_csv`]). At the end `runs.csv` is rewritten sorted.
+///
 /// # Errors
-/// [`Error::Config`] when the resolved config cannot be written, I/O errors naming the file.
+/// [`Error::Config`] when the resolved config cannot be written, I/O errors naming the file,
+/// and [`parse_runs_csv`]'s errors when resuming.
 pub fn run_sweep(
     sweep: &Sweep,
     base_dir: &Path,
     dir: &Path,
     progress: &(dyn Fn(usize, usize) + Sync),
+    resume: bool,
 ) -> Result<Vec<SweepRun>> {
+    use std::io::Write as _;
     let name = sweep.name()?;
-    let runs = sweep.run(base_dir, progress);
     std::fs::create_dir_all(dir).map_err(|e| Error::Io(e).in_file(dir))?;
+    let csv_path = dir.join("runs.csv");
+    let mut runs = if resume && csv_path.exists() {
+        let text =
+            std::fs::read_to_string(&csv_path).map_err(|e| Error::Io(e).in_file(&csv_path))?;
+        parse_runs_csv(sweep, &text).map_err(|e| e.in_file(&csv_path))?
+    } else {
+        Vec::new()
+    };
+    // The journal starts as the runs kept, then takes each run's row as it ends.
+    kinetree_io::write_text(&csv_path, &runs_csv(sweep, &runs))?;
+    let journal = std::sync::Mutex::new(
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(&csv_path)
+            .map_err(|e| Error::Io(e).in_file(&csv_path))?,
+    );
+    let journal_error = std::sync::Mutex::new(None::<std::io::Error>);
+    let done: Vec<(usize, u64)> = runs.iter().map(|r| (r.point, r.seed)).collect();
+    let append = |run: &SweepRun| {
+        let row = csv_row(sweep, run);
+        if let Ok(mut f) = journal.lock()
+            && let Err(e) = f.write_all(row.as_bytes()).and_then(|()| f.flush())
+            && let Ok(mut slot) = journal_error.lock()
+        {
+            slot.get_or_insert(e);
+        }
+    };
+    runs.extend(sweep.run_remaining(base_dir, &done, progress, &append));
+    if let Some(e) = journal_error.into_inner().ok().flatten() {
+        return Err(Error::Io(e).in_file(&csv_path));
+    }
     let write = |file: &str, body: &str| kinetree_io::write_text(&dir.join(file), body);
     let first = sweep.config(0, sweep.seeds().first().copied().unwrap_or(0))?;
     let mut resolved: toml::Table = first
@@ -695,5 +914,6 @@ pub fn run_sweep(
     )?;
     write("runs.csv", &runs_csv(sweep, &runs))?;
     write("table.md", &table_markdown(&name, sweep, &runs))?;
+    runs.sort_by_key(|r| (r.point, r.seed));
     Ok(runs)
 }

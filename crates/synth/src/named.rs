@@ -108,30 +108,13 @@ impl RandomParams {
     /// # Errors
     /// [`kinetree_core::Error::InvalidParameter`] naming `data.<parameter>`.
     pub fn validate(&self) -> kinetree_core::Result<()> {
-        let bad = |name: &str, message: String| kinetree_core::Error::InvalidParameter {
-            name: format!("data.{name}"),
-            message,
-        };
-        let within = |name: &str, v: f64, lo: f64, hi: f64| {
-            if v.is_finite() && (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(bad(name, format!("must be within [{lo}, {hi}], got {v}")))
-            }
-        };
-        let count = |name: &str, v: usize, lo: usize, hi: usize| {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(bad(name, format!("must be within [{lo}, {hi}], got {v}")))
-            }
-        };
-        count("n_joints", self.n_joints, 0, 200)?;
-        count("extra_points", self.extra_points, 0, 10_000)?;
-        count("n_frames", self.n_frames, 2, 1_000_000)?;
-        within("prismatic_fraction", self.prismatic_fraction, 0.0, 1.0)?;
-        within("dropout", self.dropout, 0.0, 1.0)?;
-        within("noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)
+        use kinetree_core::limits::{check_count, check_within};
+        check_count("data.n_joints", self.n_joints, 0, 200)?;
+        check_count("data.extra_points", self.extra_points, 0, 10_000)?;
+        check_count("data.n_frames", self.n_frames, 2, 1_000_000)?;
+        check_within("data.prismatic_fraction", self.prismatic_fraction, 0.0, 1.0)?;
+        check_within("data.dropout", self.dropout, 0.0, 1.0)?;
+        check_within("data.noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)
     }
 }
 
