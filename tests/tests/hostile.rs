@@ -499,3 +499,82 @@ fn sizes_beyond_memory_are_refused_before_they_are_allocated() {
     config.max_memory_gib = f64::NAN;
     assert!(Pipeline::from_config(&config).is_err(), "a NaN limit");
 }
+
+/// The structure of a model: every point's body and every joint's bodies and type.
+fn structure(m: &Model) -> (Vec<i64>, Vec<(usize, usize, String)>) {
+    (
+        m.point_body.clone(),
+        m.joints
+            .iter()
+            .map(|j| (j.parent, j.child, j.joint_type.to_string()))
+            .collect(),
+    )
+}
+
+/// `tracks` with gross glitches in visible samples drawn from `seed`: one-sample jumps of
+/// metres, and values as broken C3D samples hold.
+fn glitched(tracks: &kinetree_core::Tracks, seed: u64, n: usize) -> kinetree_core::Tracks {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut xyz = tracks.raw().to_vec();
+    let np = tracks.n_points();
+    let mut done = 0;
+    while done < n {
+        let (t, i) = (
+            rng.random_range(0..tracks.n_frames()),
+            rng.random_range(0..np),
+        );
+        let k = (t * np + i) * 3;
+        if xyz[k].is_nan() {
+            continue;
+        }
+        match done % 3 {
+            0 => xyz[k] += 10.0,
+            1 => xyz[k + 1] = 3e38,
+            _ => xyz[k + 2] -= rng.random_range(0.5..5.0),
+        }
+        done += 1;
+    }
+    let out = kinetree_core::Tracks::new(tracks.n_frames(), np, xyz).expect("tracks");
+    match tracks.labels() {
+        Some(l) => out.with_labels(l.to_vec()).expect("labels"),
+        None => out,
+    }
+}
+
+#[test]
+fn gross_glitches_are_dropped_and_leave_the_structure_as_it_was() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../experiments/real");
+    let real = kinetree_pipeline::config::pipeline_from_toml(
+        &std::fs::read_to_string(root.join("pipeline.toml")).expect("pipeline.toml"),
+    )
+    .expect("config");
+    let walk =
+        kinetree_io::read_c3d(&kinetree_tests::real_c3d("c3dorg-qualisys-walk")).expect("read");
+    let arm = simulate(&paper_arm(3)).expect("simulate").tracks;
+    for (what, tracks, config, n) in [
+        ("a real gait recording", &walk, &real, 12),
+        ("the paper arm", &arm, &PipelineConfig::default(), 6),
+    ] {
+        let pipeline = Pipeline::from_config(config).expect("pipeline");
+        let clean = pipeline.run(tracks).expect("discover").model;
+        for seed in 0..2 {
+            let bad = glitched(tracks, seed, n);
+            let found = pipeline.run(&bad).expect("discover glitched").model;
+            assert_eq!(structure(&found), structure(&clean), "{what}, seed {seed}");
+            let dropped = found.warnings.iter().find_map(|w| match w {
+                kinetree_core::Warning::ImpossibleSamplesDropped { count, .. } => Some(*count),
+                _ => None,
+            });
+            let already = clean.warnings.iter().find_map(|w| match w {
+                kinetree_core::Warning::ImpossibleSamplesDropped { count, .. } => Some(*count),
+                _ => None,
+            });
+            assert_eq!(
+                dropped,
+                Some(already.unwrap_or(0) + n),
+                "{what}, seed {seed}: every glitch and nothing else dropped"
+            );
+        }
+    }
+}

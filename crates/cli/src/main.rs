@@ -260,7 +260,8 @@ fn run(
     if let Some(m) = max_memory {
         cfg.pipeline.max_memory_gib = m;
     }
-    let outcome = run_experiment(&cfg, &base)?;
+    let outcome = run_experiment(&cfg, &base)
+        .with_context(|| format!("in {}", where_config(config.as_deref())))?;
     let model = &outcome.discovery.model;
     emitln!(
         "experiment {}: {}",
@@ -414,8 +415,12 @@ fn run_command() -> Result<()> {
             let mut inputs = vec![tracks.as_path()];
             inputs.extend(pipeline.as_deref());
             refuse_overwriting(&output, &inputs)?;
+            let built = Pipeline::from_config(&cfg).with_context(|| match &pipeline {
+                Some(p) => format!("in {}", p.display()),
+                None => "in the pipeline options".into(),
+            })?;
             let t = read_tracks(&tracks)?;
-            let d = Pipeline::from_config(&cfg)?.run(&t)?;
+            let d = built.run(&t)?;
             emit(&summary(&d.model));
             kinetree_io::write_json(&output, &d.model)?;
             emitln!("wrote {}", output.display());

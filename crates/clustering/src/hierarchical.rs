@@ -64,14 +64,16 @@ impl HierarchicalParams {
     /// Checks the ranges.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for a non-finite cut, zero clusters, or `min_points < 3`.
+    /// [`Error::InvalidParameter`] for a cut that is negative (every dissimilarity is at least
+    /// zero, so it would leave every point alone) or not finite, zero clusters, or
+    /// `min_points < 3`.
     pub fn validate(&self) -> Result<()> {
         if let Some(c) = self.cut
-            && !c.is_finite()
+            && !(c.is_finite() && c >= 0.0)
         {
             return Err(Error::InvalidParameter {
                 name: "cut".into(),
-                message: format!("must be finite, got {c}"),
+                message: format!("must be finite and at least 0, got {c}"),
             });
         }
         if self.n_clusters == Some(0) {

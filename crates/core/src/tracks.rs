@@ -225,6 +225,32 @@ impl Tracks {
         Ok(out)
     }
 
+    /// The same tracks with the (frame, point) `samples` made occluded.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a sample out of range; [`Error::NoVisibleData`] when
+    /// nothing visible is left.
+    pub fn without_samples(&self, samples: &[(usize, usize)]) -> Result<Self> {
+        let mut xyz = self.xyz.clone();
+        for &(t, i) in samples {
+            if t >= self.n_frames || i >= self.n_points {
+                return Err(Error::InvalidParameter {
+                    name: "samples".into(),
+                    message: format!(
+                        "frame {t}, point {i} out of range ({} x {})",
+                        self.n_frames, self.n_points
+                    ),
+                });
+            }
+            let k = (t * self.n_points + i) * 3;
+            xyz[k..k + 3].copy_from_slice(&[f64::NAN; 3]);
+        }
+        let mut out = Self::new(self.n_frames, self.n_points, xyz)?;
+        out.labels.clone_from(&self.labels);
+        out.frame_rate_hz = self.frame_rate_hz;
+        Ok(out)
+    }
+
     /// The same tracks with every position mapped through `f` (a change of frame or units).
     ///
     /// # Errors

@@ -7,6 +7,17 @@ use serde::{Deserialize, Serialize};
 #[serde(tag = "kind", rename_all = "snake_case")]
 #[non_exhaustive]
 pub enum Warning {
+    /// Samples no recording can hold (a coordinate beyond `[pipeline.outliers]
+    /// max_coordinate_m`, or a one-sample jump away from the track and straight back), made
+    /// occluded before anything else.
+    ImpossibleSamplesDropped {
+        /// How many.
+        count: usize,
+        /// The points they belong to, ascending.
+        points: Vec<usize>,
+        /// The first of them as `[frame, point]` (at most 50).
+        samples: Vec<[usize; 2]>,
+    },
     /// A point never visible in any frame; it is discarded.
     PointNeverVisible {
         /// The point.
@@ -176,6 +187,10 @@ pub enum Warning {
 impl std::fmt::Display for Warning {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
+            Warning::ImpossibleSamplesDropped { count, points, .. } => write!(
+                f,
+                "{count} impossible sample(s) (huge coordinates, or one-frame jumps away and back) of point(s) {points:?} were dropped as occluded"
+            ),
             Warning::PointNeverVisible { point } => {
                 write!(f, "point {point} is never visible; discarded")
             }

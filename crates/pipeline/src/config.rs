@@ -221,6 +221,8 @@ pub struct PipelineConfig {
     /// When the whole-tree fit reports a joint position unknown, and when it smooths one
     /// (`[pipeline.positions]`; the model carries them for later observations).
     pub positions: PositionLimits,
+    /// Which samples are impossible and dropped before anything else (`[pipeline.outliers]`).
+    pub outliers: crate::outliers::OutlierParams,
     /// Memory a run may use, GiB (default
     /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose
     /// estimate exceeds it is refused before it allocates.
@@ -245,6 +247,7 @@ impl Default for PipelineConfig {
             repairs: RepairsConfig::default(),
             runner: RunnerParams::default(),
             positions: PositionLimits::default(),
+            outliers: crate::outliers::OutlierParams::default(),
             max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
             hinged_bodies: (),
         }
@@ -262,7 +265,7 @@ impl PipelineConfig {
             && !(s.is_finite() && s > 0.0)
         {
             return Err(Error::InvalidParameter {
-                name: "noise_sigma_m".into(),
+                name: "pipeline.noise_sigma_m".into(),
                 message: format!("must be finite and positive, got {s}"),
             });
         }
@@ -291,6 +294,7 @@ impl PipelineConfig {
         self.repairs.validate()?;
         self.runner.validate()?;
         kinetree_core::limits::validate_limit("pipeline.max_memory_gib", self.max_memory_gib)?;
+        self.outliers.validate()?;
         self.positions.validate("pipeline.positions")
     }
 
@@ -420,11 +424,22 @@ impl ExperimentConfig {
 pub const PAPER_EXPERIMENT_TOML: &str =
     include_str!("../../../experiments/paper-table1/table1.toml");
 
-/// Parses a pipeline config (the contents of an experiment's `[pipeline]` table) from TOML.
+/// Parses a pipeline config from TOML: the contents of an experiment's `[pipeline]` table, or
+/// text with the `[pipeline]` table itself (as the README shows it, or a whole experiment
+/// config, whose `[experiment]` and `[data]` are then ignored).
 ///
 /// # Errors
 /// [`Error::Config`] with the parser's message; unknown keys are errors.
 pub fn pipeline_from_toml(text: &str) -> Result<PipelineConfig> {
+    if let Ok(table) = text.parse::<toml::Table>()
+        && let Some(toml::Value::Table(inner)) = table.get("pipeline")
+        && table
+            .keys()
+            .all(|k| matches!(k.as_str(), "pipeline" | "experiment" | "data"))
+    {
+        let inner = toml::to_string(inner).map_err(|e| Error::Config(e.to_string()))?;
+        return parse_naming_key(&inner, "pipeline.");
+    }
     parse_naming_key(text, "pipeline.")
 }
 

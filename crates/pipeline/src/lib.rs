@@ -8,6 +8,7 @@ mod assemble;
 pub mod config;
 pub mod conformance;
 pub mod experiment;
+pub mod outliers;
 pub mod repairs;
 pub mod report;
 mod run;

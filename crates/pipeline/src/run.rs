@@ -41,6 +41,8 @@ pub struct Pipeline {
     pub seed: u64,
     /// Memory a run may use, GiB ([`PipelineConfig::max_memory_gib`]).
     pub max_memory_gib: f64,
+    /// Which samples are impossible ([`PipelineConfig::outliers`]).
+    pub outliers: crate::outliers::OutlierParams,
 }
 
 /// Everything a run produces: the model and the intermediate results behind it.
@@ -87,12 +89,24 @@ impl Pipeline {
     /// When a stage's or repair's parameters are invalid or the noise level is not positive.
     pub fn from_config(c: &PipelineConfig) -> Result<Self> {
         c.validate()?;
+        // A stage names its own parameter (`cut`); the error names its section too.
+        let within = |section: &'static str| {
+            move |e: Error| match e {
+                Error::InvalidParameter { name, message } if !name.starts_with("pipeline.") => {
+                    Error::InvalidParameter {
+                        name: format!("pipeline.{section}.{name}"),
+                        message,
+                    }
+                }
+                other => other,
+            }
+        };
         Ok(Self {
-            dissimilarity: c.dissimilarity.build()?,
-            clustering: c.clustering.build()?,
-            halves: c.halves.build()?,
-            pose: c.pose.build()?,
-            dof: c.dof.build()?,
+            dissimilarity: c.dissimilarity.build().map_err(within("dissimilarity"))?,
+            clustering: c.clustering.build().map_err(within("clustering"))?,
+            halves: c.halves.build().map_err(within("halves"))?,
+            pose: c.pose.build().map_err(within("pose"))?,
+            dof: c.dof.build().map_err(within("dof"))?,
             repairs: c.repairs.build()?,
             runner: c.runner,
             positions: c.positions,
@@ -100,6 +114,7 @@ impl Pipeline {
             noise_estimator: c.noise_estimator,
             seed: c.seed,
             max_memory_gib: c.max_memory_gib,
+            outliers: c.outliers,
         })
     }
 
@@ -111,7 +126,23 @@ impl Pipeline {
     /// # Errors
     /// As [`Pipeline::run`]'s first stage: bad tracks, a failing stage, no noise estimate.
     pub fn group(&self, tracks: &Tracks) -> Result<Grouping> {
-        let mut warnings = Vec::new();
+        let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
+        self.group_clean(cleaned.as_ref().unwrap_or(tracks), warnings)
+    }
+
+    /// The tracks without their impossible samples ([`PipelineConfig::outliers`]; `None`
+    /// when none were dropped) and the warning saying so.
+    fn without_impossible_samples(
+        &self,
+        tracks: &Tracks,
+    ) -> Result<(Option<Tracks>, Vec<Warning>)> {
+        Ok(match self.outliers.clean(tracks)? {
+            Some((cleaned, warning)) => (Some(cleaned), vec![warning]),
+            None => (None, Vec::new()),
+        })
+    }
+
+    fn group_clean(&self, tracks: &Tracks, mut warnings: Vec<Warning>) -> Result<Grouping> {
         let n = tracks.n_points();
         kinetree_core::limits::check_memory(
             &format!("discovering {} frames x {n} points", tracks.n_frames()),
@@ -202,7 +233,9 @@ impl Pipeline {
         tracks: &Tracks,
         progress: crate::runner::Progress<'_>,
     ) -> Result<Discovery> {
-        let g = self.group(tracks)?;
+        let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
+        let tracks = cleaned.as_ref().unwrap_or(tracks);
+        let g = self.group_clean(tracks, warnings)?;
         for e in &g.trace {
             progress(e);
         }
