@@ -154,6 +154,12 @@ enum Command {
         /// `smoothed_positions`) instead of each frame's own estimate.
         #[arg(long)]
         smooth: bool,
+        /// A frame is flagged as not explained by the model when its residual (the
+        /// `residual_in_sigma` column: RMS distance of its keypoints from the fitted model, in
+        /// units of the model's noise) exceeds this many times the model's own re-prediction
+        /// RMS.
+        #[arg(long, default_value_t = 3.0)]
+        unexplained_factor: f64,
     },
     /// Export a model: URDF (links, joints with origin, axis and observed limits), DOT (the
     /// kinematic graph) or JSON (the model, re-validated, with its schema version).
@@ -431,7 +437,17 @@ fn run_command() -> Result<()> {
             tracks,
             output,
             smooth,
-        } => observe(&model, &tracks, &output, smooth, memory),
+            unexplained_factor,
+        } => observe(
+            &model,
+            &tracks,
+            &output,
+            &ObserveOptions {
+                smooth,
+                unexplained_factor,
+                max_memory_gib: memory,
+            },
+        ),
         Command::Export {
             model,
             format,
@@ -534,13 +550,33 @@ fn run_command() -> Result<()> {
     }
 }
 
+/// How `kinetree observe` reports.
+struct ObserveOptions {
+    smooth: bool,
+    unexplained_factor: f64,
+    max_memory_gib: f64,
+}
+
+/// A model's re-prediction RMS when the file does not say (the paper arm's, from per-body
+/// poses and joints: see `Model::reprediction_rms_in_sigma`).
+const TYPICAL_REPREDICTION_IN_SIGMA: f64 = 1.6;
+
 fn observe(
     model_path: &Path,
     tracks_path: &Path,
     output: &Path,
-    smooth: bool,
-    max_memory_gib: f64,
+    options: &ObserveOptions,
 ) -> Result<()> {
+    let &ObserveOptions {
+        smooth,
+        unexplained_factor,
+        max_memory_gib,
+    } = options;
+    if !(unexplained_factor.is_finite() && unexplained_factor >= 1.0) {
+        bail!(
+            "--unexplained-factor must be a finite number of at least 1, got {unexplained_factor}"
+        );
+    }
     use std::io::Write;
     refuse_overwriting(output, &[model_path, tracks_path])?;
     let model = kinetree_io::read_model(model_path)?;
@@ -572,27 +608,61 @@ fn observe(
             )?;
         }
     }
-    let header: Vec<String> = model
+    let mut header: Vec<String> = model
         .joints
         .iter()
         .map(|j| format!("{}_{}_{}", j.joint_type, j.parent, j.child))
         .collect();
+    header.push("residual_in_sigma".into());
+    // Each frame's fit: the RMS distance of its keypoints from the fitted model, in sigma.
+    let residuals: Vec<Option<f64>> = fits
+        .iter()
+        .map(|f| {
+            (f.n_points > 0).then(|| (f.sum_sq_m2 / f.n_points as f64).sqrt() / model.noise.sigma_m)
+        })
+        .collect();
+    let own = model
+        .reprediction_rms_in_sigma
+        .unwrap_or(TYPICAL_REPREDICTION_IN_SIGMA);
+    let bound = unexplained_factor * own;
+    let unexplained: Vec<usize> = (0..residuals.len())
+        .filter(|&t| residuals[t].is_some_and(|r| !(r <= bound)))
+        .collect();
     kinetree_io::write_atomically(output, |w| {
         writeln!(w, "frame,{}", header.join(","))?;
         for t in 0..tracks.n_frames() {
-            let row: Vec<String> = columns
+            let mut row: Vec<String> = columns
                 .iter()
                 .map(|c| c[t].map(|v| format!("{v:?}")).unwrap_or_default())
                 .collect();
+            row.push(residuals[t].map(|r| format!("{r:.3}")).unwrap_or_default());
             writeln!(w, "{t},{}", row.join(","))?;
         }
         Ok(())
     })?;
+    if !unexplained.is_empty() {
+        let listed: Vec<String> = unexplained.iter().take(20).map(usize::to_string).collect();
+        eprintln!(
+            "warning: {} of {} frames are not explained by the model: their residual exceeds \
+             {bound:.2} sigma ({unexplained_factor} x the model's own {own:.2}); frames {}{}. \
+             Their joint positions are not to be trusted: check that the tracks are in metres, \
+             in the model's point order, and of this mechanism.",
+            unexplained.len(),
+            tracks.n_frames(),
+            listed.join(", "),
+            if unexplained.len() > listed.len() {
+                ", ..."
+            } else {
+                ""
+            }
+        );
+    }
     emitln!(
-        "wrote {} frames x {} joints to {}",
+        "wrote {} frames x {} joints to {} ({} frames not explained by the model)",
         tracks.n_frames(),
         observer.n_joints(),
-        output.display()
+        output.display(),
+        unexplained.len()
     );
     Ok(())
 }

@@ -232,7 +232,7 @@ fn observe_writes_one_column_per_joint() {
     );
     let tracks = dir.join("tracks.csv");
     let (header, rows) = observed(&model, &tracks, &dir.join("config.csv"), &[]);
-    assert_eq!(header, "frame,revolute_0_1,revolute_1_2");
+    assert_eq!(header, "frame,revolute_0_1,revolute_1_2,residual_in_sigma");
     assert_eq!(rows.len(), 100);
     // On the frames it was discovered from, the observed columns are the model's positions
     // up to the same offset in every frame (a whole number of turns): both come from the

@@ -207,3 +207,91 @@ fn a_write_cut_short_by_a_file_size_limit_keeps_the_old_model() {
         "model changed"
     );
 }
+
+/// Runs `kinetree observe` and returns its stderr and each row's residual.
+fn observe_residuals(model: &Path, tracks: &Path, csv: &Path) -> (String, Vec<f64>) {
+    let out = kinetree()
+        .arg("observe")
+        .arg(model)
+        .arg(tracks)
+        .arg("-o")
+        .arg(csv)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(csv).expect("csv");
+    let mut lines = text.lines();
+    assert!(
+        lines
+            .next()
+            .is_some_and(|h| h.ends_with(",residual_in_sigma"))
+    );
+    let residuals = lines
+        .map(|l| {
+            l.rsplit(',')
+                .next()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(f64::NAN)
+        })
+        .collect();
+    (stderr(&out), residuals)
+}
+
+#[test]
+fn observe_flags_the_frames_the_model_does_not_explain() {
+    let dir = tmp("observe-fit");
+    let (_, model) = simulated(&dir);
+    // The same mechanism recorded again (other noise): explained.
+    let again = dir.join("again");
+    let out = kinetree()
+        .args(["simulate", "--seed", "7", "--frames", "60", "-o"])
+        .arg(&again)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let tracks = again.join("tracks.npy");
+    let (err, residuals) = observe_residuals(&model, &tracks, &dir.join("again.csv"));
+    assert!(!err.contains("not explained"), "{err}");
+    assert!(residuals.iter().all(|r| *r < 3.0), "{residuals:?}");
+    // Millimetres instead of metres, pure noise, and the two links' points swapped.
+    let t = kinetree_io::read_tracks(&tracks).expect("tracks");
+    let (nf, np) = (t.n_frames(), t.n_points());
+    let mm = t
+        .map_points(|p| kinetree_core::nalgebra::Point3::from(p.coords * 1000.0))
+        .expect("mm");
+    let noise: Vec<f64> = (0..nf * np * 3)
+        .map(|k| ((k * 7919) % 1000) as f64 * 1e-3 - 0.5)
+        .collect();
+    let noise = kinetree_core::Tracks::new(nf, np, noise).expect("noise");
+    let model_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&model).expect("model")).expect("json");
+    let body = |b: i64| -> Vec<usize> {
+        model_json["point_body"]
+            .as_array()
+            .expect("point_body")
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.as_i64() == Some(b))
+            .map(|(i, _)| i)
+            .collect()
+    };
+    let (a, b) = (body(1), body(2));
+    let mut order: Vec<usize> = (0..np).collect();
+    for (x, y) in a.iter().zip(&b) {
+        order.swap(*x, *y);
+    }
+    let frames: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> = (0..nf)
+        .map(|f| order.iter().map(|&i| t.get(f, i)).collect())
+        .collect();
+    let swapped = kinetree_core::Tracks::from_points(&frames).expect("swapped");
+    for (what, bad) in [("mm", mm), ("noise", noise), ("swapped", swapped)] {
+        let path = dir.join(format!("{what}.npy"));
+        kinetree_io::write_npy(&path, &bad).expect("write");
+        let (err, residuals) = observe_residuals(&model, &path, &dir.join(format!("{what}.csv")));
+        assert!(
+            err.contains(&format!("{nf} of {nf} frames are not explained")),
+            "{what}: {err}"
+        );
+        assert!(residuals.iter().all(|r| *r > 10.0), "{what}: {residuals:?}");
+    }
+}
