@@ -626,7 +626,7 @@ fn observe(
         .unwrap_or(TYPICAL_REPREDICTION_IN_SIGMA);
     let bound = unexplained_factor * own;
     let unexplained: Vec<usize> = (0..residuals.len())
-        .filter(|&t| residuals[t].is_some_and(|r| !(r <= bound)))
+        .filter(|&t| residuals[t].is_some_and(|r| r.is_nan() || r > bound))
         .collect();
     kinetree_io::write_atomically(output, |w| {
         writeln!(w, "frame,{}", header.join(","))?;
