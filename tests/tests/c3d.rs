@@ -76,6 +76,19 @@ fn write_c3d(
     labels: &[&str],
     frames: &[Vec<Option<[f64; 3]>>],
 ) -> Vec<u8> {
+    write_c3d_counting(proc, float, labels, frames, labels.len(), labels.len())
+}
+
+/// [`write_c3d`] with the header's point count and `POINT:USED` given (the data keep a stride
+/// of every label).
+fn write_c3d_counting(
+    proc: Proc,
+    float: bool,
+    labels: &[&str],
+    frames: &[Vec<Option<[f64; 3]>>],
+    header_points: usize,
+    used: usize,
+) -> Vec<u8> {
     let i16b = |v: i16| match proc {
         Proc::Mips => v.to_be_bytes(),
         _ => v.to_le_bytes(),
@@ -93,7 +106,7 @@ fn write_c3d(
     let mut header = vec![0u8; 512];
     header[0] = 2;
     header[1] = 0x50;
-    header[2..4].copy_from_slice(&i16b(n as i16));
+    header[2..4].copy_from_slice(&i16b(header_points as i16));
     header[6..8].copy_from_slice(&i16b(1));
     header[8..10].copy_from_slice(&i16b(frames.len() as i16));
     header[12..16].copy_from_slice(&f32b(scale));
@@ -123,7 +136,7 @@ fn write_c3d(
         params.extend(data);
         params.push(0);
     };
-    param("USED", 2, &[], &i16b(n as i16));
+    param("USED", 2, &[], &i16b(used as i16));
     param("SCALE", 4, &[], &f32b(scale));
     param("DATA_START", 2, &[], &i16b(3));
     param("UNITS", -1, &[2], b"mm");
@@ -220,6 +233,29 @@ fn damaged_files_give_typed_errors() {
     std::fs::write(&p, truncated).expect("write");
     let e = kinetree_io::read_tracks(&p).expect_err("bad file");
     assert!(e.to_string().contains(&p.display().to_string()), "{e}");
+}
+
+#[test]
+fn point_counts_that_disagree_are_errors_and_unused_labels_warnings() {
+    let frames = vec![vec![Some([1.0, 2.0, 3.0]); 4]; 5];
+    let labels = ["A", "B", "C", "D"];
+    // POINT:USED below the header's count and the labels: the stride would be wrong.
+    let used_low = write_c3d_counting(Proc::Intel, true, &labels, &frames, 4, 3);
+    let e = c3d_tracks(&used_low).expect_err("USED below the header");
+    assert!(e.to_string().contains("POINT:USED"), "{e}");
+    // Both counts edited down: four labels for three points. Writers leave unused label
+    // slots, so this reads, and the extra name is reported, not dropped in silence.
+    let both_low = write_c3d_counting(Proc::Intel, true, &labels, &frames, 3, 3);
+    let t = c3d_tracks(&both_low).expect("labels beyond USED");
+    assert_eq!(t.labels().expect("labels"), ["A", "B", "C"]);
+    assert_eq!(
+        t.warnings(),
+        [kinetree_core::Warning::C3dLabelsUnused {
+            points_used: 3,
+            labels: vec!["D".into()],
+        }]
+    );
+    assert!(c3d_tracks(&write_c3d(Proc::Intel, true, &labels, &frames)).is_ok());
 }
 
 /// The case the fuzz test (tests/tests/fuzz.rs) shrank to when the parameter walk multiplied

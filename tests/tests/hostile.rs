@@ -578,3 +578,64 @@ fn gross_glitches_are_dropped_and_leave_the_structure_as_it_was() {
         }
     }
 }
+
+#[test]
+fn coincident_points_get_no_invented_poses() {
+    use kinetree_core::nalgebra::Point3;
+    let arm = simulate(&paper_arm(2)).expect("simulate").tracks;
+    let (nf, np) = (arm.n_frames(), arm.n_points());
+    let pipeline = Pipeline::from_config(&PipelineConfig {
+        noise_sigma_m: Some(0.001),
+        ..PipelineConfig::default()
+    })
+    .expect("pipeline");
+    // Five points at one place: alone, and beside the arm (fixed, or on its last point).
+    let alone: Vec<Vec<Option<Point3<f64>>>> = vec![vec![Some(Point3::new(0.1, 0.2, 0.3)); 5]; 40];
+    let beside = |moving: bool| -> kinetree_core::Tracks {
+        let frames: Vec<Vec<Option<Point3<f64>>>> = (0..nf)
+            .map(|t| {
+                let mut f: Vec<Option<Point3<f64>>> = (0..np).map(|i| arm.get(t, i)).collect();
+                let at = if moving {
+                    arm.get(t, np - 1)
+                } else {
+                    Some(Point3::new(0.5, 0.5, 2.0))
+                };
+                f.extend(std::iter::repeat_n(at, 5));
+                f
+            })
+            .collect();
+        kinetree_core::Tracks::from_points(&frames).expect("tracks")
+    };
+    let cases = [
+        (
+            "alone",
+            kinetree_core::Tracks::from_points(&alone).expect("tracks"),
+        ),
+        ("fixed beside the arm", beside(false)),
+        ("on the arm's last link", beside(true)),
+    ];
+    for (what, tracks) in cases {
+        match pipeline.run(&tracks) {
+            Err(e) => assert!(matches!(e, Error::Degenerate(_)), "{what}: {e}"),
+            Ok(d) => {
+                let m = d.model;
+                assert!(
+                    !m.warnings
+                        .iter()
+                        .any(|w| matches!(w, kinetree_core::Warning::BodyPosedThroughHinge { .. })),
+                    "{what}: {:?}",
+                    m.warnings
+                );
+                // The coincident points hold no orientation: no body of their own.
+                let coincident: Vec<i64> = m.point_body[np.min(m.n_points)..].to_vec();
+                for b in coincident.iter().filter(|&&b| b >= 0) {
+                    let body = &m.bodies[*b as usize];
+                    assert!(
+                        body.points.iter().any(|&p| p < np),
+                        "{what}: body {b} of coincident points only"
+                    );
+                }
+            }
+        }
+    }
+}

@@ -63,6 +63,19 @@ pub enum Error {
         /// Point index (0-based).
         point: usize,
     },
+    /// A coordinate so large that squared distances would overflow (no recording in metres
+    /// holds one).
+    #[error(
+        "frame {frame}, point {point}: coordinate {value:e} is beyond +-1e100 (squared distances would overflow); are the tracks in metres?"
+    )]
+    CoordinateOverflow {
+        /// Frame index (0-based).
+        frame: usize,
+        /// Point index (0-based).
+        point: usize,
+        /// The coordinate.
+        value: f64,
+    },
     /// Fewer frames than the method needs.
     #[error("too few frames: {found} (at least {min} needed)")]
     TooFewFrames {

@@ -30,5 +30,5 @@ pub use stage::{
     Clustering, ClusteringInput, Dissimilarity, DissimilarityInput, DofInput, DofTester,
     PoseEstimator, PoseInput,
 };
-pub use tracks::{MIN_FRAMES, MIN_POINTS, Tracks};
+pub use tracks::{MAX_COORDINATE, MIN_FRAMES, MIN_POINTS, Tracks};
 pub use warning::Warning;

@@ -15,10 +15,14 @@ pub struct Tracks {
     xyz: Vec<f64>,
     labels: Option<Vec<String>>,
     frame_rate_hz: Option<f64>,
+    warnings: Vec<crate::Warning>,
 }
 
 /// The fewest frames the method can use (a variance needs two observations).
 pub const MIN_FRAMES: usize = 2;
+/// The largest coordinate magnitude accepted: its square, summed over frames, stays far from
+/// `f64`'s overflow at 1.8e308.
+pub const MAX_COORDINATE: f64 = 1e100;
 /// The fewest points the method can use (one rigid body needs three).
 pub const MIN_POINTS: usize = 3;
 
@@ -69,6 +73,13 @@ impl Tracks {
             if p.iter().any(|v| v.is_infinite()) {
                 return Err(Error::NonFinite { frame, point });
             }
+            if let Some(&value) = p.iter().find(|v| v.abs() > MAX_COORDINATE) {
+                return Err(Error::CoordinateOverflow {
+                    frame,
+                    point,
+                    value,
+                });
+            }
             any_visible = true;
         }
         if !any_visible {
@@ -80,6 +91,7 @@ impl Tracks {
             xyz,
             labels: None,
             frame_rate_hz: None,
+            warnings: Vec::new(),
         })
     }
 
@@ -121,6 +133,18 @@ impl Tracks {
         }
         self.labels = Some(labels);
         Ok(self)
+    }
+
+    /// Attaches what the reader noticed (unused labels, say); a discovery starts its
+    /// warnings with them.
+    pub fn with_warnings(mut self, warnings: Vec<crate::Warning>) -> Self {
+        self.warnings = warnings;
+        self
+    }
+
+    /// What the reader noticed.
+    pub fn warnings(&self) -> &[crate::Warning] {
+        &self.warnings
     }
 
     /// Attaches the frame rate in hertz.
@@ -222,6 +246,7 @@ impl Tracks {
         let mut out = Self::new(frames.len(), self.n_points, xyz)?;
         out.labels.clone_from(&self.labels);
         out.frame_rate_hz = self.frame_rate_hz;
+        out.warnings.clone_from(&self.warnings);
         Ok(out)
     }
 
@@ -248,6 +273,7 @@ impl Tracks {
         let mut out = Self::new(self.n_frames, self.n_points, xyz)?;
         out.labels.clone_from(&self.labels);
         out.frame_rate_hz = self.frame_rate_hz;
+        out.warnings.clone_from(&self.warnings);
         Ok(out)
     }
 
@@ -267,6 +293,7 @@ impl Tracks {
         let mut out = Self::new(self.n_frames, self.n_points, xyz)?;
         out.labels.clone_from(&self.labels);
         out.frame_rate_hz = self.frame_rate_hz;
+        out.warnings.clone_from(&self.warnings);
         Ok(out)
     }
 }

@@ -18,6 +18,14 @@ pub enum Warning {
         /// The first of them as `[frame, point]` (at most 50).
         samples: Vec<[usize; 2]>,
     },
+    /// A C3D file names more markers in `POINT:LABELS` than it stores (`POINT:USED`); the
+    /// extra names were left out.
+    C3dLabelsUnused {
+        /// The points the file stores.
+        points_used: usize,
+        /// The names beyond them.
+        labels: Vec<String>,
+    },
     /// A point never visible in any frame; it is discarded.
     PointNeverVisible {
         /// The point.
@@ -190,6 +198,15 @@ impl std::fmt::Display for Warning {
             Warning::ImpossibleSamplesDropped { count, points, .. } => write!(
                 f,
                 "{count} impossible sample(s) (huge coordinates, or one-frame jumps away and back) of point(s) {points:?} were dropped as occluded"
+            ),
+            Warning::C3dLabelsUnused {
+                points_used,
+                labels,
+            } => write!(
+                f,
+                "the C3D file stores {points_used} points but names {} more ({}); the extra names were left out",
+                labels.len(),
+                labels.join(", ")
             ),
             Warning::PointNeverVisible { point } => {
                 write!(f, "point {point} is never visible; discarded")

@@ -215,10 +215,21 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
     let word = |i: usize| proc.i16([header[2 * i], header[2 * i + 1]]);
     let params = parameters(bytes, param_start, proc)?;
     let get = |k: &str| params.get(k);
+    let header_points = usize::from(word(1).cast_unsigned());
     let n_points = match get("POINT:USED").and_then(|p| p.int(proc)) {
         Some(n) => usize::try_from(n & 0xFFFF).unwrap_or(0),
-        None => usize::from(word(1).cast_unsigned()),
+        None => header_points,
     };
+    // The stride of the data follows from the point count: two counts that disagree leave
+    // it unknown.
+    if n_points != header_points {
+        return Err(malformed(
+            "POINT:USED",
+            format!(
+                "is {n_points}, but the header counts {header_points} points a frame; the file is inconsistent"
+            ),
+        ));
+    }
     let analog_per_frame = usize::from(word(2).cast_unsigned());
     let (first, last) = (word(3).cast_unsigned(), word(4).cast_unsigned());
     let mut n_frames = usize::from(last.saturating_sub(first)) + 1;
@@ -265,6 +276,15 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             labels.extend(p.strings());
         }
     }
+    // Writers may name more markers than they store (unused label slots); the names beyond
+    // POINT:USED are reported in the tracks' warnings.
+    let unused: Vec<String> = labels
+        .get(n_points..)
+        .unwrap_or_default()
+        .iter()
+        .map(|l| l.trim().to_string())
+        .filter(|l| !l.is_empty())
+        .collect();
     labels.resize(n_points, String::new());
     let labels: Vec<String> = labels
         .into_iter()
@@ -322,5 +342,13 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             }
         }
     }
-    Tracks::new(n_frames, n_points, xyz)?.with_labels(labels)
+    let tracks = Tracks::new(n_frames, n_points, xyz)?.with_labels(labels)?;
+    Ok(if unused.is_empty() {
+        tracks
+    } else {
+        tracks.with_warnings(vec![kinetree_core::Warning::C3dLabelsUnused {
+            points_used: n_points,
+            labels: unused,
+        }])
+    })
 }

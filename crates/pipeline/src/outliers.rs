@@ -146,7 +146,7 @@ impl OutlierParams {
     /// when there are none (or the check is off).
     ///
     /// # Errors
-    /// [`kinetree_core::Error::NoVisibleData`] when every sample is impossible.
+    /// [`kinetree_core::Error::Degenerate`] when every sample is impossible.
     pub fn clean(&self, tracks: &Tracks) -> Result<Option<(Tracks, Warning)>> {
         if !self.enabled {
             return Ok(None);
@@ -155,7 +155,15 @@ impl OutlierParams {
         if samples.is_empty() {
             return Ok(None);
         }
-        let cleaned = tracks.without_samples(&samples)?;
+        let cleaned = tracks.without_samples(&samples).map_err(|e| match e {
+            kinetree_core::Error::NoVisibleData => kinetree_core::Error::Degenerate(format!(
+                "every visible sample is impossible ({} of them: coordinates beyond {} m or \
+                 one-frame jumps); are the tracks in metres?",
+                samples.len(),
+                self.max_coordinate_m
+            )),
+            other => other,
+        })?;
         let mut points: Vec<usize> = samples.iter().map(|&(_, i)| i).collect();
         points.sort_unstable();
         points.dedup();

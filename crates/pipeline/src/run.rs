@@ -131,15 +131,21 @@ impl Pipeline {
     }
 
     /// The tracks without their impossible samples ([`PipelineConfig::outliers`]; `None`
-    /// when none were dropped) and the warning saying so.
+    /// when none were dropped), and the warnings: the reader's, then the one saying so.
     fn without_impossible_samples(
         &self,
         tracks: &Tracks,
     ) -> Result<(Option<Tracks>, Vec<Warning>)> {
-        Ok(match self.outliers.clean(tracks)? {
-            Some((cleaned, warning)) => (Some(cleaned), vec![warning]),
-            None => (None, Vec::new()),
-        })
+        // The reader's warnings come first.
+        let mut warnings = tracks.warnings().to_vec();
+        let cleaned = match self.outliers.clean(tracks)? {
+            Some((cleaned, warning)) => {
+                warnings.push(warning);
+                Some(cleaned)
+            }
+            None => None,
+        };
+        Ok((cleaned, warnings))
     }
 
     fn group_clean(&self, tracks: &Tracks, mut warnings: Vec<Warning>) -> Result<Grouping> {
