@@ -173,7 +173,12 @@ fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
             .iter()
             .try_fold(8u128, |acc, &d| acc.checked_mul(d))
             .filter(|&b| b <= u128::from(file_len));
-        if bytes.is_none() {
+        // npyz also multiplies the dimensions into strides, zero-sized ones left out.
+        let strides_fit = dims
+            .iter()
+            .try_fold(8u128, |acc, &d| acc.checked_mul(d.max(1)))
+            .is_some_and(|b| b <= u128::from(u64::MAX));
+        if bytes.is_none() || !strides_fit {
             return Err(Error::Malformed {
                 position: "header".into(),
                 message: format!(
