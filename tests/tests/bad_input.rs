@@ -213,7 +213,31 @@ fn bad_pipeline_parameters_are_typed_errors() {
     let cfg = kinetree_pipeline::config::pipeline_from_toml(negative_error).expect("parses");
     assert!(matches!(
         Pipeline::from_config(&cfg),
-        Err(Error::InvalidParameter { ref name, .. }) if name == "model_error_m"
+        Err(Error::InvalidParameter { ref name, .. }) if name == "pipeline.dof.model_error_m"
+    ));
+    // A stage's parameter is named with its section.
+    let cut = "clustering = { kind = \"hierarchical\", cut = -1.0 }\n";
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(cut).expect("parses");
+    assert!(matches!(
+        Pipeline::from_config(&cfg),
+        Err(Error::InvalidParameter { ref name, .. }) if name == "pipeline.clustering.cut"
+    ));
+    // The README's block, with its `[pipeline]` header, is read as a pipeline config.
+    let readme = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"),
+    )
+    .expect("README");
+    let block = readme
+        .split("```toml\n")
+        .nth(1)
+        .and_then(|b| b.split("```").next())
+        .expect("a toml block");
+    assert!(block.starts_with("[pipeline]"), "{block}");
+    let cfg = kinetree_pipeline::config::pipeline_from_toml(block).expect("the README's block");
+    Pipeline::from_config(&cfg).expect("valid");
+    assert!(matches!(
+        cfg.dof,
+        kinetree_pipeline::config::DofConfig::SvdRank(_)
     ));
     // The clusterers on the spectral embedding: their `embedding` table is checked like the
     // rest, and DBSCAN cannot be the halves slot.
@@ -227,7 +251,7 @@ fn bad_pipeline_parameters_are_typed_errors() {
     let cfg = kinetree_pipeline::config::pipeline_from_toml(wide).expect("parses");
     assert!(matches!(
         Pipeline::from_config(&cfg),
-        Err(Error::InvalidParameter { ref name, .. }) if name == "eps"
+        Err(Error::InvalidParameter { ref name, .. }) if name == "pipeline.clustering.eps"
     ));
     let halves = "halves = { kind = \"spectral_dbscan\" }\n";
     let cfg = kinetree_pipeline::config::pipeline_from_toml(halves).expect("parses");

@@ -67,6 +67,14 @@ pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64, min_excess: f64) ->
     {
         return false;
     }
+    // Rank `r + 1` must leave degrees of freedom: with too few columns its residual is zero
+    // by construction, and whether rounding leaves 0 or 1e-16 there follows the order of
+    // the sums over a body's points, not the motion.
+    let (d, kf) = (dim as f64, (test.n_columns - 1) as f64);
+    let unclamped = |r: f64| (d - r) * kf - r * (d - r);
+    if unclamped(r as f64 + 1.0) < 1.0 {
+        return false;
+    }
     let level = test.chi2_per_dof[r + 1];
     let residual = test.chi2_per_dof[r];
     if !(level > 0.0
@@ -76,8 +84,7 @@ pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64, min_excess: f64) ->
     {
         return false;
     }
-    let (d, kf) = (dim as f64, (test.n_columns - 1) as f64);
-    let dof = |r: f64| ((d - r) * kf - r * (d - r)).max(1.0);
+    let dof = |r: f64| unclamped(r).max(1.0);
     let (dof_r, dof_next) = (dof(r as f64), dof(r as f64 + 1.0));
     nested_f_rejects(
         test.chi2_per_dof[r] * dof_r,
@@ -400,6 +407,14 @@ mod tests {
         // Three frames: the bound is too wide.
         assert!(!hidden_next_rank(
             &chi2_test([2.39, 0.59, 0.61], 3),
+            3,
+            4.0,
+            MIN_EXCESS
+        ));
+        // Two frames: rank 1 leaves no degree of freedom, so its residual is rounding
+        // (0 or 1e-16 with the order of the points) and must not decide.
+        assert!(!hidden_next_rank(
+            &chi2_test([1.23, 2.2e-16, 5.8e-32], 2),
             3,
             4.0,
             MIN_EXCESS

@@ -189,7 +189,8 @@ pub(crate) fn assemble(
         },
         point_body,
         point_confidence: Vec::new(),
-        static_body: statics.first().map(|&s| new_id[s]),
+        // The root when it is static (the most posed of several), else none is.
+        static_body: tree.root_is_static.then(|| new_id[tree.root]),
         root_body: new_id[tree.root],
         bodies,
         joints,

@@ -48,12 +48,13 @@ impl KabschParams {
     /// Checks the ranges.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for zero passes or a negative spread.
+    /// [`Error::InvalidParameter`] for passes outside `1..=1000` (each is a pass over every
+    /// frame) or a negative spread.
     pub fn validate(&self) -> Result<()> {
-        if self.shape_passes == 0 {
+        if !(1..=1000).contains(&self.shape_passes) {
             return Err(Error::InvalidParameter {
                 name: "shape_passes".into(),
-                message: "must be at least 1".into(),
+                message: format!("must be within [1, 1000], got {}", self.shape_passes),
             });
         }
         if let Some(k) = self.outlier_in_sigma

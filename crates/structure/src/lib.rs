@@ -121,7 +121,8 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
     1.0 - (p.translation.n_columns as f64 / seen as f64).min(1.0)
 }
 
-/// Spanning tree over bodies rooted at the static body (the lowest-numbered one if several);
+/// Spanning tree over bodies rooted at the static body (the one posed in the most frames if
+/// several, then the lowest-numbered);
 /// without a static body, at the body whose motion relative to the camera is smallest.
 /// Prefers single-DoF edges with the best fit (minimum spanning tree on `edge_cost`-style
 /// costs, computed by petgraph's Kruskal).
@@ -140,8 +141,15 @@ pub fn spanning_tree_without(
         return None;
     }
     let statics = static_bodies(n_bodies, pairs);
-    let (root, root_is_static) = match statics.first() {
-        Some(&s) => (s, true),
+    // Among several static bodies the one posed in the most frames (then the lowest id): a
+    // body posed in two frames tests static by chance, and the ids follow the point order.
+    let posed = posed_frames(n_bodies, pairs);
+    let most_posed = statics
+        .iter()
+        .copied()
+        .max_by_key(|&s| (posed[s], std::cmp::Reverse(s)));
+    let (root, root_is_static) = match most_posed {
+        Some(s) => (s, true),
         None => {
             let motion = |b: usize| {
                 find_pair(pairs, None, b).map_or(f64::INFINITY, |p| {

@@ -11,7 +11,9 @@ pub struct DropUnposedParams {
     /// Whether the repair runs. Off, a body registered in under `min_frames` frames stays
     /// and its pair tests are degenerate.
     pub enabled: bool,
-    /// Registered frames a body needs (default 2: a relative motion needs two).
+    /// Registered frames a body needs (default 3: over two frames a pair test has one
+    /// centred column, whose rank-one fit leaves no degree of freedom, so rigid and moving
+    /// differ only by rounding, which follows the point order; `docs/decisions.md`).
     pub min_frames: usize,
 }
 
@@ -19,7 +21,7 @@ impl Default for DropUnposedParams {
     fn default() -> Self {
         Self {
             enabled: true,
-            min_frames: 2,
+            min_frames: 3,
         }
     }
 }
