@@ -133,25 +133,14 @@ repairs_config! {
     retest: RetestParams => Retest,
 }
 
-/// The error for a parameter `name` of repair `repair` outside its range.
-pub(crate) fn invalid(repair: &str, name: &str, message: impl Into<String>) -> Error {
-    Error::InvalidParameter {
-        name: format!("pipeline.repairs.{repair}.{name}"),
-        message: message.into(),
-    }
-}
-
 /// Checks that `value` is finite and within `[min, max]`.
 pub(crate) fn in_range(repair: &str, name: &str, value: f64, min: f64, max: f64) -> Result<()> {
-    if value.is_finite() && (min..=max).contains(&value) {
-        Ok(())
-    } else {
-        Err(invalid(
-            repair,
-            name,
-            format!("must be within [{min}, {max}], got {value}"),
-        ))
-    }
+    kinetree_core::limits::check_within(
+        &format!("pipeline.repairs.{repair}.{name}"),
+        value,
+        min,
+        max,
+    )
 }
 
 /// Checks that a count is within `[min, max]`.
@@ -173,14 +162,7 @@ pub(crate) fn count_in_range(
 /// Checks that the count at the config key `key` (its whole dotted path) is within
 /// `[min, max]`.
 pub(crate) fn count_within(key: &str, value: usize, min: usize, max: usize) -> Result<()> {
-    if (min..=max).contains(&value) {
-        Ok(())
-    } else {
-        Err(Error::InvalidParameter {
-            name: key.to_owned(),
-            message: format!("must be within [{min}, {max}], got {value}"),
-        })
-    }
+    kinetree_core::limits::check_count(key, value, min, max)
 }
 
 /// The draft's poses, or a typed error naming the repair that needed them.
