@@ -495,8 +495,10 @@ fn sizes_beyond_memory_are_refused_before_they_are_allocated() {
     let e =
         kinetree_pipeline::load_data(&data, std::path::Path::new("."), 8.0).expect_err("terabytes");
     assert!(matches!(e, Error::TooLarge { .. }), "{e}");
-    let mut config = PipelineConfig::default();
-    config.max_memory_gib = f64::NAN;
+    let config = PipelineConfig {
+        max_memory_gib: f64::NAN,
+        ..PipelineConfig::default()
+    };
     assert!(Pipeline::from_config(&config).is_err(), "a NaN limit");
 }
 
