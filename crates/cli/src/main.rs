@@ -259,10 +259,8 @@ fn run(
             where_config(config.as_deref())
         );
     }
-    let mut cfg = ExperimentConfig::from_toml(&text).with_context(|| match &config {
-        Some(p) => format!("in {}", p.display()),
-        None => "in the embedded paper experiment".into(),
-    })?;
+    let mut cfg = ExperimentConfig::from_toml(&text)
+        .with_context(|| format!("in {}", where_config(config.as_deref())))?;
     if let Some(m) = max_memory {
         cfg.pipeline.max_memory_gib = m;
     }

@@ -57,13 +57,7 @@ impl SpectralGmmParams {
         if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
             return Err(bad("tolerance", self.tolerance));
         }
-        if !(1..=1_000_000).contains(&self.max_iterations) {
-            return Err(Error::InvalidParameter {
-                name: "max_iterations".into(),
-                message: format!("must be in 1..=1000000, got {}", self.max_iterations),
-            });
-        }
-        Ok(())
+        kinetree_core::limits::check_count("max_iterations", self.max_iterations, 1, 1_000_000)
     }
 }
 
@@ -177,13 +171,7 @@ impl SpectralDbscanParams {
                 ),
             });
         }
-        if !(2..=1_000_000).contains(&self.core_points) {
-            return Err(Error::InvalidParameter {
-                name: "core_points".into(),
-                message: format!("must be in 2..=1000000, got {}", self.core_points),
-            });
-        }
-        Ok(())
+        kinetree_core::limits::check_count("core_points", self.core_points, 2, 1_000_000)
     }
 }
 

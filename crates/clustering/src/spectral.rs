@@ -79,24 +79,19 @@ impl SpectralParams {
             })
         };
         check_embedding(&self.embedding(), self.min_points)?;
-        if !(1..=10_000).contains(&self.kmeans_restarts) {
-            return bad(
-                "kmeans_restarts",
-                format!("must be in 1..=10000, got {}", self.kmeans_restarts),
-            );
-        }
+        kinetree_core::limits::check_count("kmeans_restarts", self.kmeans_restarts, 1, 10_000)?;
         if !(self.kmeans_tolerance.is_finite() && self.kmeans_tolerance > 0.0) {
             return bad(
                 "kmeans_tolerance",
                 format!("must be finite and positive, got {}", self.kmeans_tolerance),
             );
         }
-        if !(1..=1_000_000).contains(&self.kmeans_max_iterations) {
-            return bad(
-                "kmeans_max_iterations",
-                format!("must be in 1..=1000000, got {}", self.kmeans_max_iterations),
-            );
-        }
+        kinetree_core::limits::check_count(
+            "kmeans_max_iterations",
+            self.kmeans_max_iterations,
+            1,
+            1_000_000,
+        )?;
         Ok(())
     }
 
@@ -210,12 +205,7 @@ pub(crate) fn check_embedding(s: &EmbeddingParams, min_points: usize) -> Result<
     if s.n_clusters == Some(0) {
         return bad("n_clusters", "must be at least 1".into());
     }
-    if !(1..=100_000).contains(&s.max_clusters) {
-        return bad(
-            "max_clusters",
-            format!("must be in 1..=100000, got {}", s.max_clusters),
-        );
-    }
+    kinetree_core::limits::check_count("max_clusters", s.max_clusters, 1, 100_000)?;
     if min_points < MIN_BODY_POINTS {
         return bad(
             "min_points",

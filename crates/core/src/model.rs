@@ -79,13 +79,12 @@ impl PositionLimits {
                 return Err(bad(field, format!("must be finite and positive, got {v}")));
             }
         }
-        if !(3..=1_000_000).contains(&self.min_smoothed_frames) {
-            return Err(bad(
-                "min_smoothed_frames",
-                format!("must be in 3..=1000000, got {}", self.min_smoothed_frames),
-            ));
-        }
-        Ok(())
+        crate::limits::check_count(
+            &format!("{section}.min_smoothed_frames"),
+            self.min_smoothed_frames,
+            3,
+            1_000_000,
+        )
     }
 }
 

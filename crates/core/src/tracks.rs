@@ -227,6 +227,14 @@ impl Tracks {
         hidden as f64 / (self.n_frames * self.n_points) as f64
     }
 
+    /// `out` (tracks derived from these) with these tracks' labels, frame rate and warnings.
+    fn described(&self, mut out: Self) -> Self {
+        out.labels.clone_from(&self.labels);
+        out.frame_rate_hz = self.frame_rate_hz;
+        out.warnings.clone_from(&self.warnings);
+        out
+    }
+
     /// The same tracks restricted to `frames` (in the given order).
     ///
     /// # Errors
@@ -243,11 +251,7 @@ impl Tracks {
             }
             xyz.extend_from_slice(self.frame_raw(t));
         }
-        let mut out = Self::new(frames.len(), self.n_points, xyz)?;
-        out.labels.clone_from(&self.labels);
-        out.frame_rate_hz = self.frame_rate_hz;
-        out.warnings.clone_from(&self.warnings);
-        Ok(out)
+        Ok(self.described(Self::new(frames.len(), self.n_points, xyz)?))
     }
 
     /// The same tracks with the (frame, point) `samples` made occluded.
@@ -270,11 +274,7 @@ impl Tracks {
             let k = (t * self.n_points + i) * 3;
             xyz[k..k + 3].copy_from_slice(&[f64::NAN; 3]);
         }
-        let mut out = Self::new(self.n_frames, self.n_points, xyz)?;
-        out.labels.clone_from(&self.labels);
-        out.frame_rate_hz = self.frame_rate_hz;
-        out.warnings.clone_from(&self.warnings);
-        Ok(out)
+        Ok(self.described(Self::new(self.n_frames, self.n_points, xyz)?))
     }
 
     /// The same tracks with every position mapped through `f` (a change of frame or units).
@@ -290,11 +290,7 @@ impl Tracks {
             let q = f(Point3::new(p[0], p[1], p[2]));
             p.copy_from_slice(&[q.x, q.y, q.z]);
         }
-        let mut out = Self::new(self.n_frames, self.n_points, xyz)?;
-        out.labels.clone_from(&self.labels);
-        out.frame_rate_hz = self.frame_rate_hz;
-        out.warnings.clone_from(&self.warnings);
-        Ok(out)
+        Ok(self.described(Self::new(self.n_frames, self.n_points, xyz)?))
     }
 }
 

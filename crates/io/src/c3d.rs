@@ -313,11 +313,7 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             ),
         ));
     }
-    kinetree_core::limits::check_memory(
-        &format!("reading {n_frames} frames x {n_points} points"),
-        kinetree_core::limits::tracks_bytes(n_frames as u64, n_points as u64),
-        max_memory_gib,
-    )?;
+    crate::check_size(n_frames as u64, n_points as u64, max_memory_gib)?;
     let point_scale = if is_float { 1.0 } else { scale.abs() };
     let mut xyz = Vec::with_capacity(n_frames * n_points * 3);
     for t in 0..n_frames {

@@ -111,7 +111,7 @@ pub fn read_npy(path: &Path) -> Result<Tracks> {
 }
 
 /// Checks a declared `n_frames x n_points` against the memory limit before it is allocated.
-fn check_size(n_frames: u64, n_points: u64, max_memory_gib: f64) -> Result<()> {
+pub(crate) fn check_size(n_frames: u64, n_points: u64, max_memory_gib: f64) -> Result<()> {
     kinetree_core::limits::check_memory(
         &format!("reading {n_frames} frames x {n_points} points"),
         kinetree_core::limits::tracks_bytes(n_frames, n_points),
@@ -166,26 +166,32 @@ fn npy_declared_shape(path: &Path) -> Result<Option<Vec<u128>>> {
     Ok(dims)
 }
 
+/// Refuses an npy shape whose float64 data would not fit in the file's `file_len` bytes, or
+/// whose strides (npyz multiplies the dimensions, zero-sized ones left out) overflow 64 bits.
+fn check_npy_shape(dims: &[u128], file_len: u64) -> Result<()> {
+    let bytes = dims
+        .iter()
+        .try_fold(8u128, |acc, &d| acc.checked_mul(d))
+        .filter(|&b| b <= u128::from(file_len));
+    let strides_fit = dims
+        .iter()
+        .try_fold(8u128, |acc, &d| acc.checked_mul(d.max(1)))
+        .is_some_and(|b| b <= u128::from(u64::MAX));
+    if bytes.is_none() || !strides_fit {
+        return Err(Error::Malformed {
+            position: "header".into(),
+            message: format!(
+                "shape {dims:?} needs more float64 data than the file's {file_len} bytes"
+            ),
+        });
+    }
+    Ok(())
+}
+
 fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
     let file_len = std::fs::metadata(path)?.len();
     if let Some(dims) = npy_declared_shape(path)? {
-        let bytes = dims
-            .iter()
-            .try_fold(8u128, |acc, &d| acc.checked_mul(d))
-            .filter(|&b| b <= u128::from(file_len));
-        // npyz also multiplies the dimensions into strides, zero-sized ones left out.
-        let strides_fit = dims
-            .iter()
-            .try_fold(8u128, |acc, &d| acc.checked_mul(d.max(1)))
-            .is_some_and(|b| b <= u128::from(u64::MAX));
-        if bytes.is_none() || !strides_fit {
-            return Err(Error::Malformed {
-                position: "header".into(),
-                message: format!(
-                    "shape {dims:?} needs more float64 data than the file's {file_len} bytes"
-                ),
-            });
-        }
+        check_npy_shape(&dims, file_len)?;
     }
     let file = File::open(path)?;
     let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| Error::Malformed {
@@ -212,15 +218,8 @@ fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
     }
     // A header may claim any shape: the data must be in the file, and fit the limit, before
     // they are allocated.
-    let data_bytes = shape.iter().try_fold(8u64, |acc, &d| acc.checked_mul(d));
-    if data_bytes.is_none_or(|b| b > file_len) {
-        return Err(Error::Malformed {
-            position: "header".into(),
-            message: format!(
-                "shape {shape:?} needs more float64 data than the file's {file_len} bytes"
-            ),
-        });
-    }
+    let dims: Vec<u128> = shape.iter().map(|&d| u128::from(d)).collect();
+    check_npy_shape(&dims, file_len)?;
     check_size(shape[0], shape[1], max_memory_gib)?;
     let (t, n) = (shape[0] as usize, shape[1] as usize);
     let order = npy.order();

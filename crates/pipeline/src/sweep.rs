@@ -680,6 +680,13 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
         ));
     }
     let nk = sweep.keys.len();
+    // Each grid point by its values as `runs.csv` writes them, and the seeds, looked up per row.
+    let mut point_of: std::collections::BTreeMap<Vec<String>, usize> = Default::default();
+    for (k, p) in sweep.points.iter().enumerate().rev() {
+        // Walked from the end, so a repeated grid point maps to its first index.
+        point_of.insert(p.iter().map(ToString::to_string).collect(), k);
+    }
+    let seeds: std::collections::BTreeSet<u64> = sweep.seeds().into_iter().collect();
     let mut runs = Vec::new();
     for (k, record) in records.enumerate() {
         let line = k + 2;
@@ -693,10 +700,8 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
         }
         let f: Vec<&str> = record.iter().collect();
         let values: Vec<String> = f[..nk].iter().map(|v| (*v).to_string()).collect();
-        let point = sweep
-            .points
-            .iter()
-            .position(|p| p.iter().map(|v| v.to_string()).eq(values.iter().cloned()))
+        let point = *point_of
+            .get(&values)
             .ok_or_else(|| bad(line, format!("grid values {values:?} are not this sweep's")))?;
         let rest = &f[nk..];
         let num = |i: usize| -> Result<Option<f64>> {
@@ -722,7 +727,7 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
         let seed: u64 = rest[0]
             .parse()
             .map_err(|_| bad(line, format!("seed `{}` is not a seed", rest[0])))?;
-        if !sweep.seeds().contains(&seed) {
+        if !seeds.contains(&seed) {
             return Err(bad(line, format!("seed {seed} is not one of this sweep's")));
         }
         runs.push(SweepRun {

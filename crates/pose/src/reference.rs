@@ -51,12 +51,7 @@ impl KabschParams {
     /// [`Error::InvalidParameter`] for passes outside `1..=1000` (each is a pass over every
     /// frame) or a negative spread.
     pub fn validate(&self) -> Result<()> {
-        if !(1..=1000).contains(&self.shape_passes) {
-            return Err(Error::InvalidParameter {
-                name: "shape_passes".into(),
-                message: format!("must be within [1, 1000], got {}", self.shape_passes),
-            });
-        }
+        kinetree_core::limits::check_count("shape_passes", self.shape_passes, 1, 1000)?;
         if let Some(k) = self.outlier_in_sigma
             && !(k.is_finite() && k > 0.0)
         {
