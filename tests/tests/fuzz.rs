@@ -25,7 +25,7 @@ fn valid_bytes(ext: &str) -> Vec<u8> {
     static CACHE: std::sync::OnceLock<std::collections::BTreeMap<&'static str, Vec<u8>>> =
         std::sync::OnceLock::new();
     CACHE.get_or_init(|| {
-        ["npy", "csv", "json", "c3d"]
+        ["npy", "npz", "csv", "json", "c3d"]
             .into_iter()
             .map(|e| (e, make_valid_bytes(e)))
             .collect()
@@ -40,6 +40,7 @@ fn make_valid_bytes(ext: &str) -> Vec<u8> {
     let p = tmp(&format!("valid.{ext}"));
     match ext {
         "npy" => kinetree_io::write_npy(&p, &tracks()).expect("write"),
+        "npz" => kinetree_io::write_npz(&p, &tracks()).expect("write"),
         "csv" => kinetree_io::write_csv(&p, &tracks()).expect("write"),
         _ => {
             let d = kinetree_pipeline::Pipeline::from_config(&Default::default())
@@ -177,7 +178,7 @@ proptest! {
 
     #[test]
     fn random_bytes_never_panic(
-        ext in prop::sample::select(vec!["npy", "csv", "json", "c3d"]),
+        ext in prop::sample::select(vec!["npy", "npz", "csv", "json", "c3d"]),
         b in proptest::collection::vec(any::<u8>(), 0..512),
     ) {
         read_as(ext, &b, "random");
@@ -185,7 +186,7 @@ proptest! {
 
     #[test]
     fn damaged_valid_files_never_panic(
-        ext in prop::sample::select(vec!["npy", "csv", "json", "c3d"]),
+        ext in prop::sample::select(vec!["npy", "npz", "csv", "json", "c3d"]),
         cut in 0usize..200_000,
         flips in proptest::collection::vec((0usize..200_000, any::<u8>()), 0..6),
     ) {
@@ -201,6 +202,23 @@ proptest! {
     ) {
         let shape = if dims.len() == 1 { format!("{},", dims[0]) } else { dims.join(", ") };
         read_as("npy", &npy_with_shape(&shape, payload), "dims");
+    }
+
+    /// The same headers as the tracks array of an `.npz` archive.
+    #[test]
+    fn npz_entry_dimensions_never_panic(
+        dims in proptest::collection::vec(dim(), 0..5),
+        payload in prop::sample::select(vec![0usize, 8, 72, 288, 4096]),
+    ) {
+        use std::io::Write;
+        let shape = if dims.len() == 1 { format!("{},", dims[0]) } else { dims.join(", ") };
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        let mut zip = zip::ZipWriter::new(&mut bytes);
+        zip.start_file("tracks.npy", zip::write::SimpleFileOptions::default())
+            .expect("entry");
+        zip.write_all(&npy_with_shape(&shape, payload)).expect("write");
+        zip.finish().expect("finish");
+        read_as("npz", &bytes.into_inner(), "npz-dims");
     }
 
     /// A CSV size line of any declared size over the valid rows.

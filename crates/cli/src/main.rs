@@ -83,6 +83,33 @@ fn refuse_overwriting(output: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
+/// How a tracks file is read: the array names of an `.npz` archive.
+#[derive(Debug, Clone, clap::Args)]
+struct TrackArgs {
+    /// `.npz` tracks: the name of the (T, N, 3) array [default: tracks].
+    #[arg(long, value_name = "NAME")]
+    tracks_key: Option<String>,
+    /// `.npz` tracks: the name of a (T, N) array, true (or at least 0.5) where a sample is
+    /// visible [default: `visibility` if the archive has it].
+    #[arg(long, value_name = "NAME", conflicts_with = "occluded_key")]
+    visibility_key: Option<String>,
+    /// `.npz` tracks: the name of a (T, N) array, true (or at least 0.5) where a sample is
+    /// occluded [default: `occluded` if the archive has it and no `visibility`].
+    #[arg(long, value_name = "NAME")]
+    occluded_key: Option<String>,
+}
+
+impl TrackArgs {
+    fn options(&self, max_memory_gib: f64) -> kinetree_io::ReadOptions {
+        kinetree_io::ReadOptions {
+            max_memory_gib,
+            tracks_key: self.tracks_key.clone(),
+            visibility_key: self.visibility_key.clone(),
+            occluded_key: self.occluded_key.clone(),
+        }
+    }
+}
+
 /// Formats of `kinetree export`.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum ExportFormat {
@@ -124,11 +151,15 @@ enum Command {
         #[arg(long, default_value_t = kinetree_pipeline::sweep::DEFAULT_MAX_RUNS)]
         max_runs: u64,
     },
-    /// Discover the structure in a tracks file (.npy, .csv or .c3d) and write the model JSON.
+    /// Discover the structure in a tracks file (.npy, .npz, .csv or .c3d) and write the model
+    /// JSON.
     Discover {
-        /// Tracks file: float64 (T, N, 3) .npy with NaN for occluded points,
-        /// frame,point,x,y,z .csv, or a C3D motion-capture file (marker labels are kept).
+        /// Tracks file: float (T, N, 3) .npy with NaN for occluded points, .npz from a point
+        /// tracker (see --tracks-key), frame,point,x,y,z .csv, or a C3D motion-capture file
+        /// (marker labels are kept).
         tracks: PathBuf,
+        #[command(flatten)]
+        keys: TrackArgs,
         /// Per-coordinate noise std-dev in metres; estimated from the data when absent.
         #[arg(long)]
         noise_sigma: Option<f64>,
@@ -144,8 +175,10 @@ enum Command {
     Observe {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
-        /// Tracks (.npy or .csv) with the model's points.
+        /// Tracks (.npy, .npz, .csv or .c3d) with the model's points.
         tracks: PathBuf,
+        #[command(flatten)]
+        keys: TrackArgs,
         /// Output CSV.
         #[arg(short, long, default_value = "config.csv")]
         output: PathBuf,
@@ -181,8 +214,11 @@ enum Command {
     /// Fit a joint to one point's track (a door or drawer handle): revolute (axis, centre,
     /// radius) or prismatic (axis), printed and written as JSON.
     FitTrack {
-        /// Text file of `x y z` lines, or a tracks file (.npy, .csv, .c3d) with `--point`.
+        /// Text file of `x y z` lines, or a tracks file (.npy, .npz, .csv, .c3d) with
+        /// `--point`.
         track: PathBuf,
+        #[command(flatten)]
+        keys: TrackArgs,
         /// Point index in a tracks file.
         #[arg(long)]
         point: Option<usize>,
@@ -194,7 +230,7 @@ enum Command {
         #[arg(short, long, default_value = "track-joint.json")]
         output: PathBuf,
     },
-    /// Write a synthetic data set: tracks.npy, tracks.csv and truth.json.
+    /// Write a synthetic data set: tracks.npy, tracks.csv, tracks.npz and truth.json.
     Simulate {
         /// Output folder.
         #[arg(short, long, default_value = "sim")]
@@ -383,7 +419,8 @@ fn run_command() -> Result<()> {
     let max_memory = cli.max_memory;
     let memory = max_memory.unwrap_or(kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB);
     kinetree_core::limits::validate_limit("--max-memory", memory)?;
-    let read_tracks = |path: &Path| kinetree_io::read_tracks_within(path, memory);
+    let read_tracks =
+        |path: &Path, keys: &TrackArgs| kinetree_io::read_tracks_with(path, &keys.options(memory));
     match cli.command {
         Command::Run {
             config,
@@ -398,6 +435,7 @@ fn run_command() -> Result<()> {
         ),
         Command::Discover {
             tracks,
+            keys,
             noise_sigma,
             pipeline,
             output,
@@ -423,7 +461,7 @@ fn run_command() -> Result<()> {
                 Some(p) => format!("in {}", p.display()),
                 None => "in the pipeline options".into(),
             })?;
-            let t = read_tracks(&tracks)?;
+            let t = read_tracks(&tracks, &keys)?;
             let d = built.run(&t)?;
             emit(&summary(&d.model));
             kinetree_io::write_json(&output, &d.model)?;
@@ -433,6 +471,7 @@ fn run_command() -> Result<()> {
         Command::Observe {
             model,
             tracks,
+            keys,
             output,
             smooth,
             unexplained_factor,
@@ -443,7 +482,7 @@ fn run_command() -> Result<()> {
             &ObserveOptions {
                 smooth,
                 unexplained_factor,
-                max_memory_gib: memory,
+                read: keys.options(memory),
             },
         ),
         Command::Export {
@@ -470,6 +509,7 @@ fn run_command() -> Result<()> {
         }
         Command::FitTrack {
             track,
+            keys,
             point,
             circle_gain,
             output,
@@ -477,7 +517,7 @@ fn run_command() -> Result<()> {
             refuse_overwriting(&output, &[&track])?;
             let samples = match point {
                 Some(i) => {
-                    let t = read_tracks(&track)?;
+                    let t = read_tracks(&track, &keys)?;
                     if i >= t.n_points() {
                         bail!("--point {i}: the file has {} points", t.n_points());
                     }
@@ -533,6 +573,7 @@ fn run_command() -> Result<()> {
                 .with_context(|| format!("creating {}", output.display()))?;
             kinetree_io::write_npy(&output.join("tracks.npy"), &tracks)?;
             kinetree_io::write_csv(&output.join("tracks.csv"), &tracks)?;
+            kinetree_io::write_npz(&output.join("tracks.npz"), &tracks)?;
             if let Some(t) = truth {
                 kinetree_io::write_json(&output.join("truth.json"), &t)?;
             }
@@ -552,7 +593,7 @@ fn run_command() -> Result<()> {
 struct ObserveOptions {
     smooth: bool,
     unexplained_factor: f64,
-    max_memory_gib: f64,
+    read: kinetree_io::ReadOptions,
 }
 
 /// A model's re-prediction RMS when the file does not say (the paper arm's, from per-body
@@ -565,11 +606,12 @@ fn observe(
     output: &Path,
     options: &ObserveOptions,
 ) -> Result<()> {
-    let &ObserveOptions {
+    let ObserveOptions {
         smooth,
         unexplained_factor,
-        max_memory_gib,
+        read,
     } = options;
+    let (smooth, unexplained_factor) = (*smooth, *unexplained_factor);
     if !(unexplained_factor.is_finite() && unexplained_factor >= 1.0) {
         bail!(
             "--unexplained-factor must be a finite number of at least 1, got {unexplained_factor}"
@@ -578,7 +620,7 @@ fn observe(
     use std::io::Write;
     refuse_overwriting(output, &[model_path, tracks_path])?;
     let model = kinetree_io::read_model(model_path)?;
-    let tracks = kinetree_io::read_tracks_within(tracks_path, max_memory_gib)?;
+    let tracks = kinetree_io::read_tracks_with(tracks_path, read)?;
     if tracks.n_points() != model.n_points {
         bail!(
             "{} has {} points but the model {} was discovered on {}",

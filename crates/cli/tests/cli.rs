@@ -112,7 +112,7 @@ fn simulate_then_discover_npy_and_csv() {
         .as_array()
         .map(Vec::len)
         .expect("bodies");
-    for file in ["tracks.npy", "tracks.csv"] {
+    for file in ["tracks.npy", "tracks.npz", "tracks.csv"] {
         let model_path = dir.join(format!("{file}.model.json"));
         run_ok(
             kinetree()
@@ -133,6 +133,25 @@ fn simulate_then_discover_npy_and_csv() {
             "{file}"
         );
     }
+    // The archive holds the same samples as the .npy, so the same model comes out.
+    assert_eq!(
+        std::fs::read(dir.join("tracks.npy.model.json")).expect("npy model"),
+        std::fs::read(dir.join("tracks.npz.model.json")).expect("npz model")
+    );
+    let out = kinetree()
+        .arg("discover")
+        .arg(dir.join("tracks.npz"))
+        .args(["--tracks-key", "points"])
+        .arg("-o")
+        .arg(dir.join("none.json"))
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("no array `points`") && err.contains("tracks, visibility"),
+        "{err}"
+    );
 }
 
 #[test]

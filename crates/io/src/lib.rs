@@ -1,9 +1,13 @@
-//! Reading and writing tracks (`.npy`, `.csv`) and models (JSON).
+//! Reading and writing tracks (`.npy`, `.npz`, `.csv`, `.c3d`) and models (JSON).
 //!
 //! Every error names the file (through [`Error::File`]) and, where it can, the position.
 
 mod c3d;
 pub mod export;
+mod npy;
+mod npz;
+
+pub use npz::{DEFAULT_OCCLUDED_KEY, DEFAULT_TRACKS_KEY, DEFAULT_VISIBILITY_KEY};
 
 pub use c3d::tracks as c3d_tracks;
 
@@ -16,14 +20,14 @@ use std::path::Path;
 /// Largest frame or point index accepted in a CSV file (guards against absurd allocations).
 pub const MAX_CSV_INDEX: u64 = 10_000_000;
 
-/// Reads tracks from a `.npy`, `.csv` or `.c3d` file, chosen by extension, within the default
-/// memory limit ([`read_tracks_within`]).
+/// Reads tracks from a `.npy`, `.npz`, `.csv` or `.c3d` file, chosen by extension, within
+/// the default memory limit ([`read_tracks_with`]).
 ///
 /// # Errors
 /// [`Error::File`] wrapping the cause: I/O, an unknown extension, the format's own errors, or
 /// [`Error::TooLarge`].
 pub fn read_tracks(path: &Path) -> Result<Tracks> {
-    read_tracks_within(path, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB)
+    read_tracks_with(path, &ReadOptions::default())
 }
 
 /// [`read_tracks`] refusing, before allocating them, tracks whose size (as the file declares
@@ -32,23 +36,92 @@ pub fn read_tracks(path: &Path) -> Result<Tracks> {
 /// # Errors
 /// As [`read_tracks`].
 pub fn read_tracks_within(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("npy") => read_npy_inner(path, max_memory_gib).map_err(|e| e.in_file(path)),
-        Some("csv") => read_csv_inner(path, max_memory_gib).map_err(|e| e.in_file(path)),
-        Some("c3d") => {
-            let bytes = std::fs::read(path).map_err(|e| Error::from(e).in_file(path))?;
-            c3d::tracks_within(&bytes, max_memory_gib).map_err(|e| e.in_file(path))
+    read_tracks_with(
+        path,
+        &ReadOptions {
+            max_memory_gib,
+            ..ReadOptions::default()
+        },
+    )
+}
+
+/// How [`read_tracks_with`] reads a tracks file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadOptions {
+    /// Tracks whose size (as the file declares it) takes more memory than this are refused
+    /// before they are allocated.
+    pub max_memory_gib: f64,
+    /// `.npz`: the name of the `(T, N, 3)` tracks array ([`DEFAULT_TRACKS_KEY`] when `None`).
+    pub tracks_key: Option<String>,
+    /// `.npz`: the name of a `(T, N)` array that is true (or at least 0.5) where a sample is
+    /// visible. When neither this nor `occluded_key` is given, an array named
+    /// [`DEFAULT_VISIBILITY_KEY`] is used if there is one, else one named
+    /// [`DEFAULT_OCCLUDED_KEY`].
+    pub visibility_key: Option<String>,
+    /// `.npz`: the name of a `(T, N)` array that is true (or at least 0.5) where a sample is
+    /// occluded, for trackers that save occlusion rather than visibility.
+    pub occluded_key: Option<String>,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        Self {
+            max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
+            tracks_key: None,
+            visibility_key: None,
+            occluded_key: None,
         }
-        _ => Err(Error::Malformed {
-            position: "file name".into(),
-            message: "unknown extension; expected .npy, .csv or .c3d".into(),
-        }
-        .in_file(path)),
     }
+}
+
+/// Reads tracks from a file chosen by extension:
+/// - `.npy`: a float64 or float32 `(T, N, 3)` array (C or Fortran order), NaN where a point
+///   is hidden;
+/// - `.npz`: such an array inside a numpy archive (`np.savez` or `np.savez_compressed`), with
+///   an optional visibility or occlusion array `(T, N)` (bool, integer or probability) whose
+///   hidden samples are set to NaN; the arrays' names come from `options`;
+/// - `.csv`: `frame,point,x,y,z` rows ([`read_csv`]);
+/// - `.c3d`: motion-capture markers ([`read_c3d`]).
+///
+/// # Errors
+/// [`Error::File`] wrapping the cause: I/O, an unknown extension, array names given for a
+/// file that is not `.npz`, a missing array (the message lists the archive's arrays), the
+/// format's own errors, or [`Error::TooLarge`].
+pub fn read_tracks_with(path: &Path, options: &ReadOptions) -> Result<Tracks> {
+    let inner = || -> Result<Tracks> {
+        kinetree_core::limits::validate_limit("max_memory_gib", options.max_memory_gib)?;
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        let named = [
+            ("tracks", &options.tracks_key),
+            ("visibility", &options.visibility_key),
+            ("occluded", &options.occluded_key),
+        ];
+        if ext.as_deref() != Some("npz")
+            && let Some((what, _)) = named.iter().find(|(_, k)| k.is_some())
+        {
+            return Err(Error::Config(format!(
+                "a {what} array name is for .npz archives only"
+            )));
+        }
+        let max_memory_gib = options.max_memory_gib;
+        match ext.as_deref() {
+            Some("npy") => read_npy_inner(path, max_memory_gib),
+            Some("npz") => npz::read(path, options),
+            Some("csv") => read_csv_inner(path, max_memory_gib),
+            Some("c3d") => {
+                let bytes = std::fs::read(path)?;
+                c3d::tracks_within(&bytes, max_memory_gib)
+            }
+            _ => Err(Error::Malformed {
+                position: "file name".into(),
+                message: "unknown extension; expected .npy, .npz, .csv or .c3d".into(),
+            }),
+        }
+    };
+    inner().map_err(|e| e.in_file(path))
 }
 
 /// Reads the marker trajectories of a C3D motion-capture file: one point per marker in the
@@ -101,7 +174,8 @@ pub fn read_point_track(path: &Path) -> Result<Vec<kinetree_core::nalgebra::Poin
     Ok(out)
 }
 
-/// Reads a float64 `(T, N, 3)` `.npy` array, NaN for occluded points (C or Fortran order).
+/// Reads a float64 or float32 `(T, N, 3)` `.npy` array, NaN for occluded points (C or
+/// Fortran order).
 ///
 /// # Errors
 /// [`Error::DType`] for another element type, [`Error::Shape`] for another shape, and the
@@ -119,129 +193,34 @@ pub(crate) fn check_size(n_frames: u64, n_points: u64, max_memory_gib: f64) -> R
     )
 }
 
-/// The `shape` an npy header declares, read before npyz sees the file: npyz multiplies the
-/// dimensions unchecked (a panic in debug builds, a wrapped count in release ones), so a
-/// hostile header must be refused first. `None` when the header cannot be read this way;
-/// npyz then reports what is wrong with it.
-fn npy_declared_shape(path: &Path) -> Result<Option<Vec<u128>>> {
-    use std::io::Read;
-    let mut file = File::open(path)?;
-    let mut start = [0u8; 12];
-    if file.read_exact(&mut start).is_err() || &start[..6] != b"\x93NUMPY" {
-        return Ok(None);
-    }
-    let (len, skip) = match start[6] {
-        1 => (usize::from(u16::from_le_bytes([start[8], start[9]])), 10),
-        _ => (
-            u32::from_le_bytes([start[8], start[9], start[10], start[11]]) as usize,
-            12,
-        ),
-    };
-    // Headers are a few hundred bytes; a longer one is left to npyz.
-    if len > 1 << 16 {
-        return Ok(None);
-    }
-    let mut header = start[skip..].to_vec();
-    header.resize(len, 0);
-    if file.read_exact(&mut header[12 - skip..]).is_err() {
-        return Ok(None);
-    }
-    let text = String::from_utf8_lossy(&header);
-    let Some(after) = text.split_once("'shape'").map(|(_, a)| a) else {
-        return Ok(None);
-    };
-    let Some(inside) = after
-        .split_once('(')
-        .and_then(|(_, a)| a.split_once(')'))
-        .map(|(i, _)| i)
-    else {
-        return Ok(None);
-    };
-    let dims: Option<Vec<u128>> = inside
-        .split(',')
-        .map(str::trim)
-        .filter(|d| !d.is_empty())
-        .map(|d| d.trim_end_matches('L').parse().ok())
-        .collect();
-    Ok(dims)
-}
-
-/// Refuses an npy shape whose float64 data would not fit in the file's `file_len` bytes, or
-/// whose strides (npyz multiplies the dimensions, zero-sized ones left out) overflow 64 bits.
-fn check_npy_shape(dims: &[u128], file_len: u64) -> Result<()> {
-    let bytes = dims
-        .iter()
-        .try_fold(8u128, |acc, &d| acc.checked_mul(d))
-        .filter(|&b| b <= u128::from(file_len));
-    let strides_fit = dims
-        .iter()
-        .try_fold(8u128, |acc, &d| acc.checked_mul(d.max(1)))
-        .is_some_and(|b| b <= u128::from(u64::MAX));
-    if bytes.is_none() || !strides_fit {
-        return Err(Error::Malformed {
-            position: "header".into(),
-            message: format!(
-                "shape {dims:?} needs more float64 data than the file's {file_len} bytes"
-            ),
-        });
-    }
-    Ok(())
-}
-
-fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
-    let file_len = std::fs::metadata(path)?.len();
-    if let Some(dims) = npy_declared_shape(path)? {
-        check_npy_shape(&dims, file_len)?;
-    }
-    let file = File::open(path)?;
-    let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| Error::Malformed {
-        position: "header".into(),
-        message: e.to_string(),
-    })?;
-    let dtype = npy.dtype();
-    let type_str = match &dtype {
-        npyz::DType::Plain(t) => t.to_string(),
-        other => format!("{other:?}"),
-    };
-    if type_str != "<f8" {
+/// Refuses a tracks array that is not float `(T, N, 3)` or does not fit the memory limit.
+pub(crate) fn check_tracks_array(shape: &[u64], dtype: &str, max_memory_gib: f64) -> Result<()> {
+    if dtype != "<f8" && dtype != "<f4" {
         return Err(Error::DType {
-            expected: "float64 ('<f8')".into(),
-            found: type_str,
+            expected: "float64 ('<f8') or float32 ('<f4')".into(),
+            found: dtype.into(),
         });
     }
-    let shape: Vec<u64> = npy.shape().to_vec();
     if shape.len() != 3 || shape[2] != 3 {
         return Err(Error::Shape {
             expected: "(T, N, 3)".into(),
             found: format!("{shape:?}"),
         });
     }
-    // A header may claim any shape: the data must be in the file, and fit the limit, before
-    // they are allocated.
-    let dims: Vec<u128> = shape.iter().map(|&d| u128::from(d)).collect();
-    check_npy_shape(&dims, file_len)?;
-    check_size(shape[0], shape[1], max_memory_gib)?;
-    let (t, n) = (shape[0] as usize, shape[1] as usize);
-    let order = npy.order();
-    let data: Vec<f64> = npy.into_vec::<f64>().map_err(|e| Error::Malformed {
-        position: "data".into(),
-        message: e.to_string(),
+    check_size(shape[0], shape[1], max_memory_gib)
+}
+
+fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
+    let file_len = std::fs::metadata(path)?.len();
+    let file = BufReader::new(File::open(path)?);
+    let array = npy::read_array(file, file_len, |shape, dtype| {
+        check_tracks_array(shape, dtype, max_memory_gib)
     })?;
-    let xyz = if order == npyz::Order::Fortran {
-        // Element (i, j, k) sits at i + T j + T N k in Fortran order.
-        let mut c = vec![0.0; data.len()];
-        for i in 0..t {
-            for j in 0..n {
-                for k in 0..3 {
-                    c[(i * n + j) * 3 + k] = data[i + t * j + t * n * k];
-                }
-            }
-        }
-        c
-    } else {
-        data
-    };
-    Tracks::new(t, n, xyz)
+    Tracks::new(
+        array.shape[0] as usize,
+        array.shape[1] as usize,
+        array.values,
+    )
 }
 
 /// Writes a file all at once or not at all: `write` fills a temporary file beside `path`,
@@ -299,6 +278,47 @@ pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
             .begin_nd()?;
         w.extend(tracks.raw().iter().copied())?;
         w.finish()?;
+        Ok(())
+    })
+}
+
+/// Writes tracks as an `.npz` archive (deflated, as `np.savez_compressed`) of a float64
+/// `(T, N, 3)` array [`DEFAULT_TRACKS_KEY`], NaN for occluded points, and a bool `(T, N)`
+/// array [`DEFAULT_VISIBILITY_KEY`], atomically.
+///
+/// # Errors
+/// [`Error::File`] wrapping the I/O or archive error.
+pub fn write_npz(path: &Path, tracks: &Tracks) -> Result<()> {
+    let (t, n) = (tracks.n_frames() as u64, tracks.n_points() as u64);
+    let zip_error = |e: zip::result::ZipError| Error::Malformed {
+        position: "archive".into(),
+        message: e.to_string(),
+    };
+    write_atomically(path, |file| {
+        let mut zip = zip::ZipWriter::new(file);
+        let options = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Deflated)
+            // Archives of any size: the zip64 sizes cost a few bytes.
+            .large_file(true);
+        zip.start_file(format!("{DEFAULT_TRACKS_KEY}.npy"), options)
+            .map_err(zip_error)?;
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[t, n, 3])
+            .writer(&mut zip)
+            .begin_nd()?;
+        w.extend(tracks.raw().iter().copied())?;
+        w.finish()?;
+        zip.start_file(format!("{DEFAULT_VISIBILITY_KEY}.npy"), options)
+            .map_err(zip_error)?;
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[t, n])
+            .writer(&mut zip)
+            .begin_nd()?;
+        w.extend(tracks.raw().chunks_exact(3).map(|p| !p[0].is_nan()))?;
+        w.finish()?;
+        zip.finish().map_err(zip_error)?;
         Ok(())
     })
 }

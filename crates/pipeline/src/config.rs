@@ -314,7 +314,7 @@ pub enum DataConfig {
     PaperArm(PaperArmData),
     /// A random mechanism ([`kinetree_synth::random_scenario`]).
     Random(RandomParams),
-    /// A tracks file (`.npy` or `.csv`), relative to the config file.
+    /// A tracks file (`.npy`, `.npz`, `.csv` or `.c3d`), relative to the config file.
     File(FileData),
 }
 
@@ -347,8 +347,19 @@ impl Default for PaperArmData {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FileData {
-    /// Path of the `.npy` or `.csv` file.
+    /// Path of the `.npy`, `.npz`, `.csv` or `.c3d` file.
     pub path: PathBuf,
+    /// `.npz`: the tracks array's name (default `tracks`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tracks_key: Option<String>,
+    /// `.npz`: the name of a `(T, N)` array true where a sample is visible (default
+    /// `visibility` when the archive has one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub visibility_key: Option<String>,
+    /// `.npz`: the name of a `(T, N)` array true where a sample is occluded (default
+    /// `occluded` when the archive has one and no visibility array).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub occluded_key: Option<String>,
 }
 
 /// Experiment metadata.

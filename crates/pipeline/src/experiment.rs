@@ -65,10 +65,13 @@ pub fn load_data(
         } else {
             base_dir.join(&f.path)
         };
-        return Ok((
-            kinetree_io::read_tracks_within(&path, max_memory_gib)?,
-            None,
-        ));
+        let options = kinetree_io::ReadOptions {
+            max_memory_gib,
+            tracks_key: f.tracks_key.clone(),
+            visibility_key: f.visibility_key.clone(),
+            occluded_key: f.occluded_key.clone(),
+        };
+        return Ok((kinetree_io::read_tracks_with(&path, &options)?, None));
     }
     let s = scenario(data)?.ok_or_else(|| kinetree_core::Error::Config("no scenario".into()))?;
     let points: usize = s
