@@ -43,7 +43,7 @@ fn good(t: usize, n: usize) -> Vec<f64> {
 
 #[test]
 fn npy_wrong_dtype() {
-    let p = tmp("f32.npy");
+    let p = tmp("i32.npy");
     let f = std::fs::File::create(&p).expect("create");
     let mut w = npyz::WriteOptions::new()
         .default_dtype()
@@ -51,12 +51,12 @@ fn npy_wrong_dtype() {
         .writer(f)
         .begin_nd()
         .expect("header");
-    w.extend((0..18).map(|k| k as f32)).expect("data");
+    w.extend(0..18i32).expect("data");
     w.finish().expect("finish");
-    let e = read_npy(&p).expect_err("f32 rejected");
+    let e = read_npy(&p).expect_err("integer coordinates rejected");
     names_file(&e, &p);
     assert!(
-        matches!(root(&e), Error::DType { found, .. } if found == "<f4"),
+        matches!(root(&e), Error::DType { found, .. } if found == "<i4"),
         "{e:?}"
     );
 }
