@@ -2,7 +2,7 @@
 //! cannot rot: experiment configs (with an `[experiment]` table) end to end, pipeline configs
 //! (such as experiments/real/pipeline.toml) by building their pipeline.
 
-use kinetree_pipeline::sweep::{Sweep, run_sweep, runs_csv};
+use kinetree_pipeline::sweep::{Sweep, SweepOptions, run_sweep, runs_csv};
 use kinetree_pipeline::{ExperimentConfig, Pipeline, run_experiment};
 use std::path::{Path, PathBuf};
 
@@ -97,7 +97,14 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
         "{data}"
     );
     let dir = std::env::temp_dir().join(format!("kinetree-sweep-{}", std::process::id()));
-    let runs = run_sweep(&sweep, Path::new("."), &dir, &|_, _| {}, false).expect("runs");
+    let runs = run_sweep(
+        &sweep,
+        Path::new("."),
+        &dir,
+        &|_, _| {},
+        SweepOptions::default(),
+    )
+    .expect("runs");
     assert_eq!(runs.len(), 8);
     assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
     // The identifiable ARI leaves out points without an identifiable owner: never below 1
@@ -117,7 +124,14 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
         "{resolved}"
     );
     // Same seeds, same runs: the sweep is deterministic whatever the thread order.
-    let again = run_sweep(&sweep, Path::new("."), &dir, &|_, _| {}, false).expect("runs");
+    let again = run_sweep(
+        &sweep,
+        Path::new("."),
+        &dir,
+        &|_, _| {},
+        SweepOptions::default(),
+    )
+    .expect("runs");
     assert_eq!(runs_csv(&sweep, &again), csv);
 }
 

@@ -343,10 +343,17 @@ n_frames = 60
 
 #[test]
 fn an_interrupted_sweep_keeps_its_finished_runs_and_resumes_with_the_rest() {
-    use kinetree_pipeline::sweep::{Sweep, run_sweep, runs_csv};
+    use kinetree_pipeline::sweep::{Sweep, SweepOptions, run_sweep, runs_csv};
     let sweep = Sweep::from_toml(SMALL_SWEEP).expect("parses");
     let dir = tmp("sweep-resume");
-    let full = run_sweep(&sweep, std::path::Path::new("."), &dir, &|_, _| {}, false).expect("runs");
+    let full = run_sweep(
+        &sweep,
+        std::path::Path::new("."),
+        &dir,
+        &|_, _| {},
+        SweepOptions::default(),
+    )
+    .expect("runs");
     let csv_path = dir.join("runs.csv");
     let complete = std::fs::read_to_string(&csv_path).expect("runs.csv");
     let without_time = |text: &str| -> Vec<String> {
@@ -366,7 +373,17 @@ fn an_interrupted_sweep_keeps_its_finished_runs_and_resumes_with_the_rest() {
     let count = |_: usize, _: usize| {
         ran.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     };
-    let resumed = run_sweep(&sweep, std::path::Path::new("."), &dir, &count, true).expect("resume");
+    let resumed = run_sweep(
+        &sweep,
+        std::path::Path::new("."),
+        &dir,
+        &count,
+        SweepOptions {
+            resume: true,
+            shard: None,
+        },
+    )
+    .expect("resume");
     assert_eq!(
         ran.into_inner(),
         full.len() - 2,
@@ -381,8 +398,17 @@ fn an_interrupted_sweep_keeps_its_finished_runs_and_resumes_with_the_rest() {
     // A runs.csv of another sweep is not taken for this one's.
     let other = SMALL_SWEEP.replace("0.002]", "0.003]");
     let other = Sweep::from_toml(&other).expect("parses");
-    let e = run_sweep(&other, std::path::Path::new("."), &dir, &|_, _| {}, true)
-        .expect_err("another sweep's runs");
+    let e = run_sweep(
+        &other,
+        std::path::Path::new("."),
+        &dir,
+        &|_, _| {},
+        SweepOptions {
+            resume: true,
+            shard: None,
+        },
+    )
+    .expect_err("another sweep's runs");
     assert!(e.to_string().contains("runs.csv"), "{e}");
 }
 

@@ -150,6 +150,26 @@ enum Command {
         /// Sweeps: the most runs (grid points x seeds) accepted.
         #[arg(long, default_value_t = kinetree_pipeline::sweep::DEFAULT_MAX_RUNS)]
         max_runs: u64,
+        /// Sweeps: run shard I of N only (grid points I, I+N, I+2N, ..., every seed), into
+        /// `<results>/<name>/shard-I-of-N/`; `kinetree merge` joins the shards. For a
+        /// cluster's job array: `--shard $SLURM_ARRAY_TASK_ID/16`.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<kinetree_pipeline::sweep::Shard>,
+    },
+    /// Print a shell completion script for bash, zsh, fish, elvish or powershell.
+    ///
+    /// bash: `kinetree completions bash > ~/.local/share/bash-completion/completions/kinetree`;
+    /// zsh: save it as `_kinetree` in a folder on `$fpath`; fish: save it as
+    /// `~/.config/fish/completions/kinetree.fish`.
+    Completions {
+        /// bash, zsh, fish, elvish or powershell.
+        shell: clap_complete::Shell,
+    },
+    /// Join the shards of a sweep (`run --shard I/N`) into its runs.csv, table.md and
+    /// resolved.toml, the same files an unsharded run writes.
+    Merge {
+        /// The sweep's result folder, `<results>/<name>`, holding `shard-I-of-N/` folders.
+        dir: PathBuf,
     },
     /// Discover the structure in a tracks file (.npy, .npz, .csv or .c3d) and write the model
     /// JSON.
@@ -266,6 +286,7 @@ enum Command {
 struct SweepFlags {
     resume: bool,
     max_runs: u64,
+    shard: Option<kinetree_pipeline::sweep::Shard>,
 }
 
 fn run(
@@ -289,9 +310,10 @@ fn run(
         }
         return sweep(&text, config.as_deref(), &base, results, flags);
     }
-    if flags.resume {
+    if flags.resume || flags.shard.is_some() {
         bail!(
-            "--resume is for sweeps; {} is a single experiment",
+            "--{} is for sweeps; {} is a single experiment",
+            if flags.resume { "resume" } else { "shard" },
             where_config(config.as_deref())
         );
     }
@@ -361,13 +383,21 @@ fn sweep(
         .with_context(|| format!("in {}", where_config(config)))?;
     let name = parsed.name()?;
     let dir = results.join(&name);
-    eprintln!(
-        "sweep {name}: {} grid point(s) x {} seed(s) = {} runs, into {}",
-        parsed.points.len(),
-        parsed.seeds().len(),
-        parsed.n_runs(),
-        dir.display()
-    );
+    match flags.shard {
+        None => eprintln!(
+            "sweep {name}: {} grid point(s) x {} seed(s) = {} runs, into {}",
+            parsed.points.len(),
+            parsed.seeds().len(),
+            parsed.n_runs(),
+            dir.display()
+        ),
+        Some(shard) => eprintln!(
+            "sweep {name}, shard {shard}: {} of {} runs, into {}",
+            parsed.jobs(Some(shard)).len(),
+            parsed.n_runs(),
+            dir.join(shard.folder()).display()
+        ),
+    }
     let progress = |done: usize, total: usize| {
         let width = 40;
         let filled = done * width / total.max(1);
@@ -383,11 +413,35 @@ fn sweep(
         }
         let _ = err.flush();
     };
-    let runs = kinetree_pipeline::sweep::run_sweep(&parsed, base, &dir, &progress, flags.resume)?;
+    let options = kinetree_pipeline::sweep::SweepOptions {
+        resume: flags.resume,
+        shard: flags.shard,
+    };
+    let runs = kinetree_pipeline::sweep::run_sweep(&parsed, base, &dir, &progress, options)?;
+    match flags.shard {
+        None => {
+            emit(&kinetree_pipeline::sweep::table_markdown(
+                &name, &parsed, &runs,
+            ));
+            emitln!("wrote {}", dir.display());
+        }
+        Some(shard) => emitln!(
+            "wrote {} runs to {}; `kinetree merge {}` joins the shards once all have run",
+            runs.len(),
+            dir.join(shard.folder()).display(),
+            dir.display()
+        ),
+    }
+    Ok(())
+}
+
+/// `kinetree merge`: a sharded sweep's files from its shards.
+fn merge(dir: &Path) -> Result<()> {
+    let (name, sweep, runs) = kinetree_pipeline::sweep::merge_shards(dir)?;
     emit(&kinetree_pipeline::sweep::table_markdown(
-        &name, &parsed, &runs,
+        &name, &sweep, &runs,
     ));
-    emitln!("wrote {}", dir.display());
+    emitln!("merged {} runs into {}", runs.len(), dir.display());
     Ok(())
 }
 
@@ -427,12 +481,29 @@ fn run_command() -> Result<()> {
             results,
             resume,
             max_runs,
+            shard,
         } => run(
             config,
             &results,
             max_memory,
-            &SweepFlags { resume, max_runs },
+            &SweepFlags {
+                resume,
+                max_runs,
+                shard,
+            },
         ),
+        Command::Merge { dir } => merge(&dir),
+        Command::Completions { shell } => {
+            let mut script = Vec::new();
+            clap_complete::generate(
+                shell,
+                &mut <Cli as clap::CommandFactory>::command(),
+                "kinetree",
+                &mut script,
+            );
+            emit(&String::from_utf8_lossy(&script));
+            Ok(())
+        }
         Command::Discover {
             tracks,
             keys,

@@ -365,3 +365,97 @@ fn discover_reads_c3d_and_fit_track_reads_a_handle() {
     assert!(out.contains("\"type\":\"revolute\""), "{out}");
     assert_eq!(read_json(&joint)["joint"]["type"], "revolute");
 }
+
+#[test]
+fn a_sweep_run_in_shards_merges_into_the_unsharded_files() {
+    let dir = tmp("shards");
+    let config = dir.join("sweep.toml");
+    std::fs::write(
+        &config,
+        r#"
+[experiment]
+name = "split"
+
+[sweep]
+seeds = 2
+
+[data]
+kind = "random"
+n_joints = 1
+n_frames = 50
+noise_sigma_m = [0.001, 0.002, 0.003]
+"#,
+    )
+    .expect("write");
+    let whole = dir.join("whole");
+    let split = dir.join("split");
+    run_ok(
+        kinetree()
+            .arg("run")
+            .arg(&config)
+            .arg("--results")
+            .arg(&whole),
+    );
+    for shard in ["0/2", "1/2"] {
+        let out = run_ok(
+            kinetree()
+                .arg("run")
+                .arg(&config)
+                .arg("--results")
+                .arg(&split)
+                .args(["--shard", shard]),
+        );
+        assert!(out.contains("kinetree merge"), "{out}");
+    }
+    let out = run_ok(kinetree().arg("merge").arg(split.join("split")));
+    assert!(out.contains("merged 6 runs"), "{out}");
+    for file in ["runs.csv", "table.md", "resolved.toml"] {
+        assert_eq!(
+            std::fs::read(split.join("split").join(file)).expect("merged"),
+            std::fs::read(whole.join("split").join(file)).expect("whole"),
+            "{file}"
+        );
+    }
+    // A single experiment has no shards; a bad shard text is named.
+    for (args, needle) in [
+        (vec!["run", "--shard", "0/2"], "--shard is for sweeps"),
+        (vec!["run", "--shard", "2/2"], "is not a shard"),
+    ] {
+        let out = kinetree()
+            .args(&args)
+            .arg("--results")
+            .arg(dir.join("none"))
+            .output()
+            .expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(needle),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+#[test]
+fn the_bash_completion_script_completes_subcommands_and_flags() {
+    let script = run_ok(kinetree().args(["completions", "bash"]));
+    let dir = tmp("completions");
+    let path = dir.join("kinetree.bash");
+    std::fs::write(&path, &script).expect("write");
+    // Ask the completion function what follows `kinetree me` and `kinetree run --sh`.
+    let probe = format!(
+        "source {}; \
+         COMP_WORDS=(kinetree me); COMP_CWORD=1; _kinetree kinetree me kinetree; echo \"${{COMPREPLY[@]}}\"; \
+         COMP_WORDS=(kinetree run --sh); COMP_CWORD=2; _kinetree kinetree --sh run; echo \"${{COMPREPLY[@]}}\"",
+        path.display()
+    );
+    let out = run_ok(Command::new("bash").args(["-c", &probe]));
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines, ["merge", "--shard"], "{out}");
+    for shell in ["zsh", "fish", "powershell", "elvish"] {
+        let script = run_ok(kinetree().args(["completions", shell]));
+        assert!(
+            script.contains("discover") && script.contains("merge"),
+            "{shell}"
+        );
+    }
+}

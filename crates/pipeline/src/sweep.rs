@@ -474,6 +474,31 @@ impl Sweep {
         self.points.len() * self.seeds().len()
     }
 
+    /// The (grid point, seed) pairs of `shard` (all of them for `None`), grid point by grid
+    /// point.
+    pub fn jobs(&self, shard: Option<Shard>) -> Vec<(usize, u64)> {
+        let seeds = self.seeds();
+        (0..self.points.len())
+            .filter(|&p| shard.is_none_or(|s| s.holds(p)))
+            .flat_map(|p| seeds.iter().map(move |&s| (p, s)))
+            .collect()
+    }
+
+    /// The sweep as a config text that [`Sweep::from_toml`] reads back into the same grid,
+    /// seeds and runs: the base config with every grid axis (inline lists included) under
+    /// `[sweep.grid]`.
+    ///
+    /// # Errors
+    /// [`Error::Config`] when the tables cannot be written as TOML.
+    pub fn to_toml(&self) -> Result<String> {
+        let mut table = self.base.clone();
+        table.insert(
+            "sweep".into(),
+            toml::Value::try_from(&self.spec).map_err(|e| Error::Config(e.to_string()))?,
+        );
+        toml::to_string(&table).map_err(|e| Error::Config(e.to_string()))
+    }
+
     /// Runs the (grid point, seed) pairs not in `done` in parallel, calling `finished` with
     /// each run as it ends and `progress` with (runs done, all runs, `done` included).
     pub fn run_remaining(
@@ -483,13 +508,22 @@ impl Sweep {
         progress: &(dyn Fn(usize, usize) + Sync),
         finished: &(dyn Fn(&SweepRun) + Sync),
     ) -> Vec<SweepRun> {
-        let seeds = self.seeds();
+        self.run_share(base_dir, None, done, progress, finished)
+    }
+
+    /// [`Sweep::run_remaining`] over the runs of `shard` only; `progress` counts those.
+    pub fn run_share(
+        &self,
+        base_dir: &Path,
+        shard: Option<Shard>,
+        done: &[(usize, u64)],
+        progress: &(dyn Fn(usize, usize) + Sync),
+        finished: &(dyn Fn(&SweepRun) + Sync),
+    ) -> Vec<SweepRun> {
         let skip: std::collections::BTreeSet<(usize, u64)> = done.iter().copied().collect();
-        let jobs: Vec<(usize, u64)> = (0..self.points.len())
-            .flat_map(|p| seeds.iter().map(move |&s| (p, s)))
-            .filter(|job| !skip.contains(job))
-            .collect();
-        let total = self.n_runs();
+        let all = self.jobs(shard);
+        let total = all.len();
+        let jobs: Vec<(usize, u64)> = all.into_iter().filter(|job| !skip.contains(job)).collect();
         let count = std::sync::atomic::AtomicUsize::new(total - jobs.len());
         jobs.par_iter()
             .map(|&(p, seed)| {
@@ -851,35 +885,135 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     s
 }
 
+/// How [`run_sweep`] runs a sweep.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SweepOptions {
+    /// Keep the runs already in `runs.csv` and run only the others.
+    pub resume: bool,
+    /// Run one shard of the grid points only, into its own folder (see [`Shard`]).
+    pub shard: Option<Shard>,
+}
+
+/// One of `count` parts of a sweep, for a cluster's job array: shard `index` runs the grid
+/// points `index`, `index + count`, `index + 2 count`, ... with every seed. Written `I/N` on
+/// the command line (`--shard 3/16`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// This shard, `0..count`.
+    pub index: usize,
+    /// How many shards the sweep is split into.
+    pub count: usize,
+}
+
+/// The most shards a sweep may be split into (as many as the largest job arrays clusters
+/// accept by default).
+pub const MAX_SHARDS: usize = 100_000;
+
+impl Shard {
+    /// Whether grid point `p` belongs to this shard.
+    pub fn holds(&self, p: usize) -> bool {
+        p % self.count == self.index
+    }
+
+    /// The shard's folder inside the sweep's result folder: `shard-<I>-of-<N>`.
+    pub fn folder(&self) -> String {
+        format!("shard-{}-of-{}", self.index, self.count)
+    }
+
+    /// Reads a folder name written by [`Shard::folder`]; `None` for any other name.
+    pub fn from_folder(name: &str) -> Option<Self> {
+        let (i, n) = name.strip_prefix("shard-")?.split_once("-of-")?;
+        let shard = Self {
+            index: i.parse().ok()?,
+            count: n.parse().ok()?,
+        };
+        (shard.to_string() == format!("{i}/{n}") && shard.check().is_ok()).then_some(shard)
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.count == 0 || self.count > MAX_SHARDS || self.index >= self.count {
+            return Err(Error::InvalidParameter {
+                name: "shard".into(),
+                message: format!(
+                    "{self} is not a shard: I/N needs 1 <= N <= {MAX_SHARDS} and 0 <= I < N"
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = Error;
+
+    fn from_str(text: &str) -> Result<Self> {
+        let bad = || Error::InvalidParameter {
+            name: "shard".into(),
+            message: format!("`{text}` is not I/N (shard I of N, counted from 0, e.g. 3/16)"),
+        };
+        let (i, n) = text.split_once('/').ok_or_else(bad)?;
+        let shard = Self {
+            index: i.trim().parse().map_err(|_| bad())?,
+            count: n.trim().parse().map_err(|_| bad())?,
+        };
+        shard.check()?;
+        Ok(shard)
+    }
+}
+
+/// The file in a shard's folder that holds the sweep it belongs to ([`Sweep::to_toml`]).
+pub const SHARD_SWEEP_FILE: &str = "sweep.toml";
+
 /// Runs a parsed sweep and writes `resolved.toml` (the first run's config with every default
 /// filled in, and the `[sweep]` table), `runs.csv` and `table.md` under `dir`. Returns the
 /// runs.
 ///
 /// Each run's row is appended to `runs.csv` as it ends, so an interrupted sweep leaves the
-/// runs it finished; with `resume`, the runs already in `runs.csv` are kept and not run
-/// again ([`parse_runs_csv`]). At the end `runs.csv` is rewritten sorted.
+/// runs it finished; with `options.resume`, the runs already in `runs.csv` are kept and not
+/// run again ([`parse_runs_csv`]). At the end `runs.csv` is rewritten sorted.
+///
+/// With `options.shard`, only that shard's runs are made, and they go to
+/// `dir/shard-<I>-of-<N>/`: its `runs.csv` and [`SHARD_SWEEP_FILE`], from which
+/// [`merge_shards`] builds the sweep's files once every shard has run.
 ///
 /// # Errors
 /// [`Error::Config`] when the resolved config cannot be written, I/O errors naming the file,
-/// and [`parse_runs_csv`]'s errors when resuming.
+/// and [`parse_runs_csv`]'s errors when resuming (a row of another shard among them).
 pub fn run_sweep(
     sweep: &Sweep,
     base_dir: &Path,
     dir: &Path,
     progress: &(dyn Fn(usize, usize) + Sync),
-    resume: bool,
+    options: SweepOptions,
 ) -> Result<Vec<SweepRun>> {
     use std::io::Write as _;
     let name = sweep.name()?;
-    std::fs::create_dir_all(dir).map_err(|e| Error::Io(e).in_file(dir))?;
-    let csv_path = dir.join("runs.csv");
-    let mut runs = if resume && csv_path.exists() {
+    let out_dir = match options.shard {
+        Some(s) => dir.join(s.folder()),
+        None => dir.to_path_buf(),
+    };
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io(e).in_file(&out_dir))?;
+    let csv_path = out_dir.join("runs.csv");
+    let mut runs = if options.resume && csv_path.exists() {
         let text =
             std::fs::read_to_string(&csv_path).map_err(|e| Error::Io(e).in_file(&csv_path))?;
-        parse_runs_csv(sweep, &text).map_err(|e| e.in_file(&csv_path))?
+        let runs = parse_runs_csv(sweep, &text).map_err(|e| e.in_file(&csv_path))?;
+        if let Some(shard) = options.shard {
+            check_share(&runs, shard).map_err(|e| e.in_file(&csv_path))?;
+        }
+        runs
     } else {
         Vec::new()
     };
+    if options.shard.is_some() {
+        kinetree_io::write_text(&out_dir.join(SHARD_SWEEP_FILE), &sweep.to_toml()?)?;
+    }
     // The journal starts as the runs kept, then takes each run's row as it ends.
     kinetree_io::write_text(&csv_path, &runs_csv(sweep, &runs))?;
     let journal = std::sync::Mutex::new(
@@ -899,10 +1033,32 @@ pub fn run_sweep(
             slot.get_or_insert(e);
         }
     };
-    runs.extend(sweep.run_remaining(base_dir, &done, progress, &append));
+    runs.extend(sweep.run_share(base_dir, options.shard, &done, progress, &append));
     if let Some(e) = journal_error.into_inner().ok().flatten() {
         return Err(Error::Io(e).in_file(&csv_path));
     }
+    runs.sort_by_key(|r| (r.point, r.seed));
+    if options.shard.is_some() {
+        kinetree_io::write_text(&csv_path, &runs_csv(sweep, &runs))?;
+    } else {
+        write_outputs(&name, sweep, &runs, dir)?;
+    }
+    Ok(runs)
+}
+
+/// Refuses runs that are not all of `shard`'s grid points.
+fn check_share(runs: &[SweepRun], shard: Shard) -> Result<()> {
+    match runs.iter().find(|r| !shard.holds(r.point)) {
+        Some(r) => Err(Error::Config(format!(
+            "grid point {} (seed {}) belongs to another shard than {shard}",
+            r.point, r.seed
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Writes a whole sweep's `resolved.toml`, `runs.csv` and `table.md` under `dir`.
+fn write_outputs(name: &str, sweep: &Sweep, runs: &[SweepRun], dir: &Path) -> Result<()> {
     let write = |file: &str, body: &str| kinetree_io::write_text(&dir.join(file), body);
     let first = sweep.config(0, sweep.seeds().first().copied().unwrap_or(0))?;
     let mut resolved: toml::Table = first
@@ -917,8 +1073,122 @@ pub fn run_sweep(
         "resolved.toml",
         &toml::to_string(&resolved).map_err(|e| Error::Config(e.to_string()))?,
     )?;
-    write("runs.csv", &runs_csv(sweep, &runs))?;
-    write("table.md", &table_markdown(&name, sweep, &runs))?;
+    write("runs.csv", &runs_csv(sweep, runs))?;
+    write("table.md", &table_markdown(name, sweep, runs))?;
+    Ok(())
+}
+
+/// Builds a sharded sweep's `resolved.toml`, `runs.csv` and `table.md` in `dir` (the sweep's
+/// result folder) from its `shard-<I>-of-<N>/` folders, byte for byte as the unsharded sweep
+/// writes them (but for the `seconds` column of a timed sweep). Returns the sweep's name, the
+/// sweep and its runs.
+///
+/// # Errors
+/// [`Error::Config`] when there are no shard folders, when they split the sweep in different
+/// numbers of parts, when a shard is missing or has not finished its runs (the message says
+/// which and how many runs are missing), when shards hold different sweeps, or when a shard
+/// holds another shard's rows; the errors of reading a shard's files, naming the file.
+pub fn merge_shards(dir: &Path) -> Result<(String, Sweep, Vec<SweepRun>)> {
+    let entries = std::fs::read_dir(dir).map_err(|e| Error::Io(e).in_file(dir))?;
+    let mut shards: Vec<Shard> = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| Error::Io(e).in_file(dir))?;
+        if let Some(shard) = entry.file_name().to_str().and_then(Shard::from_folder)
+            && entry.path().is_dir()
+        {
+            shards.push(shard);
+        }
+    }
+    shards.sort_by_key(|s| (s.count, s.index));
+    let Some(first) = shards.first().copied() else {
+        return Err(Error::Config(format!(
+            "{} has no shard folders (shard-<I>-of-<N>, written by `kinetree run --shard I/N`)",
+            dir.display()
+        )));
+    };
+    if let Some(other) = shards.iter().find(|s| s.count != first.count) {
+        return Err(Error::Config(format!(
+            "{} holds shards of {} and of {} parts; keep one split",
+            dir.display(),
+            first.count,
+            other.count
+        )));
+    }
+    let missing: Vec<String> = (0..first.count)
+        .filter(|&i| !shards.iter().any(|s| s.index == i))
+        .map(|i| i.to_string())
+        .collect();
+    if !missing.is_empty() {
+        return Err(Error::Config(format!(
+            "shards {} of {} have not run in {}",
+            list_some(&missing),
+            first.count,
+            dir.display()
+        )));
+    }
+    let mut sweep_text: Option<(String, Shard)> = None;
+    let mut sweep: Option<Sweep> = None;
+    let mut runs = Vec::new();
+    let mut unfinished = Vec::new();
+    for shard in &shards {
+        let folder = dir.join(shard.folder());
+        let read = |file: &str| {
+            let path = folder.join(file);
+            std::fs::read_to_string(&path).map_err(|e| Error::Io(e).in_file(&path))
+        };
+        let text = read(SHARD_SWEEP_FILE)?;
+        match &sweep_text {
+            Some((t, s)) if *t != text => {
+                return Err(Error::Config(format!(
+                    "shards {s} and {shard} in {} belong to different sweeps",
+                    dir.display()
+                )));
+            }
+            Some(_) => {}
+            None => {
+                let parsed = Sweep::from_toml_within(&text, u64::MAX)
+                    .map_err(|e| e.in_file(folder.join(SHARD_SWEEP_FILE)))?;
+                sweep = Some(parsed);
+                sweep_text = Some((text, *shard));
+            }
+        }
+        let Some(sweep) = &sweep else { continue };
+        let csv_path = folder.join("runs.csv");
+        let these = parse_runs_csv(sweep, &read("runs.csv")?).map_err(|e| e.in_file(&csv_path))?;
+        check_share(&these, *shard).map_err(|e| e.in_file(&csv_path))?;
+        let expected = sweep.jobs(Some(*shard)).len();
+        if these.len() < expected {
+            unfinished.push(format!("{shard} ({} of {expected} runs)", these.len()));
+        }
+        runs.extend(these);
+    }
+    let Some(sweep) = sweep else {
+        return Err(Error::Config("no shard read".into()));
+    };
+    if !unfinished.is_empty() {
+        return Err(Error::Config(format!(
+            "shards not finished in {}: {}; run them again with --resume",
+            dir.display(),
+            list_some(&unfinished)
+        )));
+    }
     runs.sort_by_key(|r| (r.point, r.seed));
-    Ok(runs)
+    let name = sweep.name()?;
+    write_outputs(&name, &sweep, &runs, dir)?;
+    Ok((name, sweep, runs))
+}
+
+/// The first items of a list, and how many more there are.
+fn list_some(items: &[String]) -> String {
+    const SHOWN: usize = 10;
+    let mut s = items
+        .iter()
+        .take(SHOWN)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if items.len() > SHOWN {
+        let _ = write!(s, " and {} more", items.len() - SHOWN);
+    }
+    s
 }
