@@ -211,7 +211,7 @@ enum Command {
         /// `residual_in_sigma` column: RMS distance of its keypoints from the fitted model, in
         /// units of the model's noise) exceeds this many times the model's own re-prediction
         /// RMS.
-        #[arg(long, default_value_t = 3.0)]
+        #[arg(long, default_value_t = kinetree_fit::DEFAULT_UNEXPLAINED_FACTOR)]
         unexplained_factor: f64,
     },
     /// Export a model: URDF (links, joints with origin, axis and observed limits), DOT (the
@@ -667,31 +667,26 @@ struct ObserveOptions {
     read: kinetree_io::ReadOptions,
 }
 
-/// A model's re-prediction RMS when the file does not say (the paper arm's, from per-body
-/// poses and joints: see `Model::reprediction_rms_in_sigma`).
-const TYPICAL_REPREDICTION_IN_SIGMA: f64 = 1.6;
-
 fn observe(
     model_path: &Path,
     tracks_path: &Path,
     output: &Path,
     options: &ObserveOptions,
 ) -> Result<()> {
-    let ObserveOptions {
-        smooth,
-        unexplained_factor,
-        read,
-    } = options;
-    let (smooth, unexplained_factor) = (*smooth, *unexplained_factor);
-    if !(unexplained_factor.is_finite() && unexplained_factor >= 1.0) {
+    use std::io::Write;
+    let fit_options = kinetree_fit::ObserveOptions {
+        smooth: options.smooth,
+        unexplained_factor: options.unexplained_factor,
+    };
+    if !(fit_options.unexplained_factor.is_finite() && fit_options.unexplained_factor >= 1.0) {
         bail!(
-            "--unexplained-factor must be a finite number of at least 1, got {unexplained_factor}"
+            "--unexplained-factor must be a finite number of at least 1, got {}",
+            fit_options.unexplained_factor
         );
     }
-    use std::io::Write;
     refuse_overwriting(output, &[model_path, tracks_path])?;
     let model = kinetree_io::read_model(model_path)?;
-    let tracks = kinetree_io::read_tracks_with(tracks_path, read)?;
+    let tracks = kinetree_io::read_tracks_with(tracks_path, &options.read)?;
     if tracks.n_points() != model.n_points {
         bail!(
             "{} has {} points but the model {} was discovered on {}",
@@ -701,65 +696,39 @@ fn observe(
             model.n_points
         );
     }
-    let observer = kinetree_fit::Observer::new(&model)?;
-    // Each frame's fit starts from the frames before it, so revolute columns come out
-    // unwrapped.
-    let fits = observer.fit_sequence(&tracks)?;
-    let mut columns: Vec<Vec<Option<f64>>> = (0..observer.n_joints())
-        .map(|k| fits.iter().map(|f| f.positions[k]).collect())
-        .collect();
-    if smooth {
-        for (k, column) in columns.iter_mut().enumerate() {
-            let std: Vec<Option<f64>> = fits.iter().map(|f| f.std[k]).collect();
-            (*column, _) = kinetree_fit::smooth_fitted_positions(
-                column,
-                &std,
-                observer.is_revolute(k),
-                &model.position_limits,
-            )?;
-        }
-    }
-    let mut header: Vec<String> = model
-        .joints
-        .iter()
-        .map(|j| format!("{}_{}_{}", j.joint_type, j.parent, j.child))
-        .collect();
+    let seen = kinetree_fit::observe(&model, &tracks, fit_options)?;
+    let mut header = seen.joint_names.clone();
     header.push("residual_in_sigma".into());
-    // Each frame's fit: the RMS distance of its keypoints from the fitted model, in sigma.
-    let residuals: Vec<Option<f64>> = fits
-        .iter()
-        .map(|f| {
-            (f.n_points > 0).then(|| (f.sum_sq_m2 / f.n_points as f64).sqrt() / model.noise.sigma_m)
-        })
-        .collect();
-    let own = model
-        .reprediction_rms_in_sigma
-        .unwrap_or(TYPICAL_REPREDICTION_IN_SIGMA);
-    let bound = unexplained_factor * own;
-    let unexplained: Vec<usize> = (0..residuals.len())
-        .filter(|&t| residuals[t].is_some_and(|r| r.is_nan() || r > bound))
-        .collect();
     kinetree_io::write_atomically(output, |w| {
         writeln!(w, "frame,{}", header.join(","))?;
         for t in 0..tracks.n_frames() {
-            let mut row: Vec<String> = columns
+            let mut row: Vec<String> = seen
+                .positions
                 .iter()
                 .map(|c| c[t].map(|v| format!("{v:?}")).unwrap_or_default())
                 .collect();
-            row.push(residuals[t].map(|r| format!("{r:.3}")).unwrap_or_default());
+            row.push(
+                seen.residual_in_sigma[t]
+                    .map(|r| format!("{r:.3}"))
+                    .unwrap_or_default(),
+            );
             writeln!(w, "{t},{}", row.join(","))?;
         }
         Ok(())
     })?;
+    let unexplained = &seen.unexplained;
     if !unexplained.is_empty() {
         let listed: Vec<String> = unexplained.iter().take(20).map(usize::to_string).collect();
         eprintln!(
             "warning: {} of {} frames are not explained by the model: their residual exceeds \
-             {bound:.2} sigma ({unexplained_factor} x the model's own {own:.2}); frames {}{}. \
+             {:.2} sigma ({} x the model's own {:.2}); frames {}{}. \
              Their joint positions are not to be trusted: check that the tracks are in metres, \
              in the model's point order, and of this mechanism.",
             unexplained.len(),
             tracks.n_frames(),
+            seen.unexplained_bound,
+            fit_options.unexplained_factor,
+            seen.own_rms_in_sigma,
             listed.join(", "),
             if unexplained.len() > listed.len() {
                 ", ..."
@@ -771,7 +740,7 @@ fn observe(
     emitln!(
         "wrote {} frames x {} joints to {} ({} frames not explained by the model)",
         tracks.n_frames(),
-        observer.n_joints(),
+        seen.joint_names.len(),
         output.display(),
         unexplained.len()
     );

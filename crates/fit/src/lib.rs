@@ -4,13 +4,15 @@
 //! one joint refined alone (`refine.rs`), the policy that frees, readmits and types joints by
 //! the fit ([`fit_model_positions`], `policy.rs`), the positions smoothed over time
 //! (`smooth.rs`), and the fitted motions that judge points against every body
-//! ([`FittedMotions`], `motions.rs`).
+//! ([`FittedMotions`], `motions.rs`), and the joint positions of new frames with each
+//! frame's fit ([`observe`], `observation.rs`).
 //!
 //! Module dependencies run one way: `tree_cholesky` <- `solver` <- `refine` <- `bundle` <-
 //! `policy`; `smooth` and `motions` use `solver` only.
 
 mod bundle;
 mod motions;
+mod observation;
 mod policy;
 mod refine;
 mod smooth;
@@ -21,6 +23,9 @@ pub use bundle::BundleLimits;
 pub use motions::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
     MotionLimits, OUTLIER_RATIO,
+};
+pub use observation::{
+    DEFAULT_UNEXPLAINED_FACTOR, Observation, ObserveOptions, TYPICAL_REPREDICTION_IN_SIGMA, observe,
 };
 pub use policy::{
     FitState, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,

@@ -1,0 +1,126 @@
+//! Joint positions of new frames from a discovered model, with each frame's fit: what
+//! `kinetree observe` writes and the Python package's `observe` returns.
+
+use crate::{Observer, smooth_fitted_positions};
+use kinetree_core::nalgebra::Isometry3;
+use kinetree_core::{Error, Model, Result, Tracks};
+
+/// A model's re-prediction RMS in sigma when the file does not say (the paper arm's, from
+/// per-body poses and joints: see `Model::reprediction_rms_in_sigma`).
+pub const TYPICAL_REPREDICTION_IN_SIGMA: f64 = 1.6;
+
+/// Default of [`ObserveOptions::unexplained_factor`].
+pub const DEFAULT_UNEXPLAINED_FACTOR: f64 = 3.0;
+
+/// How [`observe`] reports.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObserveOptions {
+    /// Give the positions smoothed over the frames (a constant-velocity Kalman smoother
+    /// weighting each frame's position by its standard deviation, as the model's
+    /// `smoothed_positions`) instead of each frame's own estimate.
+    pub smooth: bool,
+    /// A frame is not explained by the model when its residual exceeds this many times the
+    /// model's own re-prediction RMS (at least 1).
+    pub unexplained_factor: f64,
+}
+
+impl Default for ObserveOptions {
+    fn default() -> Self {
+        Self {
+            smooth: false,
+            unexplained_factor: DEFAULT_UNEXPLAINED_FACTOR,
+        }
+    }
+}
+
+/// The joint positions of every frame of some tracks, from a model.
+#[derive(Debug, Clone)]
+pub struct Observation {
+    /// Each joint's name, `<type>_<parent>_<child>`, in the model's joint order.
+    pub joint_names: Vec<String>,
+    /// Per joint, per frame: the position (radians, unwrapped over the frames, or metres);
+    /// `None` where the frame does not determine it.
+    pub positions: Vec<Vec<Option<f64>>>,
+    /// Per joint, per frame: the standard deviation of the position.
+    pub std: Vec<Vec<Option<f64>>>,
+    /// Per frame: the RMS distance of its keypoints from the fitted model in units of the
+    /// model's noise; `None` for a frame with no visible placed keypoint.
+    pub residual_in_sigma: Vec<Option<f64>>,
+    /// Per frame, per body: `camera_from_body` of the fitted configuration.
+    pub poses: Vec<Vec<Option<Isometry3<f64>>>>,
+    /// The residual above which a frame is not explained by the model, in sigma.
+    pub unexplained_bound: f64,
+    /// The model's own re-prediction RMS in sigma the bound is a multiple of.
+    pub own_rms_in_sigma: f64,
+    /// The frames whose residual exceeds the bound: their positions are not to be trusted.
+    pub unexplained: Vec<usize>,
+}
+
+/// Fits `model` to every frame of `tracks`, each frame starting from the frames before it
+/// (so revolute positions come out unwrapped).
+///
+/// # Errors
+/// [`Error::Shape`] when the tracks do not have the model's points,
+/// [`Error::InvalidParameter`] for an `unexplained_factor` below 1 or not finite, and the
+/// observer's errors for a model it cannot fit.
+pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Result<Observation> {
+    let factor = options.unexplained_factor;
+    if !(factor.is_finite() && factor >= 1.0) {
+        return Err(Error::InvalidParameter {
+            name: "unexplained_factor".into(),
+            message: format!("must be a finite number of at least 1, got {factor}"),
+        });
+    }
+    if tracks.n_points() != model.n_points {
+        return Err(Error::Shape {
+            expected: format!("tracks of the model's {} points", model.n_points),
+            found: format!("{} points", tracks.n_points()),
+        });
+    }
+    let observer = Observer::new(model)?;
+    let fits = observer.fit_sequence(tracks)?;
+    let n_joints = observer.n_joints();
+    let mut positions: Vec<Vec<Option<f64>>> = (0..n_joints)
+        .map(|k| fits.iter().map(|f| f.positions[k]).collect())
+        .collect();
+    let mut std: Vec<Vec<Option<f64>>> = (0..n_joints)
+        .map(|k| fits.iter().map(|f| f.std[k]).collect())
+        .collect();
+    if options.smooth {
+        for k in 0..n_joints {
+            (positions[k], std[k]) = smooth_fitted_positions(
+                &positions[k],
+                &std[k],
+                observer.is_revolute(k),
+                &model.position_limits,
+            )?;
+        }
+    }
+    let residual_in_sigma: Vec<Option<f64>> = fits
+        .iter()
+        .map(|f| {
+            (f.n_points > 0).then(|| (f.sum_sq_m2 / f.n_points as f64).sqrt() / model.noise.sigma_m)
+        })
+        .collect();
+    let own = model
+        .reprediction_rms_in_sigma
+        .unwrap_or(TYPICAL_REPREDICTION_IN_SIGMA);
+    let bound = factor * own;
+    let unexplained = (0..residual_in_sigma.len())
+        .filter(|&t| residual_in_sigma[t].is_some_and(|r| r.is_nan() || r > bound))
+        .collect();
+    Ok(Observation {
+        joint_names: model
+            .joints
+            .iter()
+            .map(|j| format!("{}_{}_{}", j.joint_type, j.parent, j.child))
+            .collect(),
+        positions,
+        std,
+        residual_in_sigma,
+        poses: fits.into_iter().map(|f| f.poses).collect(),
+        unexplained_bound: bound,
+        own_rms_in_sigma: own,
+        unexplained,
+    })
+}
