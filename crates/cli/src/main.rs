@@ -226,6 +226,31 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// Write an interactive 3D view of a model and its tracks as one self-contained HTML
+    /// file (no network needed): keypoints coloured by body, links, joint axes and pivots,
+    /// play/pause, a time slider, orbit/zoom, and the joint positions over time.
+    View {
+        /// Model JSON written by `discover` or `run`.
+        model: PathBuf,
+        /// Tracks (.npy, .npz, .csv or .c3d) of the model's points: the ones it was
+        /// discovered on, or new frames.
+        tracks: PathBuf,
+        #[command(flatten)]
+        keys: TrackArgs,
+        /// Output HTML file.
+        #[arg(short, long, default_value = "view.html")]
+        output: PathBuf,
+        /// The page's title [default: the model file's name].
+        #[arg(long)]
+        title: Option<String>,
+        /// Most keypoint samples (frames x points) in the page; a longer recording keeps
+        /// every k-th frame.
+        #[arg(long, default_value_t = kinetree_view::DEFAULT_MAX_SAMPLES)]
+        max_samples: usize,
+        /// Playback rate in frames per second [default: the recording's, else 30].
+        #[arg(long)]
+        fps: Option<f64>,
+    },
     /// Print a readable summary of a model: bodies with their keypoints, joints, warnings.
     Inspect {
         /// Model JSON written by `discover` or `run`.
@@ -571,6 +596,38 @@ fn run_command() -> Result<()> {
             };
             kinetree_io::write_text(&output, &text)?;
             emitln!("wrote {}", output.display());
+            Ok(())
+        }
+        Command::View {
+            model,
+            tracks,
+            keys,
+            output,
+            title,
+            max_samples,
+            fps,
+        } => {
+            refuse_overwriting(&output, &[&model, &tracks])?;
+            let m = kinetree_io::read_model(&model)?;
+            let t = read_tracks(&tracks, &keys)?;
+            if t.n_points() != m.n_points {
+                bail!(
+                    "{} has {} points but the model {} was discovered on {}",
+                    tracks.display(),
+                    t.n_points(),
+                    model.display(),
+                    m.n_points
+                );
+            }
+            let options = kinetree_view::ViewOptions {
+                title: title.unwrap_or_else(|| format!("kinetree: {}", model.display())),
+                max_samples,
+                fps,
+            };
+            let html = kinetree_view::to_html(&m, &t, &options)
+                .with_context(|| format!("viewing {}", model.display()))?;
+            kinetree_io::write_text(&output, &html)?;
+            emitln!("wrote {} ({} KiB)", output.display(), html.len() / 1024);
             Ok(())
         }
         Command::Inspect { model } => {

@@ -459,3 +459,45 @@ fn the_bash_completion_script_completes_subcommands_and_flags() {
         );
     }
 }
+
+#[test]
+fn view_writes_one_self_contained_page() {
+    let dir = tmp("view");
+    run_ok(kinetree().args(["simulate", "-o"]).arg(&dir));
+    let model = dir.join("model.json");
+    run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(dir.join("tracks.npy"))
+            .arg("-o")
+            .arg(&model),
+    );
+    let page = dir.join("view.html");
+    run_ok(
+        kinetree()
+            .arg("view")
+            .arg(&model)
+            .arg(dir.join("tracks.csv"))
+            .arg("-o")
+            .arg(&page),
+    );
+    let html = std::fs::read_to_string(&page).expect("page");
+    assert!(html.starts_with("<!doctype html>"), "{}", &html[..40]);
+    // Self-contained: no script, style sheet or image is loaded from elsewhere (the
+    // browser test watches the page's requests too).
+    for needle in ["<script src", "<link", "<img", "@import", "url(http"] {
+        assert!(!html.contains(needle), "{needle}");
+    }
+    assert!(html.contains("KinetreeVendor") && html.contains("kinetree-data"));
+    // The model as the output, or tracks of other points, are refused.
+    let out = kinetree()
+        .arg("view")
+        .arg(&model)
+        .arg(dir.join("tracks.npy"))
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is the input"));
+}
