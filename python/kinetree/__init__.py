@@ -55,6 +55,7 @@ __all__ = [
     "read_model",
     "read_tracks",
     "simulate",
+    "view",
 ]
 
 Config = Union[None, str, Mapping[str, Any], "os.PathLike[str]"]
@@ -386,6 +387,43 @@ def observe(
         unexplained_bound=bound,
         poses=poses,
     )
+
+
+def view(
+    model: Model,
+    tracks: Any,
+    path: Union[None, str, "os.PathLike[str]"] = None,
+    *,
+    title: str = "kinetree model",
+    max_samples: int = 2_000_000,
+    fps: Optional[float] = None,
+) -> str:
+    """The interactive 3D view of a model and tracks of its keypoints, as ``kinetree view``
+    writes it: one self-contained HTML page (no network needed) with the keypoints coloured
+    by body, the links, joint axes and pivots, play/pause, a time slider, orbit/zoom and the
+    joint positions over time.
+
+    Args:
+        model: A discovered :class:`Model`.
+        tracks: ``(T, N, 3)`` tracks of the model's keypoints (those it was discovered on, or
+            new frames), NaN where hidden.
+        path: Where to write the page; not written when None.
+        title: The page's title.
+        max_samples: Most keypoint samples (frames x keypoints) in the page; a longer
+            recording keeps every k-th frame.
+        fps: Playback rate, frames per second (default 30).
+
+    Returns:
+        The page's HTML. In a notebook, write it to a file and show it with
+        ``IPython.display.IFrame(path, width=1100, height=600)``.
+    """
+    html = _kinetree.view_html(
+        model.to_json(), _tracks(tracks), title, max_samples=max_samples, fps=fps
+    )
+    if path is not None:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(html)
+    return html
 
 
 def simulate(

@@ -51,4 +51,11 @@ def read_tracks(
     occluded_key: Optional[str] = None,
     max_memory_gib: float = 8.0,
 ) -> Tuple[npt.NDArray[np.float64], Optional[List[str]]]: ...
+def view_html(
+    model_text: str,
+    tracks: npt.NDArray[np.float64],
+    title: str,
+    max_samples: int = 2000000,
+    fps: Optional[float] = None,
+) -> str: ...
 def version() -> str: ...

@@ -339,6 +339,31 @@ fn read_tracks<'py>(
     Ok((tracks_array(py, &tracks)?, labels))
 }
 
+/// The interactive HTML view of a model and tracks of its points (as `kinetree view`).
+#[pyfunction]
+#[pyo3(signature = (model_text, tracks, title, max_samples=kinetree_view::DEFAULT_MAX_SAMPLES, fps=None))]
+fn view_html(
+    py: Python<'_>,
+    model_text: &str,
+    tracks: PyReadonlyArray3<'_, f64>,
+    title: String,
+    max_samples: usize,
+    fps: Option<f64>,
+) -> PyResult<String> {
+    let model: Model = serde_json::from_str(model_text)
+        .map_err(|e| Error::Config(format!("model JSON: {e}")))
+        .map_err(to_py)?;
+    model.validate().map_err(to_py)?;
+    let tracks = tracks_from(&tracks).map_err(to_py)?;
+    let options = kinetree_view::ViewOptions {
+        title,
+        max_samples,
+        fps,
+    };
+    py.detach(|| kinetree_view::to_html(&model, &tracks, &options))
+        .map_err(to_py)
+}
+
 /// The library's version.
 #[pyfunction]
 fn version() -> &'static str {
@@ -359,6 +384,7 @@ fn _kinetree(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(observe, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(read_tracks, m)?)?;
+    m.add_function(wrap_pyfunction!(view_html, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;
     Ok(())
 }

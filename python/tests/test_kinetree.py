@@ -243,3 +243,25 @@ def test_discovery_releases_the_interpreter_lock():
     # Sleeping 1 ms a tick, a free thread ticks hundreds of times a second; allow a
     # loaded machine a twentieth of that.
     assert ticks > 0.05 * result["seconds"] / 0.001, (ticks, result["seconds"])
+
+
+def test_view_writes_the_cli_page(arm, tmp_path):
+    tracks, _ = arm
+    model = kinetree.discover(tracks, noise_sigma=0.001)
+    path = tmp_path / "view.html"
+    html = kinetree.view(model, tracks, path, title="arm")
+    assert path.read_text() == html
+    assert html.startswith("<!doctype html>") and "<title>arm</title>" in html
+    # The same page as the CLI's for the same model and tracks.
+    model.save(tmp_path / "model.json")
+    np.save(tmp_path / "tracks.npy", tracks)
+    cli_page = tmp_path / "cli.html"
+    subprocess.run(
+        [cli_binary(), "view", str(tmp_path / "model.json"), str(tmp_path / "tracks.npy"),
+         "--title", "arm", "-o", str(cli_page)],
+        check=True,
+        capture_output=True,
+    )
+    assert cli_page.read_text() == html
+    with pytest.raises(kinetree.ConfigError, match="max_samples"):
+        kinetree.view(model, tracks, max_samples=0)
