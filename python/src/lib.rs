@@ -163,9 +163,8 @@ fn discover(
     .map_err(to_py)
 }
 
-/// Reads and validates model JSON text; returns it as the CLI writes it.
-#[pyfunction]
-fn model_json(text: &str) -> PyResult<String> {
+/// A model from JSON text, checked by [`Model::validate`].
+fn parse_model(text: &str) -> PyResult<Model> {
     let model: Model = serde_json::from_str(text)
         .map_err(|e| Error::Malformed {
             position: format!("line {}, column {}", e.line(), e.column()),
@@ -173,7 +172,13 @@ fn model_json(text: &str) -> PyResult<String> {
         })
         .map_err(to_py)?;
     model.validate().map_err(to_py)?;
-    model_text(&model).map_err(to_py)
+    Ok(model)
+}
+
+/// Reads and validates model JSON text; returns it as the CLI writes it.
+#[pyfunction]
+fn model_json(text: &str) -> PyResult<String> {
+    model_text(&parse_model(text)?).map_err(to_py)
 }
 
 /// Joint positions of `tracks` from a model: (joint names, positions (T, J), standard
@@ -197,10 +202,7 @@ fn observe<'py>(
     f64,
     Bound<'py, PyAny>,
 )> {
-    let model: Model = serde_json::from_str(model_text)
-        .map_err(|e| Error::Config(format!("model JSON: {e}")))
-        .map_err(to_py)?;
-    model.validate().map_err(to_py)?;
+    let model = parse_model(model_text)?;
     let tracks = tracks_from(&tracks).map_err(to_py)?;
     let options = kinetree_fit::ObserveOptions {
         smooth,
@@ -274,30 +276,18 @@ fn simulate<'py>(
     dropout: f64,
     frames: Option<usize>,
 ) -> PyResult<(Bound<'py, PyAny>, Option<String>)> {
-    use kinetree_pipeline::config::{DataConfig, PaperArmData};
-    let data = match mechanism {
-        "paper-arm" => DataConfig::PaperArm(PaperArmData {
-            seed,
-            noise_sigma_m: noise_sigma,
-            dropout,
-            n_frames: frames.unwrap_or(PaperArmData::default().n_frames),
-        }),
-        "random" => DataConfig::Random(kinetree_synth::RandomParams {
-            n_joints: joints,
-            prismatic_fraction,
-            tree,
-            n_frames: frames.unwrap_or(200),
-            noise_sigma_m: noise_sigma,
-            dropout,
-            seed,
-            ..kinetree_synth::RandomParams::default()
-        }),
-        other => {
-            return Err(ConfigError::new_err(format!(
-                "unknown mechanism `{other}`; use \"paper-arm\" or \"random\""
-            )));
-        }
-    };
+    let data = kinetree_pipeline::config::SimulationRequest {
+        mechanism: mechanism.to_string(),
+        seed,
+        joints,
+        tree,
+        prismatic_fraction,
+        noise_sigma_m: noise_sigma,
+        dropout,
+        n_frames: frames,
+    }
+    .data()
+    .map_err(to_py)?;
     let (tracks, truth) = py
         .detach(|| {
             kinetree_pipeline::load_data(
@@ -350,10 +340,7 @@ fn view_html(
     max_samples: usize,
     fps: Option<f64>,
 ) -> PyResult<String> {
-    let model: Model = serde_json::from_str(model_text)
-        .map_err(|e| Error::Config(format!("model JSON: {e}")))
-        .map_err(to_py)?;
-    model.validate().map_err(to_py)?;
+    let model = parse_model(model_text)?;
     let tracks = tracks_from(&tracks).map_err(to_py)?;
     let options = kinetree_view::ViewOptions {
         title,

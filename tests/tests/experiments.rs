@@ -97,14 +97,17 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
         "{data}"
     );
     let dir = std::env::temp_dir().join(format!("kinetree-sweep-{}", std::process::id()));
-    let runs = run_sweep(
-        &sweep,
-        Path::new("."),
-        &dir,
-        &|_, _| {},
-        SweepOptions::default(),
-    )
-    .expect("runs");
+    let run_all = || {
+        run_sweep(
+            &sweep,
+            Path::new("."),
+            &dir,
+            &|_, _| {},
+            SweepOptions::default(),
+        )
+        .expect("runs")
+    };
+    let runs = run_all();
     assert_eq!(runs.len(), 8);
     assert!(runs.iter().all(|r| r.error.is_none() && r.ari.is_some()));
     // The identifiable ARI leaves out points without an identifiable owner: never below 1
@@ -124,14 +127,7 @@ fn a_sweep_expands_its_grid_over_seeds_and_writes_its_tables() {
         "{resolved}"
     );
     // Same seeds, same runs: the sweep is deterministic whatever the thread order.
-    let again = run_sweep(
-        &sweep,
-        Path::new("."),
-        &dir,
-        &|_, _| {},
-        SweepOptions::default(),
-    )
-    .expect("runs");
+    let again = run_all();
     assert_eq!(runs_csv(&sweep, &again), csv);
 }
 

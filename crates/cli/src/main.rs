@@ -2,7 +2,6 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use kinetree_pipeline::config::{DataConfig, PaperArmData};
 use kinetree_pipeline::report::{summary, table_text};
 use kinetree_pipeline::{
     ExperimentConfig, PAPER_EXPERIMENT_TOML, Pipeline, PipelineConfig, run_experiment,
@@ -677,25 +676,17 @@ fn run_command() -> Result<()> {
             dropout,
             frames,
         } => {
-            let data = match mechanism.as_str() {
-                "paper-arm" => DataConfig::PaperArm(PaperArmData {
-                    seed,
-                    noise_sigma_m: noise_sigma,
-                    dropout,
-                    n_frames: frames.unwrap_or(PaperArmData::default().n_frames),
-                }),
-                "random" => DataConfig::Random(kinetree_synth::RandomParams {
-                    n_joints: joints,
-                    prismatic_fraction,
-                    tree,
-                    n_frames: frames.unwrap_or(200),
-                    noise_sigma_m: noise_sigma,
-                    dropout,
-                    seed,
-                    ..kinetree_synth::RandomParams::default()
-                }),
-                other => bail!("unknown mechanism `{other}`; use paper-arm or random"),
-            };
+            let data = kinetree_pipeline::config::SimulationRequest {
+                mechanism,
+                seed,
+                joints,
+                tree,
+                prismatic_fraction,
+                noise_sigma_m: noise_sigma,
+                dropout,
+                n_frames: frames,
+            }
+            .data()?;
             let (tracks, truth) = kinetree_pipeline::load_data(&data, Path::new("."), memory)?;
             std::fs::create_dir_all(&output)
                 .with_context(|| format!("creating {}", output.display()))?;

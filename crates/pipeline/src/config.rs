@@ -318,6 +318,64 @@ pub enum DataConfig {
     File(FileData),
 }
 
+/// A simulation named as `kinetree simulate` and the Python package's `simulate` take it: a
+/// mechanism by name and the options of both kinds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimulationRequest {
+    /// `paper-arm` or `random`.
+    pub mechanism: String,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Number of joints (random mechanisms).
+    pub joints: usize,
+    /// Bodies attached as a tree rather than a chain (random mechanisms).
+    pub tree: bool,
+    /// Probability that a joint is prismatic (random mechanisms).
+    pub prismatic_fraction: f64,
+    /// Per-coordinate noise, metres.
+    pub noise_sigma_m: f64,
+    /// Extra random occlusion fraction.
+    pub dropout: f64,
+    /// Number of frames; `None` for the mechanism's default (100 for the paper arm, 200 for
+    /// random mechanisms).
+    pub n_frames: Option<usize>,
+}
+
+/// Frames of a random mechanism's simulation when none are asked for.
+pub const DEFAULT_RANDOM_FRAMES: usize = 200;
+
+impl SimulationRequest {
+    /// The experiment data of the request.
+    ///
+    /// # Errors
+    /// [`Error::Config`] for an unknown mechanism.
+    pub fn data(&self) -> Result<DataConfig> {
+        Ok(match self.mechanism.as_str() {
+            "paper-arm" => DataConfig::PaperArm(PaperArmData {
+                seed: self.seed,
+                noise_sigma_m: self.noise_sigma_m,
+                dropout: self.dropout,
+                n_frames: self.n_frames.unwrap_or(PaperArmData::default().n_frames),
+            }),
+            "random" => DataConfig::Random(RandomParams {
+                n_joints: self.joints,
+                prismatic_fraction: self.prismatic_fraction,
+                tree: self.tree,
+                n_frames: self.n_frames.unwrap_or(DEFAULT_RANDOM_FRAMES),
+                noise_sigma_m: self.noise_sigma_m,
+                dropout: self.dropout,
+                seed: self.seed,
+                ..RandomParams::default()
+            }),
+            other => {
+                return Err(Error::Config(format!(
+                    "unknown mechanism `{other}`; use paper-arm or random"
+                )));
+            }
+        })
+    }
+}
+
 /// Parameters of the paper-arm data.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
