@@ -131,6 +131,72 @@ struct Cli {
     /// experiment's `pipeline.max_memory_gib`.
     #[arg(long, global = true, value_name = "GIB")]
     max_memory: Option<f64>,
+    /// No progress display: neither `discover`'s stage display (drawn on a terminal once a
+    /// discovery has run for a second) nor a sweep's progress bar.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+}
+
+/// How long a discovery runs before its stages are shown.
+const PROGRESS_DELAY: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Shows a discovery's stages on stderr: a spinner with the stage's name, the last change a
+/// repair made and the elapsed time, drawn once the discovery has run for
+/// [`PROGRESS_DELAY`], and only when stderr is a terminal (so logs and pipes get nothing).
+struct StageDisplay {
+    bar: indicatif::ProgressBar,
+    stage: std::sync::Mutex<String>,
+}
+
+impl kinetree_pipeline::DiscoveryObserver for StageDisplay {
+    fn stage(&self, name: &str) {
+        if let Ok(mut s) = self.stage.lock() {
+            *s = name.to_string();
+        }
+        self.bar.set_message(name.to_string());
+    }
+
+    fn trace(&self, entry: &kinetree_core::TraceEntry) {
+        let stage = self.stage.lock().map(|s| s.clone()).unwrap_or_default();
+        self.bar
+            .set_message(format!("{stage} - {}: {}", entry.repair, entry.summary));
+    }
+}
+
+/// Runs `work` with a [`StageDisplay`] (none when `quiet`), cleared when it ends.
+fn with_stage_display<T>(
+    quiet: bool,
+    work: impl FnOnce(&dyn kinetree_pipeline::DiscoveryObserver) -> T,
+) -> T {
+    use std::io::IsTerminal;
+    if quiet || !std::io::stderr().is_terminal() {
+        struct Nothing;
+        impl kinetree_pipeline::DiscoveryObserver for Nothing {}
+        return work(&Nothing);
+    }
+    let bar =
+        indicatif::ProgressBar::with_draw_target(None, indicatif::ProgressDrawTarget::hidden());
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{spinner} discover [{elapsed}] {wide_msg}")
+    {
+        bar.set_style(style);
+    }
+    let display = StageDisplay {
+        bar: bar.clone(),
+        stage: std::sync::Mutex::new(String::new()),
+    };
+    let (done, wait) = std::sync::mpsc::channel::<()>();
+    let shower = std::thread::spawn(move || {
+        if wait.recv_timeout(PROGRESS_DELAY).is_err() {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            bar.enable_steady_tick(std::time::Duration::from_millis(120));
+        }
+    });
+    let out = work(&display);
+    let _ = done.send(());
+    let _ = shower.join();
+    display.bar.finish_and_clear();
+    out
 }
 
 #[derive(Debug, Subcommand)]
@@ -308,6 +374,7 @@ enum Command {
 
 /// How `kinetree run` treats a sweep.
 struct SweepFlags {
+    quiet: bool,
     resume: bool,
     max_runs: u64,
     shard: Option<kinetree_pipeline::sweep::Shard>,
@@ -423,6 +490,9 @@ fn sweep(
         ),
     }
     let progress = |done: usize, total: usize| {
+        if flags.quiet {
+            return;
+        }
         let width = 40;
         let filled = done * width / total.max(1);
         let mut err = std::io::stderr().lock();
@@ -495,6 +565,7 @@ fn run_command() -> Result<()> {
     let cli = Cli::parse();
     configure_threads()?;
     let max_memory = cli.max_memory;
+    let quiet = cli.quiet;
     let memory = max_memory.unwrap_or(kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB);
     kinetree_core::limits::validate_limit("--max-memory", memory)?;
     let read_tracks =
@@ -511,6 +582,7 @@ fn run_command() -> Result<()> {
             &results,
             max_memory,
             &SweepFlags {
+                quiet,
                 resume,
                 max_runs,
                 shard,
@@ -557,7 +629,7 @@ fn run_command() -> Result<()> {
                 None => "in the pipeline options".into(),
             })?;
             let t = read_tracks(&tracks, &keys)?;
-            let d = built.run(&t)?;
+            let d = with_stage_display(quiet, |observer| built.run_observed(&t, observer))?;
             emit(&summary(&d.model));
             kinetree_io::write_json(&output, &d.model)?;
             emitln!("wrote {}", output.display());

@@ -501,3 +501,58 @@ fn view_writes_one_self_contained_page() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("is the input"));
 }
+
+/// Runs `kinetree <args>` with a terminal as its stdout and stderr (util-linux `script`),
+/// returning all it wrote there.
+fn on_a_terminal(args: &str) -> String {
+    let command = format!("{} {args}", env!("CARGO_BIN_EXE_kinetree"));
+    let out = Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .output()
+        .expect("script (util-linux) runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn discover_shows_its_stages_on_a_terminal_unless_quiet() {
+    let dir = tmp("progress");
+    // A discovery of several seconds: the display appears after one.
+    run_ok(
+        kinetree()
+            .args([
+                "simulate",
+                "--mechanism",
+                "random",
+                "--joints",
+                "8",
+                "--tree",
+                "--frames",
+                "3000",
+                "--seed",
+                "1",
+                "-o",
+            ])
+            .arg(&dir),
+    );
+    let tracks = dir.join("tracks.npy");
+    let model = dir.join("model.json");
+    let args = format!("discover {} -o {}", tracks.display(), model.display());
+    let shown = on_a_terminal(&args);
+    assert!(shown.contains("discover ["), "{shown}");
+    for stage in ["bodies", "whole-tree fit"] {
+        assert!(shown.contains(stage), "stage {stage} in {shown}");
+    }
+    assert!(shown.contains("wrote"), "{shown}");
+    let quiet = on_a_terminal(&format!("--quiet {args}"));
+    assert!(!quiet.contains("discover ["), "{quiet}");
+    assert!(quiet.contains("wrote"), "{quiet}");
+    // Without a terminal (a pipe here) nothing is drawn either.
+    let out = kinetree().args(args.split(' ')).output().expect("runs");
+    assert!(out.status.success());
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("discover ["));
+}

@@ -2,7 +2,12 @@
 //! that applies the repairs ([`crate::runner`]).
 
 use crate::config::{NoiseEstimator, PipelineConfig};
-use crate::runner::{Runner, RunnerParams};
+use crate::runner::{DiscoveryObserver, Runner, RunnerParams};
+
+/// An observer that is told nothing.
+struct Silent;
+
+impl DiscoveryObserver for Silent {}
 use kinetree_core::model::NoiseSource;
 use kinetree_core::{
     BodyPoses, Clustering, Dissimilarity, DissimilarityMatrix, DofTester, Error, Model, PairStats,
@@ -127,7 +132,7 @@ impl Pipeline {
     /// As [`Pipeline::run`]'s first stage: bad tracks, a failing stage, no noise estimate.
     pub fn group(&self, tracks: &Tracks) -> Result<Grouping> {
         let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
-        self.group_clean(cleaned.as_ref().unwrap_or(tracks), warnings)
+        self.group_clean(cleaned.as_ref().unwrap_or(tracks), warnings, &Silent)
     }
 
     /// The tracks without their impossible samples ([`PipelineConfig::outliers`]; `None`
@@ -148,7 +153,12 @@ impl Pipeline {
         Ok((cleaned, warnings))
     }
 
-    fn group_clean(&self, tracks: &Tracks, mut warnings: Vec<Warning>) -> Result<Grouping> {
+    fn group_clean(
+        &self,
+        tracks: &Tracks,
+        mut warnings: Vec<Warning>,
+        observer: &dyn DiscoveryObserver,
+    ) -> Result<Grouping> {
         let n = tracks.n_points();
         kinetree_core::limits::check_memory(
             &format!("discovering {} frames x {n} points", tracks.n_frames()),
@@ -161,6 +171,7 @@ impl Pipeline {
                 warnings.push(Warning::PointNeverVisible { point: i });
             }
         }
+        observer.stage("pair statistics");
         let stats = pair_stats(tracks);
         let mut paired = vec![false; n];
         for i in 0..n {
@@ -185,6 +196,7 @@ impl Pipeline {
                 count: unknown_among_paired,
             });
         }
+        observer.stage("noise level");
         let (mut sigma, noise_source) = match (self.noise_sigma_m, self.noise_estimator) {
             (Some(s), _) => (s, NoiseSource::Given),
             (None, NoiseEstimator::Mode) => (estimate_noise_sigma(&stats)?, NoiseSource::Estimated),
@@ -196,6 +208,7 @@ impl Pipeline {
         let first_guess = (noise_source == NoiseSource::Estimated
             && self.noise_estimator == NoiseEstimator::Mode)
             .then_some(sigma);
+        observer.stage("clustering");
         let (s, dmat, seg, trace) =
             crate::runner::grouping(self, tracks, &stats, sigma, first_guess)?;
         sigma = s;
@@ -239,11 +252,25 @@ impl Pipeline {
         tracks: &Tracks,
         progress: crate::runner::Progress<'_>,
     ) -> Result<Discovery> {
+        self.run_observed(tracks, &crate::runner::TraceOnly(progress))
+    }
+
+    /// [`Pipeline::run`], telling `observer` each stage as it starts and every trace entry
+    /// as it is made (the grouping's once the grouping is done): for a progress display.
+    ///
+    /// # Errors
+    /// As [`Pipeline::run`].
+    pub fn run_observed(
+        &self,
+        tracks: &Tracks,
+        observer: &dyn DiscoveryObserver,
+    ) -> Result<Discovery> {
+        let progress = observer;
         let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
         let tracks = cleaned.as_ref().unwrap_or(tracks);
-        let g = self.group_clean(tracks, warnings)?;
+        let g = self.group_clean(tracks, warnings, observer)?;
         for e in &g.trace {
-            progress(e);
+            progress.trace(e);
         }
         let runner = Runner::new(
             self,

@@ -305,6 +305,25 @@ type PassEdits<'r> = Vec<(&'r dyn Repair, Edit)>;
 /// wants to show it (the runner itself never prints).
 pub type Progress<'a> = &'a (dyn Fn(&TraceEntry) + Sync);
 
+/// What a discovery tells its caller as it goes ([`crate::Pipeline::run_observed`]; nothing
+/// in the pipeline prints): each stage as it starts, and every trace entry as it is made.
+pub trait DiscoveryObserver: Sync {
+    /// A stage starts: `pair statistics`, `noise level`, `clustering`, then per model pass
+    /// `bodies`, `tree`, `whole-tree fit`, `points` and `model checks`.
+    fn stage(&self, _name: &str) {}
+    /// A repair made a change (the entry the model's `trace` will hold).
+    fn trace(&self, _entry: &TraceEntry) {}
+}
+
+/// A [`Progress`] callback as an observer of the trace alone.
+pub(crate) struct TraceOnly<'a>(pub(crate) Progress<'a>);
+
+impl DiscoveryObserver for TraceOnly<'_> {
+    fn trace(&self, entry: &TraceEntry) {
+        (self.0)(entry);
+    }
+}
+
 /// One discovery's state shared by the phases after the grouping.
 pub(crate) struct Runner<'a> {
     pipeline: &'a Pipeline,
@@ -316,7 +335,7 @@ pub(crate) struct Runner<'a> {
     first_guess: Option<f64>,
     /// The trace so far and the current pass.
     trace: Mutex<(Vec<TraceEntry>, usize)>,
-    progress: Progress<'a>,
+    progress: &'a dyn DiscoveryObserver,
 }
 
 impl std::fmt::Debug for Runner<'_> {
@@ -340,7 +359,7 @@ impl<'a> Runner<'a> {
         source: NoiseSource,
         first_guess: Option<f64>,
         trace: Vec<TraceEntry>,
-        progress: Progress<'a>,
+        progress: &'a dyn DiscoveryObserver,
     ) -> Self {
         Self {
             pipeline,
@@ -375,7 +394,7 @@ impl<'a> Runner<'a> {
             e
         });
         if let Some(e) = made {
-            (self.progress)(&e);
+            self.progress.trace(&e);
         }
     }
 
@@ -512,13 +531,23 @@ impl<'a> Runner<'a> {
         let mut pass = 0;
         let last = loop {
             self.set_pass(pass);
+            let stage = |name: &str| {
+                if pass == 0 {
+                    self.progress.stage(name);
+                } else {
+                    self.progress.stage(&format!("{name} (pass {})", pass + 1));
+                }
+            };
+            stage("bodies");
             let pose_warnings = self.bodies(&mut draft, &mut history)?;
             let hist: Vec<Warning> = history.iter().cloned().chain(pose_warnings).collect();
             let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
                 return Err(Error::Degenerate("the bodies phase left no poses".into()));
             };
+            stage("tree");
             let mut model = self.make(&draft.segmentation, poses, pairs, &hist)?;
             self.adopt(&mut model);
+            stage("whole-tree fit");
             self.fit(&mut model)?;
             draft.adopt(model)?;
             // The previous pass's edits must stand on this model, or the pass is undone.
@@ -546,11 +575,13 @@ impl<'a> Runner<'a> {
                 }
             }
             let mut proposals = if pass < passes {
+                stage("points");
                 self.ask_points(&mut draft, |_| true)?
             } else {
                 Vec::new()
             };
             if proposals.is_empty() {
+                stage("model checks");
                 for r in self.phase(RepairPhase::Model) {
                     let Some(p) = r.propose(&ctx, &draft)? else {
                         continue;
@@ -652,7 +683,7 @@ impl<'a> Runner<'a> {
     fn adopt(&self, m: &mut ModelDraft) {
         let entries = std::mem::take(&mut m.model.trace);
         for e in &entries {
-            (self.progress)(e);
+            self.progress.trace(e);
         }
         if let Ok(mut t) = self.trace.lock() {
             t.0.extend(entries);
