@@ -164,7 +164,13 @@ fn pair_columns(
 }
 
 /// Among the candidate columns `tied` (indices into `frames`), the one whose relative rotation
-/// has the least sum of squared angles to every frame's (the earliest on an exact tie).
+/// has the least sum of squared angles to every frame's (in frame order, a later candidate
+/// is taken only when its sum is smaller by a relative `1e-12`).
+///
+/// Every candidate's sum is bounded below in constant time by the quaternions' second and
+/// fourth moments ([`angle_sum_bounds`]), and exact sums are taken only for candidates whose
+/// bound does not exceed the least sum found: with every frame a candidate (no occlusion)
+/// the exact sums, `K^2` angles, took most of a long recording's discovery.
 fn medoid_rotation(
     frames: &[usize],
     x: &[Option<kinetree_core::nalgebra::Isometry3<f64>>],
@@ -174,15 +180,87 @@ fn medoid_rotation(
         .iter()
         .filter_map(|&t| x[t].map(|p| p.rotation))
         .collect();
-    let mut best: Option<(usize, f64)> = None;
-    for &i in tied {
+    let exact = |i: usize| -> f64 {
         let q = rotations[i];
-        let cost: f64 = rotations.iter().map(|o| q.angle_to(o).powi(2)).sum();
+        rotations.iter().map(|o| q.angle_to(o).powi(2)).sum()
+    };
+    let lower = angle_sum_bounds(&rotations);
+    let mut order: Vec<(f64, usize)> = tied.iter().map(|&i| (lower(&rotations[i]), i)).collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    // The bounds carry the rounding of the moments, sums of `K` terms of order one each
+    // (at most `K^2` units of rounding in all), and their differences from `K`.
+    let n = rotations.len() as f64;
+    let rounding = 8.0 * f64::EPSILON * n * n;
+    let mut least = f64::INFINITY;
+    let mut costs: Vec<(usize, f64)> = Vec::new();
+    for &(bound, i) in &order {
+        if bound - rounding > least * (1.0 + 1e-9) {
+            break;
+        }
+        let cost = exact(i);
+        least = least.min(cost);
+        costs.push((i, cost));
+    }
+    // In frame order, a candidate replaces the one kept when its sum is below the kept one's
+    // by a relative 1e-12. Only sums within about that of the least can be kept at the end,
+    // and a larger one kept on the way is replaced by the first of those, so the walk over
+    // them alone ends where the walk over every candidate does.
+    costs.retain(|&(_, c)| c <= least * (1.0 + 3e-12));
+    costs.sort_by_key(|&(i, _)| i);
+    let mut best: Option<(usize, f64)> = None;
+    for (i, cost) in costs {
         if best.is_none_or(|(_, c)| cost < c * (1.0 - 1e-12)) {
             best = Some((i, cost));
         }
     }
     best.map_or(0, |(i, _)| i)
+}
+
+/// A lower bound, for any unit quaternion `q`, of `sum_k angle(q, q_k)^2` over `rotations`,
+/// in constant time per `q` from the sums of `q_k q_k^T` and of `q_k`'s fourth powers. With
+/// `c_k = <q, q_k>` and `s_k^2 = 1 - c_k^2` (`s_k = sin(angle_k / 2)`), the angle is
+/// `2 asin(s_k)`, and `asin^2` has a power series of positive terms, so
+/// `angle_k^2 >= 4 s_k^2 + 4 s_k^4 / 3`; both sums over `k` are polynomials in `q` whose
+/// coefficients are the moments.
+fn angle_sum_bounds(rotations: &[UnitQuaternion<f64>]) -> impl Fn(&UnitQuaternion<f64>) -> f64 {
+    let mut second = [0.0f64; 16];
+    let mut fourth = vec![0.0f64; 256];
+    for r in rotations {
+        let v = r.coords;
+        for a in 0..4 {
+            for b in 0..4 {
+                let ab = v[a] * v[b];
+                second[4 * a + b] += ab;
+                for c in 0..4 {
+                    let abc = ab * v[c];
+                    for d in 0..4 {
+                        fourth[((4 * a + b) * 4 + c) * 4 + d] += abc * v[d];
+                    }
+                }
+            }
+        }
+    }
+    let n = rotations.len() as f64;
+    move |q: &UnitQuaternion<f64>| {
+        let v = q.coords;
+        let (mut c2, mut c4) = (0.0, 0.0);
+        for a in 0..4 {
+            for b in 0..4 {
+                let ab = v[a] * v[b];
+                c2 += second[4 * a + b] * ab;
+                for c in 0..4 {
+                    let abc = ab * v[c];
+                    for d in 0..4 {
+                        c4 += fourth[((4 * a + b) * 4 + c) * 4 + d] * abc * v[d];
+                    }
+                }
+            }
+        }
+        // sum s_k^2 = n - sum c_k^2; sum s_k^4 = sum (1 - c_k^2)^2.
+        let s2 = (n - c2).max(0.0);
+        let s4 = (n - 2.0 * c2 + c4).max(0.0);
+        4.0 * s2 + 4.0 / 3.0 * s4
+    }
 }
 
 /// Reference-free test for a fixed pivot: is there a point fixed in both bodies, `c` in
@@ -673,5 +751,65 @@ impl DofTester for Chi2Rank {
                 min_angle_in_std: self.params.min_centre_angle_in_std,
             },
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kinetree_core::nalgebra::{Isometry3, Translation3, Unit};
+
+    /// Rotations about a wobbling axis through a range of angles, as a hinge with pose noise
+    /// gives them, or spread over every direction.
+    fn rotations(n: usize, spread: bool) -> Vec<Option<Isometry3<f64>>> {
+        (0..n)
+            .map(|k| {
+                let t = k as f64;
+                let axis = if spread {
+                    Vector3::new((1.3 * t).sin(), (2.1 * t).cos(), (0.7 * t).sin() + 0.2)
+                } else {
+                    Vector3::new(0.01 * (3.7 * t).sin(), 1.0, 0.01 * (5.3 * t).cos())
+                };
+                let angle = if spread {
+                    3.0 * (0.37 * t).sin()
+                } else {
+                    1.2 * (0.05 * t).sin()
+                };
+                let q = UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), angle);
+                Some(Isometry3::from_parts(Translation3::identity(), q))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_bound_never_exceeds_the_sum_and_the_medoid_is_the_brute_force_one() {
+        for spread in [false, true] {
+            let x = rotations(400, spread);
+            let frames: Vec<usize> = (0..x.len()).collect();
+            let qs: Vec<UnitQuaternion<f64>> = x.iter().flatten().map(|p| p.rotation).collect();
+            let sums: Vec<f64> = qs
+                .iter()
+                .map(|q| qs.iter().map(|o| q.angle_to(o).powi(2)).sum())
+                .collect();
+            let bound = angle_sum_bounds(&qs);
+            for (q, &sum) in qs.iter().zip(&sums) {
+                let b = bound(q);
+                assert!(
+                    b <= sum * (1.0 + 1e-12) + 1e-9,
+                    "bound {b} above the sum {sum}"
+                );
+                // Within a factor even for angles near pi (4 + 4/3 against pi^2).
+                assert!(b >= 0.5 * sum, "{b} {sum}");
+            }
+            for tied in [frames.clone(), frames.iter().copied().step_by(7).collect()] {
+                let mut expected = tied[0];
+                for &i in &tied {
+                    if sums[i] < sums[expected] * (1.0 - 1e-12) {
+                        expected = i;
+                    }
+                }
+                assert_eq!(medoid_rotation(&frames, &x, &tied), expected);
+            }
+        }
     }
 }
