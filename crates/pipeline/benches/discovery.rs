@@ -96,3 +96,25 @@ fn fit_model_positions_9_joints_80_points_150_frames(bencher: divan::Bencher) {
             kinetree_fit::fit_model_positions(&mut m, divan::black_box(&tracks))
         });
 }
+
+/// Long recordings: one revolute joint over 20 000 frames, 1 mm, sigma given (seed 1), where
+/// the pair tests' reference frame (a medoid of the relative rotations over every frame)
+/// used to cost time quadratic in the frames.
+#[divan::bench(sample_count = 3)]
+fn discover_hinge_1_joint_20000_frames(bencher: divan::Bencher) {
+    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+        n_joints: 1,
+        prismatic_fraction: 0.0,
+        n_frames: 20_000,
+        seed: 1,
+        ..Default::default()
+    });
+    let tracks = kinetree_synth::simulate(&scenario)
+        .expect("simulate")
+        .tracks;
+    let config = PipelineConfig {
+        noise_sigma_m: Some(0.001),
+        ..PipelineConfig::default()
+    };
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
