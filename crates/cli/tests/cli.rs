@@ -28,6 +28,22 @@ fn tmp(name: &str) -> std::path::PathBuf {
     d
 }
 
+/// `kinetree simulate` (the paper arm) and `kinetree discover` into a fresh folder: the
+/// folder and the model's path.
+fn discovered_paper_arm(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = tmp(name);
+    run_ok(kinetree().args(["simulate", "-o"]).arg(&dir));
+    let model = dir.join("model.json");
+    run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(dir.join("tracks.npy"))
+            .arg("-o")
+            .arg(&model),
+    );
+    (dir, model)
+}
+
 #[test]
 fn run_without_argument_prints_the_paper_structure_and_table() {
     let results = tmp("results");
@@ -278,16 +294,7 @@ fn observe_writes_one_column_per_joint() {
 
 #[test]
 fn export_and_inspect_a_discovered_model() {
-    let d = tmp("export");
-    run_ok(kinetree().args(["simulate", "-o"]).arg(&d));
-    let model = d.join("model.json");
-    run_ok(
-        kinetree()
-            .arg("discover")
-            .arg(d.join("tracks.npy"))
-            .arg("-o")
-            .arg(&model),
-    );
+    let (d, model) = discovered_paper_arm("export");
     for (format, file, start) in [
         ("urdf", "arm.urdf", "<?xml"),
         ("dot", "arm.dot", "digraph"),
@@ -462,16 +469,7 @@ fn the_bash_completion_script_completes_subcommands_and_flags() {
 
 #[test]
 fn view_writes_one_self_contained_page() {
-    let dir = tmp("view");
-    run_ok(kinetree().args(["simulate", "-o"]).arg(&dir));
-    let model = dir.join("model.json");
-    run_ok(
-        kinetree()
-            .arg("discover")
-            .arg(dir.join("tracks.npy"))
-            .arg("-o")
-            .arg(&model),
-    );
+    let (dir, model) = discovered_paper_arm("view");
     let page = dir.join("view.html");
     run_ok(
         kinetree()
