@@ -168,9 +168,9 @@ fn pair_columns(
 /// is taken only when its sum is smaller by a relative `1e-12`).
 ///
 /// Every candidate's sum is bounded below in constant time by sums over the frames of
-/// polynomial coefficients ([`angle_sum_bounds`]), and exact sums are taken only for candidates whose
-/// bound does not exceed the least sum found: with every frame a candidate (no occlusion)
-/// the exact sums, `K^2` angles, took most of a long recording's discovery.
+/// polynomial coefficients ([`angle_sum_bounds`]), and exact sums are taken only for
+/// candidates whose bound does not exceed the least sum found: with every frame a candidate
+/// (no occlusion) the exact sums, `K^2` angles, took most of a long recording's discovery.
 fn medoid_rotation(
     frames: &[usize],
     x: &[Option<kinetree_core::nalgebra::Isometry3<f64>>],
@@ -201,10 +201,11 @@ fn medoid_rotation(
         costs.push((i, cost));
     }
     // In frame order, a candidate replaces the one kept when its sum is below the kept one's
-    // by a relative 1e-12. Only sums within about that of the least can be kept at the end,
-    // and a larger one kept on the way is replaced by the first of those, so the walk over
-    // them alone ends where the walk over every candidate does.
-    costs.retain(|&(_, c)| c <= least * (1.0 + 3e-12));
+    // by a relative 1e-12, so the one kept at the end is within that of the least. Walking
+    // only the sums within 1e-9 of the least (all of them were summed: a skipped bound is
+    // above that) ends at the same one: where the two walks part, each keeps a sum near 1e-9
+    // above the least, and the next sum within 1e-12 of it replaces both.
+    costs.retain(|&(_, c)| c <= least * (1.0 + 1e-9));
     costs.sort_by_key(|&(i, _)| i);
     let mut best: Option<(usize, f64)> = None;
     for (i, cost) in costs {
