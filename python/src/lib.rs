@@ -73,8 +73,9 @@ fn to_py(e: Error) -> PyErr {
     }
 }
 
-/// Tracks from a `(T, N, 3)` float64 array, NaN where a point is hidden.
-fn tracks_from(array: &PyReadonlyArray3<'_, f64>) -> Result<Tracks, Error> {
+/// Tracks from a `(T, N, 3)` float64 array, NaN where a point is hidden, refused when their
+/// copy would take more than `max_memory_gib`.
+fn tracks_from(array: &PyReadonlyArray3<'_, f64>, max_memory_gib: f64) -> Result<Tracks, Error> {
     let shape = array.shape();
     let (t, n) = (shape[0], shape[1]);
     if shape[2] != 3 {
@@ -86,7 +87,7 @@ fn tracks_from(array: &PyReadonlyArray3<'_, f64>) -> Result<Tracks, Error> {
     kinetree_core::limits::check_memory(
         &format!("tracks of {t} frames x {n} points"),
         kinetree_core::limits::tracks_bytes(t as u64, n as u64),
-        kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
+        max_memory_gib,
     )?;
     // Any strides: the values are taken in C order.
     let xyz: Vec<f64> = array.as_array().iter().copied().collect();
@@ -153,7 +154,7 @@ fn discover(
     if let Some(m) = max_memory_gib {
         cfg.max_memory_gib = m;
     }
-    let tracks = tracks_from(&tracks).map_err(to_py)?;
+    let tracks = tracks_from(&tracks, cfg.max_memory_gib).map_err(to_py)?;
     // Discovery takes seconds to minutes: other Python threads run meanwhile.
     py.detach(move || {
         let pipeline = kinetree_pipeline::Pipeline::from_config(&cfg)?;
@@ -203,7 +204,8 @@ fn observe<'py>(
     Bound<'py, PyAny>,
 )> {
     let model = parse_model(model_text)?;
-    let tracks = tracks_from(&tracks).map_err(to_py)?;
+    let tracks =
+        tracks_from(&tracks, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB).map_err(to_py)?;
     let options = kinetree_fit::ObserveOptions {
         smooth,
         unexplained_factor,
@@ -341,7 +343,8 @@ fn view_html(
     fps: Option<f64>,
 ) -> PyResult<String> {
     let model = parse_model(model_text)?;
-    let tracks = tracks_from(&tracks).map_err(to_py)?;
+    let tracks =
+        tracks_from(&tracks, kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB).map_err(to_py)?;
     let options = kinetree_view::ViewOptions {
         title,
         max_samples,

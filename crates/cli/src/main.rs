@@ -170,9 +170,7 @@ fn with_stage_display<T>(
 ) -> T {
     use std::io::IsTerminal;
     if quiet || !std::io::stderr().is_terminal() {
-        struct Nothing;
-        impl kinetree_pipeline::DiscoveryObserver for Nothing {}
-        return work(&Nothing);
+        return work(&());
     }
     let bar =
         indicatif::ProgressBar::with_draw_target(None, indicatif::ProgressDrawTarget::hidden());
@@ -679,17 +677,7 @@ fn run_command() -> Result<()> {
             fps,
         } => {
             refuse_overwriting(&output, &[&model, &tracks])?;
-            let m = kinetree_io::read_model(&model)?;
-            let t = read_tracks(&tracks, &keys)?;
-            if t.n_points() != m.n_points {
-                bail!(
-                    "{} has {} points but the model {} was discovered on {}",
-                    tracks.display(),
-                    t.n_points(),
-                    model.display(),
-                    m.n_points
-                );
-            }
+            let (m, t) = model_and_tracks(&model, &tracks, &keys.options(memory))?;
             let options = kinetree_view::ViewOptions {
                 title: title.unwrap_or_else(|| format!("kinetree: {}", model.display())),
                 max_samples,
@@ -780,6 +768,27 @@ fn run_command() -> Result<()> {
     }
 }
 
+/// A model and tracks of its points (`observe`, `view`), refused when the point counts
+/// differ.
+fn model_and_tracks(
+    model_path: &Path,
+    tracks_path: &Path,
+    read: &kinetree_io::ReadOptions,
+) -> Result<(kinetree_core::Model, kinetree_core::Tracks)> {
+    let model = kinetree_io::read_model(model_path)?;
+    let tracks = kinetree_io::read_tracks_with(tracks_path, read)?;
+    if tracks.n_points() != model.n_points {
+        bail!(
+            "{} has {} points but the model {} was discovered on {}",
+            tracks_path.display(),
+            tracks.n_points(),
+            model_path.display(),
+            model.n_points
+        );
+    }
+    Ok((model, tracks))
+}
+
 /// How `kinetree observe` reports.
 struct ObserveOptions {
     smooth: bool,
@@ -805,17 +814,7 @@ fn observe(
         );
     }
     refuse_overwriting(output, &[model_path, tracks_path])?;
-    let model = kinetree_io::read_model(model_path)?;
-    let tracks = kinetree_io::read_tracks_with(tracks_path, &options.read)?;
-    if tracks.n_points() != model.n_points {
-        bail!(
-            "{} has {} points but the model {} was discovered on {}",
-            tracks_path.display(),
-            tracks.n_points(),
-            model_path.display(),
-            model.n_points
-        );
-    }
+    let (model, tracks) = model_and_tracks(model_path, tracks_path, &options.read)?;
     let seen = kinetree_fit::observe(&model, &tracks, fit_options)?;
     let mut header = seen.joint_names.clone();
     header.push("residual_in_sigma".into());

@@ -117,7 +117,7 @@ pub fn check_repair(repair: &dyn Repair) -> Vec<String> {
         NoiseSource::Given,
         Some(sigma),
         Vec::new(),
-        &crate::runner::TraceOnly(&|_| {}),
+        &(),
     );
     let ctx = runner.context();
     let phase = repair.phase();

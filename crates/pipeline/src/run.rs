@@ -3,11 +3,6 @@
 
 use crate::config::{NoiseEstimator, PipelineConfig};
 use crate::runner::{DiscoveryObserver, Runner, RunnerParams};
-
-/// An observer that is told nothing.
-struct Silent;
-
-impl DiscoveryObserver for Silent {}
 use kinetree_core::model::NoiseSource;
 use kinetree_core::{
     BodyPoses, Clustering, Dissimilarity, DissimilarityMatrix, DofTester, Error, Model, PairStats,
@@ -132,7 +127,7 @@ impl Pipeline {
     /// As [`Pipeline::run`]'s first stage: bad tracks, a failing stage, no noise estimate.
     pub fn group(&self, tracks: &Tracks) -> Result<Grouping> {
         let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
-        self.group_clean(cleaned.as_ref().unwrap_or(tracks), warnings, &Silent)
+        self.group_clean(cleaned.as_ref().unwrap_or(tracks), warnings, &())
     }
 
     /// The tracks without their impossible samples ([`PipelineConfig::outliers`]; `None`
@@ -265,12 +260,11 @@ impl Pipeline {
         tracks: &Tracks,
         observer: &dyn DiscoveryObserver,
     ) -> Result<Discovery> {
-        let progress = observer;
         let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
         let tracks = cleaned.as_ref().unwrap_or(tracks);
         let g = self.group_clean(tracks, warnings, observer)?;
         for e in &g.trace {
-            progress.trace(e);
+            observer.trace(e);
         }
         let runner = Runner::new(
             self,
@@ -281,7 +275,7 @@ impl Pipeline {
             g.noise_source,
             g.first_noise_estimate_m,
             g.trace,
-            progress,
+            observer,
         );
         let (draft, trace) = runner.run(g.segmentation, g.warnings)?;
         let (Some(found), Some(poses)) = (draft.model, draft.poses) else {

@@ -315,6 +315,9 @@ pub trait DiscoveryObserver: Sync {
     fn trace(&self, _entry: &TraceEntry) {}
 }
 
+/// The observer that is told nothing.
+impl DiscoveryObserver for () {}
+
 /// A [`Progress`] callback as an observer of the trace alone.
 pub(crate) struct TraceOnly<'a>(pub(crate) Progress<'a>);
 
@@ -335,7 +338,7 @@ pub(crate) struct Runner<'a> {
     first_guess: Option<f64>,
     /// The trace so far and the current pass.
     trace: Mutex<(Vec<TraceEntry>, usize)>,
-    progress: &'a dyn DiscoveryObserver,
+    observer: &'a dyn DiscoveryObserver,
 }
 
 impl std::fmt::Debug for Runner<'_> {
@@ -359,7 +362,7 @@ impl<'a> Runner<'a> {
         source: NoiseSource,
         first_guess: Option<f64>,
         trace: Vec<TraceEntry>,
-        progress: &'a dyn DiscoveryObserver,
+        observer: &'a dyn DiscoveryObserver,
     ) -> Self {
         Self {
             pipeline,
@@ -370,7 +373,7 @@ impl<'a> Runner<'a> {
             source,
             first_guess,
             trace: Mutex::new((trace, 0)),
-            progress,
+            observer,
         }
     }
 
@@ -394,7 +397,7 @@ impl<'a> Runner<'a> {
             e
         });
         if let Some(e) = made {
-            self.progress.trace(&e);
+            self.observer.trace(&e);
         }
     }
 
@@ -533,9 +536,9 @@ impl<'a> Runner<'a> {
             self.set_pass(pass);
             let stage = |name: &str| {
                 if pass == 0 {
-                    self.progress.stage(name);
+                    self.observer.stage(name);
                 } else {
-                    self.progress.stage(&format!("{name} (pass {})", pass + 1));
+                    self.observer.stage(&format!("{name} (pass {})", pass + 1));
                 }
             };
             stage("bodies");
@@ -683,7 +686,7 @@ impl<'a> Runner<'a> {
     fn adopt(&self, m: &mut ModelDraft) {
         let entries = std::mem::take(&mut m.model.trace);
         for e in &entries {
-            self.progress.trace(e);
+            self.observer.trace(e);
         }
         if let Ok(mut t) = self.trace.lock() {
             t.0.extend(entries);

@@ -1126,35 +1126,27 @@ pub fn merge_shards(dir: &Path) -> Result<(String, Sweep, Vec<SweepRun>)> {
             dir.display()
         )));
     }
-    let mut sweep_text: Option<(String, Shard)> = None;
-    let mut sweep: Option<Sweep> = None;
+    let read = |shard: &Shard, file: &str| {
+        let path = dir.join(shard.folder()).join(file);
+        std::fs::read_to_string(&path).map_err(|e| Error::Io(e).in_file(&path))
+    };
+    // Every shard holds the sweep it belongs to; the first one's is parsed, the others'
+    // must be the same text.
+    let sweep_text = read(&first, SHARD_SWEEP_FILE)?;
+    let sweep = Sweep::from_toml_within(&sweep_text, u64::MAX)
+        .map_err(|e| e.in_file(dir.join(first.folder()).join(SHARD_SWEEP_FILE)))?;
     let mut runs = Vec::new();
     let mut unfinished = Vec::new();
     for shard in &shards {
-        let folder = dir.join(shard.folder());
-        let read = |file: &str| {
-            let path = folder.join(file);
-            std::fs::read_to_string(&path).map_err(|e| Error::Io(e).in_file(&path))
-        };
-        let text = read(SHARD_SWEEP_FILE)?;
-        match &sweep_text {
-            Some((t, s)) if *t != text => {
-                return Err(Error::Config(format!(
-                    "shards {s} and {shard} in {} belong to different sweeps",
-                    dir.display()
-                )));
-            }
-            Some(_) => {}
-            None => {
-                let parsed = Sweep::from_toml_within(&text, u64::MAX)
-                    .map_err(|e| e.in_file(folder.join(SHARD_SWEEP_FILE)))?;
-                sweep = Some(parsed);
-                sweep_text = Some((text, *shard));
-            }
+        if *shard != first && read(shard, SHARD_SWEEP_FILE)? != sweep_text {
+            return Err(Error::Config(format!(
+                "shards {first} and {shard} in {} belong to different sweeps",
+                dir.display()
+            )));
         }
-        let Some(sweep) = &sweep else { continue };
-        let csv_path = folder.join("runs.csv");
-        let these = parse_runs_csv(sweep, &read("runs.csv")?).map_err(|e| e.in_file(&csv_path))?;
+        let csv_path = dir.join(shard.folder()).join("runs.csv");
+        let these =
+            parse_runs_csv(&sweep, &read(shard, "runs.csv")?).map_err(|e| e.in_file(&csv_path))?;
         check_share(&these, *shard).map_err(|e| e.in_file(&csv_path))?;
         let expected = sweep.jobs(Some(*shard)).len();
         if these.len() < expected {
@@ -1162,9 +1154,6 @@ pub fn merge_shards(dir: &Path) -> Result<(String, Sweep, Vec<SweepRun>)> {
         }
         runs.extend(these);
     }
-    let Some(sweep) = sweep else {
-        return Err(Error::Config("no shard read".into()));
-    };
     if !unfinished.is_empty() {
         return Err(Error::Config(format!(
             "shards not finished in {}: {}; run them again with --resume",

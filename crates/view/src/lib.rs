@@ -133,8 +133,14 @@ pub fn to_html(model: &Model, tracks: &Tracks, options: &ViewOptions) -> Result<
     let (t, n) = (tracks.n_frames(), tracks.n_points());
     let stride = (t * n).div_ceil(options.max_samples).max(1);
     let frames: Vec<usize> = (0..t).step_by(stride).collect();
-    let shown = tracks.select_frames(&frames)?;
-    let seen = kinetree_fit::observe(model, &shown, kinetree_fit::ObserveOptions::default())?;
+    // Every frame kept: the tracks themselves, not a copy.
+    let kept = if stride > 1 {
+        Some(tracks.select_frames(&frames)?)
+    } else {
+        None
+    };
+    let shown = kept.as_ref().unwrap_or(tracks);
+    let seen = kinetree_fit::observe(model, shown, kinetree_fit::ObserveOptions::default())?;
     let pose = |f: usize, b: usize| seen.poses[f].get(b).copied().flatten();
     let bodies = model
         .bodies
