@@ -920,7 +920,7 @@ impl Observer {
 
     /// The fit's outputs, with every position's standard deviation from the normal matrix.
     fn report(&self, d: &Descent, visible: &Visible) -> FrameFit {
-        let variance = d.lin.as_ref().map(Linear::marginal_variances);
+        let variance = d.lin.as_ref().map(|l| l.marginal_variances(&self.pattern));
         let determined = |c: usize| {
             variance
                 .as_ref()
@@ -994,16 +994,12 @@ impl Observer {
         let Some(lin) = self.linearise(&descent.poses, visible, scratch) else {
             return vec![None; nb];
         };
-        let n = self.n_params;
-        let mut normal = lin.normal.clone();
-        for i in 0..n {
-            if !lin.seen[i] || normal[(i, i)] <= 0.0 {
-                normal[(i, i)] = 1.0;
-            }
-        }
-        let Some(inverse) = normal.cholesky().map(|c| c.inverse()) else {
+        // Parameters no point depends on are pinned (a unit diagonal); a body's covariance
+        // needs the inverse only between parameters on one path.
+        let Some(factor) = lin.damped_factor(0.0, &self.pattern) else {
             return vec![None; nb];
         };
+        let inverse = factor.inverse();
         (0..nb)
             .map(|b| {
                 let pose = descent.poses[b]?;
@@ -1015,7 +1011,8 @@ impl Observer {
                 let mut cov = Matrix6::<f64>::zeros();
                 for &c in cols {
                     for &d in cols {
-                        cov += scratch.twist[c] * scratch.twist[d].transpose() * inverse[(c, d)];
+                        let n_cd = inverse.entry(c, d).unwrap_or(0.0);
+                        cov += scratch.twist[c] * scratch.twist[d].transpose() * n_cd;
                     }
                 }
                 let r = pose.rotation.to_rotation_matrix();
@@ -1354,49 +1351,21 @@ impl Linear {
     }
 
     /// Per parameter, its variance in units of the noise variance and its variance
-    /// inflation; `None` for parameters no point depends on.
-    fn marginal_variances(&self) -> Vec<Option<(f64, f64)>> {
+    /// inflation (the variance times the parameter's own information); `None` for parameters
+    /// no point depends on. A ridge of `1e-12` of each diagonal entry keeps exact dependencies
+    /// factorable; such parameters come out with a huge inflation.
+    fn marginal_variances(&self, pattern: &TreePattern) -> Vec<Option<(f64, f64)>> {
         let n = self.normal.nrows();
-        let scale: Vec<f64> = (0..n)
-            .map(|i| {
-                let d = self.normal[(i, i)];
-                if self.seen[i] && d > 0.0 {
-                    1.0 / d.sqrt()
-                } else {
-                    0.0
-                }
-            })
-            .collect();
-        // Jacobi-scaled normal matrix (unit diagonal), a tiny ridge for exact dependencies.
-        let mut m = DMatrix::<f64>::identity(n, n);
-        for i in 0..n {
-            for k in 0..n {
-                if scale[i] > 0.0 && scale[k] > 0.0 {
-                    m[(i, k)] = self.normal[(i, k)] * scale[i] * scale[k];
-                }
-            }
-            m[(i, i)] += 1e-12;
-        }
-        let Some(chol) = m.cholesky() else {
+        let Some(factor) = self.damped_factor(1e-12, pattern) else {
             return vec![None; n];
         };
-        // Only the inverse's diagonal is needed: with m = L L^T, entry i is the squared norm
-        // of column i of L^-1, found by forward substitution from row i down (n^3 / 6
-        // products). nalgebra's `Cholesky::inverse` forms the whole inverse, which took 13 %
-        // of a frame's fit (measured on the observer benchmark).
-        let l = chol.l_dirty();
-        let mut y = vec![0.0; n];
+        let inverse = factor.inverse();
         (0..n)
             .map(|i| {
-                (scale[i] > 0.0).then(|| {
-                    y[i] = 1.0 / l[(i, i)];
-                    let mut inflation = y[i] * y[i];
-                    for r in i + 1..n {
-                        let dot: f64 = (i..r).map(|c| l[(r, c)] * y[c]).sum();
-                        y[r] = -dot / l[(r, r)];
-                        inflation += y[r] * y[r];
-                    }
-                    (inflation * scale[i] * scale[i], inflation)
+                let d = self.normal[(i, i)];
+                (self.seen[i] && d > 0.0).then(|| {
+                    let var = inverse.diagonal(i);
+                    (var, var * d)
                 })
             })
             .collect()
@@ -1429,7 +1398,10 @@ mod tests {
             origin: Vector3::zeros(),
         };
         let inverse = normal.clone().cholesky().expect("spd").inverse();
-        for (i, v) in lin.marginal_variances().iter().enumerate() {
+        // A chain's pattern is the whole lower triangle: a dense matrix fits it.
+        let chain: Vec<Option<usize>> = (0..n).map(|i| i.checked_sub(1)).collect();
+        let pattern = TreePattern::new(&chain).expect("parents first");
+        for (i, v) in lin.marginal_variances(&pattern).iter().enumerate() {
             let (var, inflation) = v.expect("seen");
             assert!((var / inverse[(i, i)] - 1.0).abs() < 1e-9, "{i}: {var}");
             assert!((inflation - inverse[(i, i)] * normal[(i, i)]).abs() < 1e-6 * inflation);
