@@ -143,6 +143,8 @@ def test_errors_are_value_errors_naming_the_problem(arm):
         kinetree.discover(tracks, config=42)
     with pytest.raises(kinetree.TooLargeError, match="GiB"):
         kinetree.discover(tracks, max_memory_gib=1e-9)
+    with pytest.raises(kinetree.TooLargeError, match="bodies over 100 frames"):
+        kinetree.discover(tracks, config={"max_minutes": 1e-6})
     with pytest.raises(kinetree.FileError):
         kinetree.Model.from_json("{not json")
     model = kinetree.discover(tracks, noise_sigma=0.001)

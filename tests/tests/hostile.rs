@@ -667,3 +667,60 @@ fn coincident_points_get_no_invented_poses() {
         }
     }
 }
+
+/// A discovery estimated to take longer than `max_minutes` is refused before its pair
+/// statistics, or, once its bodies are found, before its model phases, with the estimate,
+/// the limit and what to do; the default limit runs the same data.
+#[test]
+fn work_beyond_the_limit_is_refused_before_it_starts() {
+    let data = simulate(&paper_arm(0)).expect("simulate");
+    let (t, n) = (data.tracks.n_frames() as u64, data.tracks.n_points() as u64);
+    let pairs = kinetree_core::limits::pairs_seconds(t, n);
+    let model = kinetree_core::limits::model_seconds(t, 5);
+    assert!(pairs < model / 10.0, "{pairs} s against {model} s");
+    let with_limit = |seconds: f64, noise: Option<f64>| {
+        let config = PipelineConfig {
+            max_minutes: seconds / 60.0,
+            noise_sigma_m: noise,
+            ..PipelineConfig::default()
+        };
+        Pipeline::from_config(&config)
+            .expect("pipeline")
+            .run(&data.tracks)
+    };
+    // Below the pair statistics' estimate: refused before anything is computed.
+    let e = with_limit(pairs / 2.0, None).expect_err("pair statistics");
+    match &e {
+        Error::TooLarge { what, hint, .. } => {
+            assert!(what.starts_with("pair statistics of 100 frames"), "{e}");
+            assert!(hint.contains("--max-minutes"), "{e}");
+        }
+        other => panic!("expected TooLarge, got {other:?}"),
+    }
+    // Between the two: the pair statistics and the clustering run, the model phases are
+    // refused naming the bodies found, and an estimated noise level is named as a cause.
+    let between = (pairs * model).sqrt();
+    for (noise, advice) in [(None, true), (Some(1e-3), false)] {
+        let e = with_limit(between, noise).expect_err("model phases");
+        match &e {
+            Error::TooLarge { what, hint, .. } => {
+                assert!(what.starts_with("the bodies and model phases on"), "{e}");
+                assert!(what.ends_with("bodies over 100 frames"), "{e}");
+                assert_eq!(hint.contains("--noise-sigma"), advice, "{e}");
+                assert!(hint.contains("`max_minutes` in [pipeline]"), "{e}");
+            }
+            other => panic!("expected TooLarge, got {other:?}"),
+        }
+    }
+    let found = with_limit(60.0 * kinetree_core::limits::DEFAULT_MAX_MINUTES, None)
+        .expect("the default limit");
+    assert_eq!(structure(&found.model), structure(arm_model()));
+    for bad in [f64::NAN, 0.0, -1.0] {
+        let config = PipelineConfig {
+            max_minutes: bad,
+            ..PipelineConfig::default()
+        };
+        let e = Pipeline::from_config(&config).expect_err("not a limit");
+        assert!(e.to_string().contains("pipeline.max_minutes"), "{e}");
+    }
+}

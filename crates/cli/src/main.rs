@@ -131,6 +131,11 @@ struct Cli {
     /// experiment's `pipeline.max_memory_gib`.
     #[arg(long, global = true, value_name = "GIB")]
     max_memory: Option<f64>,
+    /// Work limit in estimated minutes (default 30): a discovery whose pair statistics, or
+    /// whose model phases once its bodies are found, are estimated to take longer is refused
+    /// before they start. For `run`, it replaces the experiment's `pipeline.max_minutes`.
+    #[arg(long, global = true, value_name = "MINUTES")]
+    max_minutes: Option<f64>,
     /// No progress display: neither `discover`'s stage display (drawn on a terminal once a
     /// discovery has run for a second) nor a sweep's progress bar.
     #[arg(long, short, global = true)]
@@ -378,12 +383,26 @@ struct SweepFlags {
     shard: Option<kinetree_pipeline::sweep::Shard>,
 }
 
-fn run(
-    config: Option<PathBuf>,
-    results: &Path,
-    max_memory: Option<f64>,
-    flags: &SweepFlags,
-) -> Result<()> {
+/// The limits given on the command line, which replace a configuration's.
+#[derive(Debug, Clone, Copy)]
+struct Limits {
+    memory_gib: Option<f64>,
+    minutes: Option<f64>,
+}
+
+impl Limits {
+    /// Puts the limits given into `cfg`.
+    fn apply(&self, cfg: &mut PipelineConfig) {
+        if let Some(m) = self.memory_gib {
+            cfg.max_memory_gib = m;
+        }
+        if let Some(m) = self.minutes {
+            cfg.max_minutes = m;
+        }
+    }
+}
+
+fn run(config: Option<PathBuf>, results: &Path, limits: Limits, flags: &SweepFlags) -> Result<()> {
     let (text, base) = match &config {
         Some(p) => (
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
@@ -392,9 +411,14 @@ fn run(
         None => (PAPER_EXPERIMENT_TOML.to_string(), PathBuf::from(".")),
     };
     if kinetree_pipeline::sweep::is_sweep(&text) {
-        if max_memory.is_some() {
+        if limits.memory_gib.is_some() {
             bail!(
                 "--max-memory is not taken by a sweep; set `pipeline.max_memory_gib` in its config"
+            );
+        }
+        if limits.minutes.is_some() {
+            bail!(
+                "--max-minutes is not taken by a sweep; set `pipeline.max_minutes` in its config"
             );
         }
         return sweep(&text, config.as_deref(), &base, results, flags);
@@ -408,9 +432,7 @@ fn run(
     }
     let mut cfg = ExperimentConfig::from_toml(&text)
         .with_context(|| format!("in {}", where_config(config.as_deref())))?;
-    if let Some(m) = max_memory {
-        cfg.pipeline.max_memory_gib = m;
-    }
+    limits.apply(&mut cfg.pipeline);
     let outcome = run_experiment(&cfg, &base)
         .with_context(|| format!("in {}", where_config(config.as_deref())))?;
     let model = &outcome.discovery.model;
@@ -563,6 +585,13 @@ fn run_command() -> Result<()> {
     let cli = Cli::parse();
     configure_threads()?;
     let max_memory = cli.max_memory;
+    let limits = Limits {
+        memory_gib: max_memory,
+        minutes: cli.max_minutes,
+    };
+    if let Some(m) = limits.minutes {
+        kinetree_core::limits::validate_minutes("--max-minutes", m)?;
+    }
     let quiet = cli.quiet;
     let memory = max_memory.unwrap_or(kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB);
     kinetree_core::limits::validate_limit("--max-memory", memory)?;
@@ -578,7 +607,7 @@ fn run_command() -> Result<()> {
         } => run(
             config,
             &results,
-            max_memory,
+            limits,
             &SweepFlags {
                 quiet,
                 resume,
@@ -616,9 +645,7 @@ fn run_command() -> Result<()> {
             if noise_sigma.is_some() {
                 cfg.noise_sigma_m = noise_sigma;
             }
-            if let Some(m) = max_memory {
-                cfg.max_memory_gib = m;
-            }
+            limits.apply(&mut cfg);
             let mut inputs = vec![tracks.as_path()];
             inputs.extend(pipeline.as_deref());
             refuse_overwriting(&output, &inputs)?;

@@ -295,3 +295,28 @@ fn observe_flags_the_frames_the_model_does_not_explain() {
         assert!(residuals.iter().all(|r| *r > 10.0), "{what}: {residuals:?}");
     }
 }
+
+#[test]
+fn max_minutes_bounds_the_estimated_work_of_a_discovery() {
+    let dir = tmp("minutes");
+    let (tracks, _) = simulated(&dir);
+    let model = dir.join("limited.json");
+    let out = kinetree()
+        .args(["discover", "--quiet", "--max-minutes", "0.00001"])
+        .arg(&tracks)
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .expect("runs");
+    refused(&out, "bodies over 60 frames");
+    refused(&out, "--max-minutes");
+    assert!(!model.exists(), "a refused discovery writes no model");
+    let out = kinetree()
+        .args(["discover", "--max-minutes", "nan"])
+        .arg(&tracks)
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .expect("runs");
+    refused(&out, "--max-minutes");
+}

@@ -1,9 +1,11 @@
-//! Memory estimates made before anything large is allocated, and the limit they are held to.
+//! Memory and work estimates made before anything large is allocated or started, and the
+//! limits they are held to.
 //!
-//! The estimates are upper bounds fitted to measured peaks (`docs/decisions.md`,
-//! `limits.max_memory_gib`); a request above the limit is refused with
-//! [`Error::TooLarge`] stating both, and the limit is a parameter (`max_memory_gib` in
-//! `[pipeline]`, `--max-memory` on the command line).
+//! The memory estimates are upper bounds fitted to measured peaks (`docs/decisions.md`,
+//! `limits.max_memory_gib`), the work estimates are fitted to measured times
+//! (`limits.max_minutes`); a request above its limit is refused with [`Error::TooLarge`]
+//! stating both, and the limits are parameters (`max_memory_gib` and `max_minutes` in
+//! `[pipeline]`, `--max-memory` and `--max-minutes` on the command line).
 
 use crate::{Error, Result};
 
@@ -26,6 +28,70 @@ pub fn tracks_bytes(n_frames: u64, n_points: u64) -> f64 {
 pub fn discovery_bytes(n_frames: u64, n_points: u64) -> f64 {
     let n = n_points as f64;
     32.0 * n * n + 200.0 * n_frames as f64 * n
+}
+
+/// Default work limit, minutes of estimated work: a discovery estimated to take longer is
+/// refused before its expensive phase starts.
+pub const DEFAULT_MAX_MINUTES: f64 = 30.0;
+
+/// Pair-frames per second the pair statistics are estimated to run at (the pair kernel's
+/// measured throughput on 2 cores is 0.7-1.3e9, `docs/benchmarks.md`).
+const PAIR_FRAMES_PER_SECOND: f64 = 1e9;
+
+/// Seconds per frame and cubed body the model phases are estimated to take (fitted to whole
+/// discoveries of 3-77 bodies over 5-200 000 frames, `docs/decisions.md`,
+/// `limits.max_minutes`).
+const SECONDS_PER_FRAME_BODY3: f64 = 6e-6;
+
+/// Estimated seconds of the pair statistics over `n_frames x n_points` (every pair in every
+/// frame), as `f64` so that absurd sizes do not overflow.
+pub fn pairs_seconds(n_frames: u64, n_points: u64) -> f64 {
+    let n = n_points as f64;
+    n_frames as f64 * n * (n - 1.0).max(0.0) / 2.0 / PAIR_FRAMES_PER_SECOND
+}
+
+/// Estimated seconds of a discovery's bodies, tree and whole-tree fit phases once the
+/// clustering has found `n_bodies` bodies over `n_frames` frames. Their cost grows with the
+/// frames and with the cube of the bodies: the bundle adjustment's reduced system is dense
+/// in the joints' parameters, and each frame's term is a product over the frame's own.
+pub fn model_seconds(n_frames: u64, n_bodies: u64) -> f64 {
+    let b = n_bodies as f64;
+    SECONDS_PER_FRAME_BODY3 * n_frames as f64 * b * b * b
+}
+
+/// Refuses `what` when its estimated `seconds` exceed `max_minutes`; `advice` says what
+/// besides raising the limit may help.
+///
+/// # Errors
+/// [`Error::TooLarge`] with the estimate and the limit, saying how to raise it.
+pub fn check_work(what: &str, seconds: f64, max_minutes: f64, advice: &str) -> Result<()> {
+    if seconds <= max_minutes * 60.0 {
+        return Ok(());
+    }
+    let mut hint = "raise the limit with --max-minutes <minutes> or `max_minutes` in [pipeline] \
+                    to run it anyway"
+        .to_string();
+    if !advice.is_empty() {
+        hint = format!("{advice}; or {hint}");
+    }
+    Err(Error::TooLarge {
+        what: what.into(),
+        estimate: format_seconds(seconds),
+        limit: format_seconds(max_minutes * 60.0),
+        hint,
+    })
+}
+
+fn format_seconds(seconds: f64) -> String {
+    if seconds >= 7200.0 {
+        format!("{:.1} hours of work", seconds / 3600.0)
+    } else if seconds >= 120.0 {
+        format!("{:.1} minutes of work", seconds / 60.0)
+    } else if seconds >= 0.01 {
+        format!("{seconds:.2} seconds of work")
+    } else {
+        format!("{seconds:.1e} seconds of work")
+    }
 }
 
 /// Checks that the real parameter `name` is finite and within `[lo, hi]`.
@@ -58,17 +124,29 @@ pub fn check_count(name: &str, v: usize, lo: usize, hi: usize) -> Result<()> {
     }
 }
 
-/// Checks a limit's value.
+/// Checks a memory limit's value.
 ///
 /// # Errors
 /// [`Error::InvalidParameter`] naming `name` unless it is finite and positive.
 pub fn validate_limit(name: &str, max_gib: f64) -> Result<()> {
-    if max_gib.is_finite() && max_gib > 0.0 {
+    validate_positive(name, max_gib, "GiB")
+}
+
+/// Checks a work limit's value.
+///
+/// # Errors
+/// [`Error::InvalidParameter`] naming `name` unless it is finite and positive.
+pub fn validate_minutes(name: &str, max_minutes: f64) -> Result<()> {
+    validate_positive(name, max_minutes, "minutes")
+}
+
+fn validate_positive(name: &str, v: f64, unit: &str) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
         Err(Error::InvalidParameter {
             name: name.into(),
-            message: format!("must be a finite, positive number of GiB, got {max_gib}"),
+            message: format!("must be a finite, positive number of {unit}, got {v}"),
         })
     }
 }
@@ -122,5 +200,32 @@ mod tests {
         assert!(tracks_bytes(u64::MAX, u64::MAX).is_finite());
         assert!(validate_limit("max_memory_gib", f64::NAN).is_err());
         assert!(validate_limit("max_memory_gib", 0.0).is_err());
+    }
+
+    #[test]
+    fn work_above_the_limit_is_refused_naming_both_and_the_advice() {
+        // The 200 000-frame 3-body recording took 31 s; its estimate is within 10 % of it.
+        let long = model_seconds(200_000, 3);
+        assert!((long - 32.4).abs() < 0.1, "{long}");
+        check_work("x", long, DEFAULT_MAX_MINUTES, "").expect("half a minute");
+        let e = check_work(
+            "fitting 500 bodies",
+            model_seconds(5, 500),
+            30.0,
+            "give the noise",
+        )
+        .expect_err("500 bodies");
+        let text = e.to_string();
+        assert!(text.contains("62.5 minutes of work"), "{text}");
+        assert!(text.contains("30.0 minutes of work"), "{text}");
+        assert!(text.contains("give the noise; or raise"), "{text}");
+        assert!(text.contains("--max-minutes"), "{text}");
+        // Pair statistics grow with the frames and the square of the points.
+        assert!((pairs_seconds(1000, 20_001) / pairs_seconds(1000, 10_001) - 4.0).abs() < 1e-3);
+        assert_eq!(pairs_seconds(5, 1), 0.0);
+        assert!(pairs_seconds(u64::MAX, u64::MAX).is_finite());
+        assert!(validate_minutes("max_minutes", f64::INFINITY).is_err());
+        assert!(validate_minutes("max_minutes", -1.0).is_err());
+        validate_minutes("max_minutes", 0.5).expect("half a minute");
     }
 }

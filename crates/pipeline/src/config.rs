@@ -227,6 +227,11 @@ pub struct PipelineConfig {
     /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose
     /// estimate exceeds it is refused before it allocates.
     pub max_memory_gib: f64,
+    /// Estimated minutes of work a run may take (default
+    /// [`kinetree_core::limits::DEFAULT_MAX_MINUTES`]): a discovery whose pair statistics, or
+    /// whose model phases once the bodies are found, are estimated to take longer is refused
+    /// before they start.
+    pub max_minutes: f64,
     /// Replaced by `repairs.hinges.enabled` and `repairs.hinge_groups.enabled`: setting it
     /// is an error that names them.
     #[serde(default, skip_serializing, deserialize_with = "replaced_hinged_bodies")]
@@ -249,6 +254,7 @@ impl Default for PipelineConfig {
             positions: PositionLimits::default(),
             outliers: crate::outliers::OutlierParams::default(),
             max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
+            max_minutes: kinetree_core::limits::DEFAULT_MAX_MINUTES,
             hinged_bodies: (),
         }
     }
@@ -294,6 +300,7 @@ impl PipelineConfig {
         self.repairs.validate()?;
         self.runner.validate()?;
         kinetree_core::limits::validate_limit("pipeline.max_memory_gib", self.max_memory_gib)?;
+        kinetree_core::limits::validate_minutes("pipeline.max_minutes", self.max_minutes)?;
         self.outliers.validate()?;
         self.positions.validate("pipeline.positions")
     }

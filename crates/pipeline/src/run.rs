@@ -41,6 +41,8 @@ pub struct Pipeline {
     pub seed: u64,
     /// Memory a run may use, GiB ([`PipelineConfig::max_memory_gib`]).
     pub max_memory_gib: f64,
+    /// Estimated minutes of work a run may take ([`PipelineConfig::max_minutes`]).
+    pub max_minutes: f64,
     /// Which samples are impossible ([`PipelineConfig::outliers`]).
     pub outliers: crate::outliers::OutlierParams,
 }
@@ -114,6 +116,7 @@ impl Pipeline {
             noise_estimator: c.noise_estimator,
             seed: c.seed,
             max_memory_gib: c.max_memory_gib,
+            max_minutes: c.max_minutes,
             outliers: c.outliers,
         })
     }
@@ -159,6 +162,15 @@ impl Pipeline {
             &format!("discovering {} frames x {n} points", tracks.n_frames()),
             kinetree_core::limits::discovery_bytes(tracks.n_frames() as u64, n as u64),
             self.max_memory_gib,
+        )?;
+        kinetree_core::limits::check_work(
+            &format!(
+                "pair statistics of {} frames x {n} points",
+                tracks.n_frames()
+            ),
+            kinetree_core::limits::pairs_seconds(tracks.n_frames() as u64, n as u64),
+            self.max_minutes,
+            "",
         )?;
         let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
         for (i, &v) in visible.iter().enumerate() {

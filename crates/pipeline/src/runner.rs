@@ -416,6 +416,29 @@ impl<'a> Runner<'a> {
             .collect()
     }
 
+    /// Refuses the run when the bodies and model phases on the draft's bodies are estimated to
+    /// take longer
+    /// than [`Pipeline::max_minutes`]
+    /// ([`kinetree_core::limits::model_seconds`]).
+    fn check_model_work(&self, draft: &Draft) -> Result<()> {
+        let (t, b) = (self.tracks.n_frames(), draft.segmentation.n_bodies());
+        let advice = if self.source == NoiseSource::Estimated {
+            format!(
+                "the noise level was estimated ({:.3} mm), and an underestimate splits bodies: \
+                 give it with --noise-sigma (`noise_sigma_m`) if it is known",
+                self.sigma * 1e3
+            )
+        } else {
+            String::new()
+        };
+        kinetree_core::limits::check_work(
+            &format!("the bodies and model phases on {b} bodies over {t} frames"),
+            kinetree_core::limits::model_seconds(t as u64, b as u64),
+            self.pipeline.max_minutes,
+            &advice,
+        )
+    }
+
     /// Tests every pair on the draft's poses.
     fn test_pairs(&self, draft: &mut Draft) -> Result<()> {
         if draft.segmentation.n_bodies() == 0 {
@@ -541,8 +564,16 @@ impl<'a> Runner<'a> {
                     self.observer.stage(&format!("{name} (pass {})", pass + 1));
                 }
             };
+            // The clustering's bodies bound the work before the bodies phase (its splits and
+            // pair tests grow with them too), and the phase's bodies before the model phases.
+            if pass == 0 {
+                self.check_model_work(&draft)?;
+            }
             stage("bodies");
             let pose_warnings = self.bodies(&mut draft, &mut history)?;
+            if pass == 0 {
+                self.check_model_work(&draft)?;
+            }
             let hist: Vec<Warning> = history.iter().cloned().chain(pose_warnings).collect();
             let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
                 return Err(Error::Degenerate("the bodies phase left no poses".into()));
