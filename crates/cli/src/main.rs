@@ -132,8 +132,8 @@ struct Cli {
     #[arg(long, global = true, value_name = "GIB")]
     max_memory: Option<f64>,
     /// Work limit in estimated minutes (default 30): a discovery whose pair statistics, or
-    /// whose model phases once its bodies are found, are estimated to take longer is refused
-    /// before they start. For `run`, it replaces the experiment's `pipeline.max_minutes`.
+    /// whose bodies and model phases once the clustering has found its bodies, are estimated
+    /// to take longer is refused before they start. For `run`, it replaces the experiment's `pipeline.max_minutes`.
     #[arg(long, global = true, value_name = "MINUTES")]
     max_minutes: Option<f64>,
     /// No progress display: neither `discover`'s stage display (drawn on a terminal once a

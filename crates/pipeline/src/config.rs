@@ -229,8 +229,8 @@ pub struct PipelineConfig {
     pub max_memory_gib: f64,
     /// Estimated minutes of work a run may take (default
     /// [`kinetree_core::limits::DEFAULT_MAX_MINUTES`]): a discovery whose pair statistics, or
-    /// whose model phases once the bodies are found, are estimated to take longer is refused
-    /// before they start.
+    /// whose bodies and model phases once the clustering has found its bodies, are estimated
+    /// to take longer is refused before they start.
     pub max_minutes: f64,
     /// Replaced by `repairs.hinges.enabled` and `repairs.hinge_groups.enabled`: setting it
     /// is an error that names them.

@@ -417,9 +417,7 @@ impl<'a> Runner<'a> {
     }
 
     /// Refuses the run when the bodies and model phases on the draft's bodies are estimated to
-    /// take longer
-    /// than [`Pipeline::max_minutes`]
-    /// ([`kinetree_core::limits::model_seconds`]).
+    /// take longer than [`Pipeline::max_minutes`] ([`kinetree_core::limits::model_seconds`]).
     fn check_model_work(&self, draft: &Draft) -> Result<()> {
         let (t, b) = (self.tracks.n_frames(), draft.segmentation.n_bodies());
         let advice = if self.source == NoiseSource::Estimated {
