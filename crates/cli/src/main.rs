@@ -773,8 +773,10 @@ fn run_command() -> Result<()> {
                 dropout,
                 n_frames: frames,
             }
-            .data()?;
-            let (tracks, truth) = kinetree_pipeline::load_data(&data, Path::new("."), memory)?;
+            .data()
+            .map_err(simulate_flag)?;
+            let (tracks, truth) = kinetree_pipeline::load_data(&data, Path::new("."), memory)
+                .map_err(simulate_flag)?;
             std::fs::create_dir_all(&output)
                 .with_context(|| format!("creating {}", output.display()))?;
             kinetree_io::write_npy(&output.join("tracks.npy"), &tracks)?;
@@ -792,6 +794,28 @@ fn run_command() -> Result<()> {
             );
             Ok(())
         }
+    }
+}
+
+/// A simulation parameter's error named by the `simulate` option it came from.
+fn simulate_flag(e: kinetree_core::Error) -> kinetree_core::Error {
+    match e {
+        kinetree_core::Error::InvalidParameter { name, message } => {
+            let flag = match name.as_str() {
+                "data.n_frames" => "--frames",
+                "data.n_joints" => "--joints",
+                "data.prismatic_fraction" => "--prismatic-fraction",
+                "data.noise_sigma_m" => "--noise-sigma",
+                "data.dropout" => "--dropout",
+                "data.seed" => "--seed",
+                _ => return kinetree_core::Error::InvalidParameter { name, message },
+            };
+            kinetree_core::Error::InvalidParameter {
+                name: flag.into(),
+                message,
+            }
+        }
+        other => other,
     }
 }
 

@@ -320,3 +320,29 @@ fn max_minutes_bounds_the_estimated_work_of_a_discovery() {
         .expect("runs");
     refused(&out, "--max-minutes");
 }
+
+#[test]
+fn simulate_names_the_option_a_value_out_of_range_came_from() {
+    let dir = tmp("simulate-range");
+    for (args, flag) in [
+        (vec!["--frames", "1000000000000"], "`--frames`"),
+        (
+            vec!["--mechanism", "random", "--joints", "100000"],
+            "`--joints`",
+        ),
+        (vec!["--noise-sigma", "nan"], "`--noise-sigma`"),
+        (
+            vec!["--mechanism", "random", "--dropout", "2"],
+            "`--dropout`",
+        ),
+    ] {
+        let out = kinetree()
+            .arg("simulate")
+            .args(&args)
+            .arg("-o")
+            .arg(&dir)
+            .output()
+            .expect("runs");
+        refused(&out, flag);
+    }
+}
