@@ -177,9 +177,8 @@ impl<'a> TreeCholesky<'a> {
     pub(crate) fn inverse(&self) -> TreeInverse<'a> {
         let mut rows = vec![0.0; self.rows.len()];
         for i in 0..self.pattern.len() {
-            let (begin, end) = (self.pattern.start[i], self.pattern.start[i + 1]);
-            let path = &self.pattern.paths[begin..end];
-            let z = &mut rows[begin..end];
+            let path = self.pattern.path(i);
+            let z = &mut rows[self.pattern.start[i]..self.pattern.start[i + 1]];
             z[path.len() - 1] = 1.0;
             // Position p on i's path is parameter path[p], whose row of L holds L[path[p],
             // path[q]] for q < p at index q, then its diagonal at index p.
@@ -212,22 +211,22 @@ impl TreeInverse<'_> {
     /// when `c` is neither.
     pub(crate) fn entry(&self, c: usize, d: usize) -> Option<f64> {
         let (c, d) = if c <= d { (c, d) } else { (d, c) };
-        let row_c = &self.rows[self.pattern.start[c]..self.pattern.start[c + 1]];
-        let path_d = self.pattern.path(d);
+        let row_c = self.row(c);
         let depth = row_c.len() - 1;
-        if path_d.get(depth) != Some(&c) {
+        if self.pattern.path(d).get(depth) != Some(&c) {
             return None;
         }
-        let row_d = &self.rows[self.pattern.start[d]..self.pattern.start[d] + depth + 1];
-        Some(row_c.iter().zip(row_d).map(|(a, b)| a * b).sum())
+        Some(row_c.iter().zip(self.row(d)).map(|(a, b)| a * b).sum())
     }
 
     /// `N^-1[i, i]`.
     pub(crate) fn diagonal(&self, i: usize) -> f64 {
-        self.rows[self.pattern.start[i]..self.pattern.start[i + 1]]
-            .iter()
-            .map(|x| x * x)
-            .sum()
+        self.row(i).iter().map(|x| x * x).sum()
+    }
+
+    /// Row `i` of `L^-1`, on `i`'s path and `i`.
+    fn row(&self, i: usize) -> &[f64] {
+        &self.rows[self.pattern.start[i]..self.pattern.start[i + 1]]
     }
 }
 
