@@ -66,6 +66,17 @@ def _vector(value: Optional[Sequence[float]]) -> Optional[np.ndarray]:
     return None if value is None else np.asarray(value, dtype=np.float64)
 
 
+def _vectors(values: Optional[Sequence[Optional[Sequence[float]]]], n: int) -> np.ndarray:
+    """A per-frame ``(T, k)`` float array with NaN rows where the model has null; ``(T, 0)``
+    when absent."""
+    if not values:
+        return np.zeros((n, 0))
+    width = max((len(v) for v in values if v is not None), default=0)
+    return np.array(
+        [[np.nan] * width if v is None else v for v in values], dtype=np.float64
+    ).reshape(n, width)
+
+
 def _series(values: Optional[Sequence[Optional[float]]], n: int) -> np.ndarray:
     """A per-frame float array with NaN where the model has null (all NaN when absent)."""
     if values is None:
@@ -102,11 +113,13 @@ class Joint:
     """A joint between a parent and a child body.
 
     Attributes:
-        type: ``"revolute"``, ``"prismatic"``, ``"rigid"`` or ``"multi_dof"``.
+        type: ``"revolute"``, ``"prismatic"``, ``"spherical"``, ``"rigid"`` or
+            ``"multi_dof"``.
         parent, child: Body ids.
         axis: Unit axis ``(3,)`` in the camera frame at ``reference_frame``; None for
-            multi-DoF joints.
-        point: A point ``(3,)`` on a revolute axis in the camera frame; None otherwise.
+            spherical and multi-DoF joints.
+        point: A point ``(3,)`` on a revolute axis, or a spherical joint's centre, in the
+            camera frame; None otherwise.
         axis_in_parent, point_in_parent: The same in the parent's body frame.
         reference_frame: The frame at which the position is zero.
         positions: ``(T,)`` joint position per frame, radians or metres, NaN where the frame
@@ -114,6 +127,9 @@ class Joint:
         position_std: ``(T,)`` standard deviation of each position.
         smoothed_positions, smoothed_std: ``(T,)`` the positions smoothed over time and
             their standard deviations (NaN where not given).
+        coordinates: ``(T, k)`` coordinates of a joint of more than one (a spherical
+            joint's rotation vector, radians), NaN where unknown; ``(T, 0)`` otherwise.
+        coordinate_std: ``(T, k)`` their standard deviations.
         range: ``(min, max)`` of the positions, or None.
         dof: The estimated relative degrees of freedom.
         fit: How the whole-tree fit treats it: ``"followed"``, ``"freed"`` or
@@ -135,6 +151,8 @@ class Joint:
     range: Optional[Tuple[float, float]]
     dof: int
     fit: Optional[str]
+    coordinates: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    coordinate_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 class Model:
@@ -207,6 +225,8 @@ class Model:
                 range=None if j.get("range") is None else tuple(j["range"]),
                 dof=j["dof"],
                 fit=j.get("fit"),
+                coordinates=_vectors(j.get("coordinates"), t),
+                coordinate_std=_vectors(j.get("coordinate_std"), t),
             )
             for j in data["joints"]
         ]
@@ -226,6 +246,19 @@ class Model:
     def to_json(self) -> str:
         """The model JSON, byte for byte as ``kinetree discover -o model.json`` writes it."""
         return self._json
+
+    def to_urdf(self) -> str:
+        """The model as URDF, as ``kinetree export --format urdf`` writes it."""
+        return _kinetree.export_model(self._json, "urdf")
+
+    def to_mjcf(self) -> str:
+        """The model as MJCF for MuJoCo, as ``kinetree export --format mjcf`` writes it.
+
+        Each joint's ``qpos`` is the model's own coordinate: a hinge's or slide's position, a
+        ball's quaternion ``w x y z`` of its rotation vector; a root that is not static moves
+        on a free joint.
+        """
+        return _kinetree.export_model(self._json, "mjcf")
 
     def save(self, path: Union[str, "os.PathLike[str]"]) -> None:
         """Writes :meth:`to_json` to ``path``."""
@@ -433,6 +466,7 @@ def simulate(
     joints: int = 3,
     tree: bool = False,
     prismatic_fraction: float = 0.3,
+    spherical_fraction: float = 0.0,
     noise_sigma: float = 0.001,
     dropout: float = 0.0,
     frames: Optional[int] = None,
@@ -442,8 +476,9 @@ def simulate(
     Args:
         mechanism: ``"paper-arm"`` (the paper's 2-DoF arm) or ``"random"``.
         seed: Seed of every random choice.
-        joints, tree, prismatic_fraction: For random mechanisms: the number of joints,
-            whether bodies attach as a tree rather than a chain, the chance of a slide.
+        joints, tree, prismatic_fraction, spherical_fraction: For random mechanisms: the
+            number of joints, whether bodies attach as a tree rather than a chain, the chance
+            of a slide, and the chance that a joint that is not a slide is a ball joint.
         noise_sigma: Per-coordinate noise, metres.
         dropout: Extra random occlusion fraction.
         frames: Number of frames (default 100 for the paper arm, 200 for random ones).
@@ -458,6 +493,7 @@ def simulate(
         joints=joints,
         tree=tree,
         prismatic_fraction=prismatic_fraction,
+        spherical_fraction=spherical_fraction,
         noise_sigma=noise_sigma,
         dropout=dropout,
         frames=frames,

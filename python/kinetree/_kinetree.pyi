@@ -20,6 +20,7 @@ def discover(
     max_memory_gib: Optional[float] = None,
 ) -> str: ...
 def model_json(text: str) -> str: ...
+def export_model(text: str, format: str) -> str: ...
 def observe(
     model_text: str,
     tracks: npt.NDArray[np.float64],
@@ -40,6 +41,7 @@ def simulate(
     joints: int = 3,
     tree: bool = False,
     prismatic_fraction: float = 0.3,
+    spherical_fraction: float = 0.0,
     noise_sigma: float = 0.001,
     dropout: float = 0.0,
     frames: Optional[int] = None,

@@ -182,6 +182,21 @@ fn model_json(text: &str) -> PyResult<String> {
     model_text(&parse_model(text)?).map_err(to_py)
 }
 
+/// A model exported as `urdf`, `mjcf` or `dot` text.
+#[pyfunction]
+fn export_model(text: &str, format: &str) -> PyResult<String> {
+    let model = parse_model(text)?;
+    match format {
+        "urdf" => kinetree_io::export::to_urdf(&model).map_err(to_py),
+        "mjcf" => kinetree_io::export::to_mjcf(&model).map_err(to_py),
+        "dot" => Ok(kinetree_io::export::to_dot(&model)),
+        other => Err(to_py(kinetree_core::Error::InvalidParameter {
+            name: "format".into(),
+            message: format!("unknown export format `{other}`; use urdf, mjcf or dot"),
+        })),
+    }
+}
+
 /// Joint positions of `tracks` from a model: (joint names, positions (T, J), standard
 /// deviations (T, J), residual in sigma (T,), unexplained frames, their bound, body poses
 /// (T, B, 4, 4)), NaN where unknown.
@@ -265,7 +280,7 @@ fn observe<'py>(
 
 /// Simulates a mechanism; returns the tracks (T, N, 3) and the truth JSON.
 #[pyfunction]
-#[pyo3(signature = (mechanism="paper-arm", seed=0, joints=3, tree=false, prismatic_fraction=0.3, noise_sigma=0.001, dropout=0.0, frames=None))]
+#[pyo3(signature = (mechanism="paper-arm", seed=0, joints=3, tree=false, prismatic_fraction=0.3, spherical_fraction=0.0, noise_sigma=0.001, dropout=0.0, frames=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -274,6 +289,7 @@ fn simulate<'py>(
     joints: usize,
     tree: bool,
     prismatic_fraction: f64,
+    spherical_fraction: f64,
     noise_sigma: f64,
     dropout: f64,
     frames: Option<usize>,
@@ -284,6 +300,7 @@ fn simulate<'py>(
         joints,
         tree,
         prismatic_fraction,
+        spherical_fraction,
         noise_sigma_m: noise_sigma,
         dropout,
         n_frames: frames,
@@ -371,6 +388,7 @@ fn _kinetree(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TooLargeError", py.get_type::<TooLargeError>())?;
     m.add_function(wrap_pyfunction!(discover, m)?)?;
     m.add_function(wrap_pyfunction!(model_json, m)?)?;
+    m.add_function(wrap_pyfunction!(export_model, m)?)?;
     m.add_function(wrap_pyfunction!(observe, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(read_tracks, m)?)?;

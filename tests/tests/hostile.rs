@@ -143,6 +143,31 @@ fn damages() -> Vec<Damage> {
             "joints[0].position_std[0]",
         ),
         (
+            "coordinates on a one-coordinate joint",
+            |m| m["joints"][0]["coordinates"] = json!([[0.0, 0.0, 0.0]]),
+            "joints[0].coordinates",
+        ),
+        (
+            "a spherical joint with two coordinates a frame",
+            |m| {
+                let j = &mut m["joints"][0];
+                j["type"] = json!("spherical");
+                let n = j["positions"].as_array().expect("positions").len();
+                let mut c = vec![json!([0.0, 0.1, 0.2]); n];
+                c[n / 2] = json!([0.0, 0.1]);
+                j["coordinates"] = json!(c);
+            },
+            "joints[0].coordinates[50]",
+        ),
+        (
+            "a spherical joint without a centre",
+            |m| {
+                m["joints"][0]["type"] = json!("spherical");
+                m["joints"][0]["point_in_parent"] = Value::Null;
+            },
+            "joints[0].point_in_parent",
+        ),
+        (
             "a point on body 99",
             |m| m["point_body"][0] = json!(99),
             "point_body[0]",

@@ -113,6 +113,7 @@ impl TrackArgs {
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum ExportFormat {
     Urdf,
+    Mjcf,
     Dot,
     Json,
 }
@@ -282,12 +283,13 @@ enum Command {
         #[arg(long, default_value_t = kinetree_fit::DEFAULT_UNEXPLAINED_FACTOR)]
         unexplained_factor: f64,
     },
-    /// Export a model: URDF (links, joints with origin, axis and observed limits), DOT (the
-    /// kinematic graph) or JSON (the model, re-validated, with its schema version).
+    /// Export a model: URDF (links, joints with origin, axis and observed limits), MJCF
+    /// (MuJoCo: hinge, slide, ball and free joints), DOT (the kinematic graph) or JSON (the
+    /// model, re-validated, with its schema version).
     Export {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
-        /// `urdf`, `dot` or `json`.
+        /// `urdf`, `mjcf`, `dot` or `json`.
         #[arg(long, value_enum)]
         format: ExportFormat,
         /// Output file.
@@ -348,7 +350,8 @@ enum Command {
         /// Output folder.
         #[arg(short, long, default_value = "sim")]
         output: PathBuf,
-        /// Mechanism: `paper-arm`, or `random` with the options below.
+        /// Mechanism: `paper-arm`, `skeleton` (a human-like skeleton of ball joints and
+        /// hinges), or `random` with the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,
         /// Seed.
@@ -363,6 +366,9 @@ enum Command {
         /// Probability that a joint is prismatic (random mechanisms).
         #[arg(long, default_value_t = 0.3)]
         prismatic_fraction: f64,
+        /// Probability that a joint that is not prismatic is a ball joint (random mechanisms).
+        #[arg(long, default_value_t = 0.0)]
+        spherical_fraction: f64,
         /// Per-coordinate noise, metres.
         #[arg(long, default_value_t = 0.001)]
         noise_sigma: f64,
@@ -687,6 +693,8 @@ fn run_command() -> Result<()> {
             let text = match format {
                 ExportFormat::Urdf => kinetree_io::export::to_urdf(&m)
                     .with_context(|| format!("exporting {}", model.display()))?,
+                ExportFormat::Mjcf => kinetree_io::export::to_mjcf(&m)
+                    .with_context(|| format!("exporting {}", model.display()))?,
                 ExportFormat::Dot => kinetree_io::export::to_dot(&m),
                 ExportFormat::Json => serde_json::to_string_pretty(&m)?,
             };
@@ -759,6 +767,7 @@ fn run_command() -> Result<()> {
             joints,
             tree,
             prismatic_fraction,
+            spherical_fraction,
             noise_sigma,
             dropout,
             frames,
@@ -769,6 +778,7 @@ fn run_command() -> Result<()> {
                 joints,
                 tree,
                 prismatic_fraction,
+                spherical_fraction,
                 noise_sigma_m: noise_sigma,
                 dropout,
                 n_frames: frames,
@@ -805,6 +815,7 @@ fn simulate_flag(e: kinetree_core::Error) -> kinetree_core::Error {
                 "data.n_frames" => "--frames",
                 "data.n_joints" => "--joints",
                 "data.prismatic_fraction" => "--prismatic-fraction",
+                "data.spherical_fraction" => "--spherical-fraction",
                 "data.noise_sigma_m" => "--noise-sigma",
                 "data.dropout" => "--dropout",
                 "data.seed" => "--seed",

@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 /// Version of the model JSON schema.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// Where the noise level came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -177,7 +177,8 @@ pub struct Ranks {
     pub sliding: usize,
 }
 
-/// A joint's type, written in the model as `rigid`, `revolute`, `prismatic` or `multi_dof`.
+/// A joint's type, written in the model as `rigid`, `revolute`, `prismatic`, `spherical` or
+/// `multi_dof`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum JointType {
@@ -187,7 +188,9 @@ pub enum JointType {
     Revolute,
     /// One translation along a fixed axis.
     Prismatic,
-    /// More than one degree of freedom (the ranks tell more).
+    /// Three rotations about a centre fixed in both bodies (a ball joint).
+    Spherical,
+    /// More than one degree of freedom that no other type explains (the ranks tell more).
     MultiDof,
 }
 
@@ -198,6 +201,7 @@ impl JointType {
             Self::Rigid => "rigid",
             Self::Revolute => "revolute",
             Self::Prismatic => "prismatic",
+            Self::Spherical => "spherical",
             Self::MultiDof => "multi_dof",
         }
     }
@@ -205,6 +209,17 @@ impl JointType {
     /// Whether the joint has exactly one degree of freedom.
     pub fn is_single_dof(self) -> bool {
         matches!(self, Self::Revolute | Self::Prismatic)
+    }
+
+    /// Number of coordinates in a frame's configuration: 0 (rigid, and multi-DoF joints,
+    /// which have no parametrisation), 1 (revolute, prismatic) or 3 (spherical, the rotation
+    /// vector).
+    pub fn n_coordinates(self) -> usize {
+        match self {
+            Self::Rigid | Self::MultiDof => 0,
+            Self::Revolute | Self::Prismatic => 1,
+            Self::Spherical => 3,
+        }
     }
 }
 
@@ -235,12 +250,15 @@ pub struct Joint {
     pub parent: usize,
     /// Child body id.
     pub child: usize,
-    /// `revolute`, `prismatic` or `multi_dof` (with the ranks telling more).
+    /// `rigid`, `revolute`, `prismatic`, `spherical` or `multi_dof` (with the ranks telling
+    /// more).
     #[serde(rename = "type")]
     pub joint_type: JointType,
-    /// Unit axis in the camera frame at `reference_frame` (null for `multi_dof`).
+    /// Unit axis in the camera frame at `reference_frame` (null for `spherical` and
+    /// `multi_dof`).
     pub axis: Option<[f64; 3]>,
-    /// A point on the axis in the camera frame at `reference_frame`, metres (revolute only).
+    /// A point on the axis (revolute), or the centre (spherical), in the camera frame at
+    /// `reference_frame`, metres.
     pub point: Option<[f64; 3]>,
     /// The same axis in the parent's body frame.
     pub axis_in_parent: Option<[f64; 3]>,
@@ -276,7 +294,25 @@ pub struct Joint {
     /// Standard deviation of each smoothed position.
     #[serde(default)]
     pub smoothed_std: Vec<Option<f64>>,
-    /// Observed range `[min, max]` of the positions.
+    /// The coordinates of a joint with more than one ([`JointType::n_coordinates`]), per
+    /// frame; empty for other joints, whose coordinate is in `positions`. A spherical joint's
+    /// are its rotation vector: the child's rotation about the centre from `reference_pose`,
+    /// in the parent's body frame, radians, zero at `reference_frame`. Null where the frame
+    /// does not determine them, as for `positions`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub coordinates: Vec<Option<Vec<f64>>>,
+    /// Standard deviation of each coordinate from the whole-tree fit (for a spherical joint,
+    /// of the rotation about each of the parent's axes), as `position_std`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub coordinate_std: Vec<Option<Vec<f64>>>,
+    /// The coordinates smoothed over time, each on its own as `smoothed_positions`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub smoothed_coordinates: Vec<Option<Vec<f64>>>,
+    /// Standard deviation of each smoothed coordinate.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub smoothed_coordinate_std: Vec<Option<Vec<f64>>>,
+    /// Observed range `[min, max]` of the positions (for a spherical joint, of its rotation
+    /// angle, the rotation vector's length).
     pub range: Option<[f64; 2]>,
     /// Estimated relative DoF.
     pub dof: usize,

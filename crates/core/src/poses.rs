@@ -177,6 +177,11 @@ pub enum JointKind {
         /// Unit axis direction.
         axis: Vector3<f64>,
     },
+    /// Three rotational DoF about a centre fixed in both bodies (a ball joint).
+    Spherical {
+        /// The centre in frame `a`'s body frame.
+        centre: Point3<f64>,
+    },
     /// More than one DoF (or a motion no single-DoF type explains); see the ranks.
     MultiDof,
 }
@@ -190,7 +195,7 @@ impl JointKind {
         )
     }
 
-    /// Short name: `rigid`, `revolute`, `prismatic`, `multi_dof`.
+    /// Short name: `rigid`, `revolute`, `prismatic`, `spherical`, `multi_dof`.
     pub fn name(&self) -> &'static str {
         self.joint_type().as_str()
     }
@@ -202,6 +207,7 @@ impl JointKind {
             JointKind::Rigid => JointType::Rigid,
             JointKind::Revolute { .. } => JointType::Revolute,
             JointKind::Prismatic { .. } => JointType::Prismatic,
+            JointKind::Spherical { .. } => JointType::Spherical,
             JointKind::MultiDof => JointType::MultiDof,
         }
     }

@@ -360,10 +360,11 @@ fn angle_sum_bounds(rotations: &[UnitQuaternion<f64>]) -> impl Fn(&UnitQuaternio
 /// in `(c, w)` (one gauge direction along the axis, fixed by a tiny ridge), each frame weighted
 /// by the covariance of the transformed pivot: pose noise of `a` at lever `c` plus pose noise
 /// of `b` at lever `w`. Three passes (the weights depend on the pivot). Returns
-/// `(chi^2 / dof, dof)` with `dof = 3K - 5`. No reference frame enters, so the result does
+/// `(chi^2 / dof, dof, c)` with `dof = 3K - 5` (one more than a spherical joint's `3K - 6`:
+/// the revolute gauge; the bound is a quantile either way) and `c` the pivot in `a`'s frame. No reference frame enters, so the result does
 /// not depend on which frame is the reference; a screw or a moving centre leaves a large
 /// residual.
-fn pivot_test(c: &PairColumns) -> Option<(f64, f64)> {
+fn pivot_test(c: &PairColumns) -> Option<(f64, f64, Point3<f64>)> {
     use kinetree_core::nalgebra::{SMatrix, SVector};
     let k = c.x_abs.len();
     if k < 3 {
@@ -410,7 +411,8 @@ fn pivot_test(c: &PairColumns) -> Option<(f64, f64)> {
             .sum();
     }
     let dof = (3 * k - 5) as f64;
-    chi2.is_finite().then_some((chi2 / dof, dof))
+    let centre = Point3::new(theta[0], theta[1], theta[2]);
+    chi2.is_finite().then_some((chi2 / dof, dof, centre))
 }
 
 /// Inverse left Jacobian of SO(3) at `phi = theta a`:
@@ -569,7 +571,7 @@ fn classify_ranks(
             match rule {
                 RankRule::Chi2 { z: zq, slack, .. } => {
                     // One reference-free test covers a moving centre and sliding.
-                    if let Some((per_dof, dof)) = pivot_test(c) {
+                    if let Some((per_dof, dof, _)) = pivot_test(c) {
                         let bound = slack * crate::rank::chi2_per_dof_quantile(dof, zq);
                         centre = RankTest {
                             singular_values: Vec::new(),
@@ -610,6 +612,40 @@ fn classify_ranks(
         _ => {
             dof = (rotation.rank + translation.rank).min(6);
             fit_ratio = rotation.next_rank_ratio();
+            // More than one rotation: a centre fixed in both bodies makes it a ball joint,
+            // judged by the same reference-free chi-square as a revolute joint's pivot.
+            if let RankRule::Chi2 { z: zq, slack, .. } = rule
+                && let Some((per_dof, n, centre_in_a)) = pivot_test(c)
+            {
+                let bound = slack * crate::rank::chi2_per_dof_quantile(n, zq);
+                centre = RankTest {
+                    singular_values: Vec::new(),
+                    whitened: Vec::new(),
+                    threshold: None,
+                    rank: usize::from(per_dof > bound),
+                    n_columns: c.x_abs.len(),
+                    chi2_per_dof: vec![per_dof],
+                    chi2_bound: vec![bound],
+                };
+                if centre.rank == 0 {
+                    joint = JointKind::Spherical {
+                        centre: centre_in_a,
+                    };
+                    return Ok(PairDof {
+                        a,
+                        b,
+                        reference_frame: c.reference_frame,
+                        translation,
+                        rotation,
+                        centre,
+                        sliding,
+                        centre_uncentred,
+                        dof: 3,
+                        joint,
+                        fit_ratio: fit_ratio.max(per_dof / bound),
+                    });
+                }
+            }
         }
     }
     Ok(PairDof {

@@ -48,6 +48,14 @@ pub struct JointEval {
     /// RMS of the smoothed positions' errors in units of their standard deviations.
     #[serde(default)]
     pub smoothed_z_rms: Option<f64>,
+    /// Distance from a true spherical joint's centre to the model's joint point in the camera
+    /// frame at the joint's reference frame, metres.
+    #[serde(default)]
+    pub centre_error_m: Option<f64>,
+    /// The same in the parent's body frame, with the alignment of
+    /// `axis_error_in_parent_deg`, so one frame's pose noise does not enter.
+    #[serde(default)]
+    pub centre_error_in_parent_m: Option<f64>,
 }
 
 /// The comparison of a model with the truth.
@@ -146,11 +154,14 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             position_z_rms: None,
             smoothed_rms: None,
             smoothed_z_rms: None,
+            centre_error_m: None,
+            centre_error_in_parent_m: None,
         };
         if let Some(j) = found {
             let expected = match spec.joint_type {
                 JointType::Revolute => kinetree_core::model::JointType::Revolute,
                 JointType::Prismatic => kinetree_core::model::JointType::Prismatic,
+                JointType::Spherical => kinetree_core::model::JointType::Spherical,
             };
             e.type_ok = j.joint_type == expected;
             let true_axis = truth.axis_in_camera(k, j.reference_frame);
@@ -180,16 +191,29 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                     ));
                 }
             }
-            e.position_rms = aligned_rms(&j.positions, &truth.joint_positions[k]);
-            (e.position_std_rms, e.position_z_rms) =
-                precision_check(&j.positions, &j.position_std, &truth.joint_positions[k]).unzip();
-            e.smoothed_rms = aligned_rms(&j.smoothed_positions, &truth.joint_positions[k]);
-            e.smoothed_z_rms = precision_check(
-                &j.smoothed_positions,
-                &j.smoothed_std,
-                &truth.joint_positions[k],
-            )
-            .map(|(_, z)| z);
+            if spec.joint_type == JointType::Spherical
+                && let Some(p) = j.point
+            {
+                let centre = truth.anchor_in_camera(k, j.reference_frame);
+                e.centre_error_m = Some((Point3::from(p) - centre).norm());
+            }
+            if spec.joint_type == JointType::Spherical
+                && let (Some(p), Some(align)) = (
+                    j.point_in_parent,
+                    parent_alignment(model, truth, j.parent, spec.parent),
+                )
+            {
+                let centre = align * Point3::from(p);
+                e.centre_error_in_parent_m = Some((centre - Point3::from(spec.anchor)).norm());
+            }
+            if let Some(q) = truth.single_positions(k) {
+                e.position_rms = aligned_rms(&j.positions, q);
+                (e.position_std_rms, e.position_z_rms) =
+                    precision_check(&j.positions, &j.position_std, q).unzip();
+                e.smoothed_rms = aligned_rms(&j.smoothed_positions, q);
+                e.smoothed_z_rms =
+                    precision_check(&j.smoothed_positions, &j.smoothed_std, q).map(|(_, z)| z);
+            }
         }
         all_ok &= e.found && e.type_ok;
         joints.push(e);

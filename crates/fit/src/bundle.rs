@@ -223,7 +223,8 @@ fn reduced_system(
     }
     for (k, c) in observer.joint_col.iter().enumerate() {
         if let Some(c) = *c {
-            owner[c] = observer.joints[k].child;
+            let j = &observer.joints[k];
+            owner[c..c + j.measure.width()].fill(j.child);
         }
     }
     // Per block: its joint's position column and child.

@@ -283,6 +283,11 @@ pub struct TypeByFitLimits {
     pub max_rotation_rank: usize,
     /// ... and at most this many translation directions (default 2).
     pub max_translation_rank: usize,
+    /// A spherical joint is tried as a hinge only when its fitted rotations stray from their
+    /// principal axis by at most this many of their standard deviations, RMS (default 20;
+    /// hinges typed spherical at 10 mm of noise stray by 6-18, the ball joints of simulated
+    /// skeletons by 20-180, and each trial costs a refinement and a bundle adjustment).
+    pub max_ball_off_axis_in_std: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
 }
@@ -294,6 +299,7 @@ impl Default for TypeByFitLimits {
             others_max_excess: MAX_JOINT_EXCESS,
             max_rotation_rank: 1,
             max_translation_rank: 2,
+            max_ball_off_axis_in_std: BALL_OFF_AXIS,
             bundle: BundleLimits::default(),
         }
     }
@@ -323,12 +329,20 @@ pub fn type_joints_by_fit(
     let mut typed = Vec::new();
     for k in 0..observer.joints.len() {
         let ranks = &model.joints[k].ranks;
-        if ranks.rotation > limits.max_rotation_rank
-            || ranks.translation > limits.max_translation_rank
+        // A spherical joint is tried as a hinge whatever its ranks: a hinge has a fixed centre
+        // too, and the rank test can take a noisy hinge's rotations for more than one.
+        let ball = model.joints[k].joint_type == JointType::Spherical;
+        if !ball
+            && (ranks.rotation > limits.max_rotation_rank
+                || ranks.translation > limits.max_translation_rank)
         {
             continue;
         }
+        if ball && off_axis_in_std(&fits, k).is_none_or(|r| r > limits.max_ball_off_axis_in_std) {
+            continue;
+        }
         let types: &[bool] = match model.joints[k].joint_type {
+            JointType::Spherical => &[true],
             JointType::MultiDof => &[false, true],
             JointType::Prismatic if observer.freed[k] => &[true],
             JointType::Revolute if observer.freed[k] => &[false],
@@ -341,6 +355,33 @@ pub fn type_joints_by_fit(
     }
     let state = FitState::kept(model, observer, fits, made_from, !typed.is_empty());
     Ok((state, typed))
+}
+
+/// How far spherical joint `k`'s fitted rotation vectors (`fits`) stray from the line through
+/// zero that fits them best (a hinge's lie on it): the RMS over frames of the distance from
+/// it in units of each frame's rotation standard deviation (the mean of its three axes').
+/// `None` with fewer than three frames.
+fn off_axis_in_std(fits: &[FrameFit], k: usize) -> Option<f64> {
+    let seen: Vec<(Vector3<f64>, f64)> = fits
+        .iter()
+        .filter_map(|f| {
+            let v = Vector3::from(f.rotations.get(k).copied().flatten()?);
+            let s = f.rotation_std.get(k).copied().flatten()?;
+            let var = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / 3.0;
+            (var > 0.0 && var.is_finite()).then_some((v, var))
+        })
+        .collect();
+    if seen.len() < 3 {
+        return None;
+    }
+    let scatter: Matrix3<f64> = seen.iter().map(|(v, w)| v * v.transpose() / *w).sum();
+    let e = scatter.symmetric_eigen();
+    let axis = e.eigenvectors.column(e.eigenvalues.imax()).into_owned();
+    let off: f64 = seen
+        .iter()
+        .map(|(v, w)| (v - axis * axis.dot(v)).norm_squared() / w)
+        .sum();
+    Some((off / seen.len() as f64).sqrt())
 }
 
 /// Writes the fit into `model`: every followed or freed joint's positions (multi-DoF ones keep
@@ -362,6 +403,10 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
     let (observer, fits) = (&state.observer, &state.fits);
     for (k, joint) in model.joints.iter_mut().enumerate() {
         let j = &observer.joints[k];
+        if let Measure::Spherical(centre) = j.measure {
+            write_rotations(joint, k, &centre, j.reference, fits, &model.position_limits)?;
+            continue;
+        }
         // Joints in the fit and freed ones (from the fitted poses); multi-DoF ones keep the
         // positions they came with.
         if !matches!(j.measure, Measure::None) {
@@ -395,6 +440,86 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
         });
     }
     Ok(rms_in_sigma(fits, model.noise.sigma_m))
+}
+
+/// [`write_positions`] for spherical joint `k`: its rotation vectors, re-zeroed at the
+/// joint's reference frame (the reference pose turned about the centre by that frame's
+/// rotation), their standard deviations, each coordinate smoothed on its own, and the range
+/// of the rotation angle.
+fn write_rotations(
+    joint: &mut kinetree_core::model::Joint,
+    k: usize,
+    centre: &Point3<f64>,
+    reference: Isometry3<f64>,
+    fits: &[FrameFit],
+    limits: &kinetree_core::model::PositionLimits,
+) -> Result<()> {
+    let turn = |v: [f64; 3]| UnitQuaternion::from_scaled_axis(Vector3::from(v));
+    let mut rotations: Vec<Option<UnitQuaternion<f64>>> =
+        fits.iter().map(|f| f.rotations[k].map(turn)).collect();
+    if let Some(zero) = rotations.get(joint.reference_frame).copied().flatten() {
+        let about = kinetree_core::nalgebra::Translation3::from(centre.coords);
+        let turned = about * zero * about.inverse() * reference;
+        joint.reference_pose = Some(RigidTransform::from_isometry(&turned));
+        for r in rotations.iter_mut().flatten() {
+            *r *= zero.inverse();
+        }
+    }
+    joint.coordinates = rotations
+        .iter()
+        .map(|r| {
+            r.map(|r| {
+                let v = r.scaled_axis();
+                vec![v.x, v.y, v.z]
+            })
+        })
+        .collect();
+    joint.coordinate_std = fits
+        .iter()
+        .zip(&joint.coordinates)
+        .map(|(f, c)| c.as_ref().and(f.rotation_std[k]).map(|s| s.to_vec()))
+        .collect();
+    let mut smoothed = vec![Some(Vec::new()); fits.len()];
+    let mut smoothed_std = vec![Some(Vec::new()); fits.len()];
+    for i in 0..3 {
+        let column: Vec<Option<f64>> = joint
+            .coordinates
+            .iter()
+            .map(|c| c.as_ref().map(|c| c[i]))
+            .collect();
+        let std: Vec<Option<f64>> = joint
+            .coordinate_std
+            .iter()
+            .map(|c| c.as_ref().map(|c| c[i]))
+            .collect();
+        let (values, deviations) =
+            crate::smooth::smooth_fitted_positions(&column, &std, true, limits)?;
+        for (t, (v, d)) in values.iter().zip(&deviations).enumerate() {
+            for (out, x) in [(&mut smoothed[t], v), (&mut smoothed_std[t], d)] {
+                *out = match (out.take(), x) {
+                    (Some(mut o), Some(x)) => {
+                        o.push(*x);
+                        Some(o)
+                    }
+                    _ => None,
+                };
+            }
+        }
+    }
+    joint.smoothed_coordinates = smoothed;
+    joint.smoothed_coordinate_std = smoothed_std;
+    joint.positions = vec![None; fits.len()];
+    joint.position_std = vec![None; fits.len()];
+    joint.smoothed_positions = vec![None; fits.len()];
+    joint.smoothed_std = vec![None; fits.len()];
+    let angles: Vec<f64> = rotations.iter().flatten().map(|r| r.angle()).collect();
+    joint.range = (!angles.is_empty()).then(|| {
+        [
+            angles.iter().copied().fold(f64::INFINITY, f64::min),
+            angles.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        ]
+    });
+    Ok(())
 }
 
 /// Bundle-adjusts the joints `observer` (built from `model`) follows ([`crate::bundle`]) and
@@ -482,6 +607,15 @@ fn type_by_fit(
             JointType::Prismatic
         };
         model.joints[k].dof = 1;
+        let joint = &mut model.joints[k];
+        for coordinates in [
+            &mut joint.coordinates,
+            &mut joint.coordinate_std,
+            &mut joint.smoothed_coordinates,
+            &mut joint.smoothed_coordinate_std,
+        ] {
+            coordinates.clear();
+        }
         store_joint(&mut model.joints[k], &start, &cam_parent);
         let mut freed = Observer::new(model)?;
         freed.free_joint(k);
@@ -578,6 +712,10 @@ fn candidate_joint(
 /// Default of [`TypeByFitLimits::max_excess`] (`docs/decisions.md`,
 /// `type_by_fit.max_excess`).
 const TYPE_EXCESS: f64 = 3.0;
+
+/// Default of [`TypeByFitLimits::max_ball_off_axis_in_std`] (`docs/decisions.md`,
+/// `type_by_fit.max_ball_off_axis_in_std`).
+const BALL_OFF_AXIS: f64 = 20.0;
 
 /// Default bound of [`readmit_freed_joints`] (`docs/decisions.md`,
 /// `readmit_joints.max_excess`).

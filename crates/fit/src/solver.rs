@@ -21,8 +21,22 @@ pub(crate) enum Measure {
     /// Axis and a point on it, both in the parent's body frame.
     Revolute(Vector3<f64>, Point3<f64>),
     Prismatic(Vector3<f64>),
-    /// Not a single-DoF joint, or no reference pose: no position.
+    /// A ball joint's centre in the parent's body frame: three parameters, the child's
+    /// rotation about it.
+    Spherical(Point3<f64>),
+    /// Neither, or no reference pose: no position.
     None,
+}
+
+impl Measure {
+    /// Number of the fit's parameters the joint takes when it is followed.
+    pub(crate) fn width(&self) -> usize {
+        match self {
+            Measure::Revolute(..) | Measure::Prismatic(..) => 1,
+            Measure::Spherical(..) => 3,
+            Measure::None => 0,
+        }
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -39,10 +53,17 @@ pub struct FrameFit {
     /// Joint positions, radians or metres, in the order of the model's joints; `None` where
     /// the frame does not determine the position (no visible point below the joint, or a
     /// standard deviation above the model's
-    /// [`PositionLimits`](kinetree_core::model::PositionLimits)).
+    /// [`PositionLimits`](kinetree_core::model::PositionLimits)), and for spherical joints.
     pub positions: Vec<Option<f64>>,
     /// Standard deviation of each position from the fit, with the model's noise level.
     pub std: Vec<Option<f64>>,
+    /// The rotation of each spherical joint (`None` for other joints, and where the frame
+    /// does not determine it): the rotation vector, radians, of the child about the centre
+    /// from its reference pose, in the parent's body frame.
+    pub rotations: Vec<Option<[f64; 3]>>,
+    /// Standard deviation of each spherical joint's rotation about the parent's three axes,
+    /// radians.
+    pub rotation_std: Vec<Option<[f64; 3]>>,
     /// Every body's `camera_from_body` from the fitted configuration; `None` where its part of
     /// the tree is not determined.
     pub poses: Vec<Option<Isometry3<f64>>>,
@@ -110,8 +131,11 @@ fn vector(a: [f64; 3]) -> Vector3<f64> {
 pub(crate) struct State {
     /// Pose of every freely posed body (`None`: not yet known).
     free: Vec<Option<Isometry3<f64>>>,
-    /// Position of every joint (`None`: not yet known).
+    /// Position of every single-DoF joint (`None`: not yet known).
     pub(crate) q: Vec<Option<f64>>,
+    /// Rotation of every spherical joint about its centre from its reference pose, in the
+    /// parent's frame (`None`: not yet known).
+    pub(crate) turn: Vec<Option<UnitQuaternion<f64>>>,
 }
 
 impl Observer {
@@ -176,8 +200,22 @@ impl Observer {
                         let measure = match j.joint_type {
                             JointType::Revolute => Measure::Revolute(axis, pivot),
                             JointType::Prismatic => Measure::Prismatic(axis),
-                            JointType::Rigid | JointType::MultiDof => Measure::None,
+                            JointType::Rigid | JointType::Spherical | JointType::MultiDof => {
+                                Measure::None
+                            }
                         };
+                        (measure, reference)
+                    }
+                    (Some(r), _) if j.joint_type == JointType::Spherical => {
+                        let reference = r.to_isometry().ok_or_else(|| {
+                            Error::Config(format!(
+                                "joint {} -> {}: reference_pose {:?} is not a rigid transform",
+                                j.parent, j.child, r
+                            ))
+                        })?;
+                        let measure = j.point_in_parent.map_or(Measure::None, |c| {
+                            Measure::Spherical(Point3::from(vector(c)))
+                        });
                         (measure, reference)
                     }
                     _ => (Measure::None, Isometry3::identity()),
@@ -271,7 +309,8 @@ impl Observer {
         }
     }
 
-    /// Assigns the fit's parameters: six per freely posed body, one per single-DoF joint.
+    /// Assigns the fit's parameters: six per freely posed body, one per single-DoF joint,
+    /// three per spherical joint (chained on the tree pattern like a free pose's six).
     fn lay_out(&mut self) {
         let nb = self.bodies.len();
         self.link = self
@@ -293,11 +332,12 @@ impl Observer {
                     self.n_params += 6;
                 }
                 Some(k) => {
+                    let width = self.joints[k].measure.width();
                     self.joint_col[k] = Some(self.n_params);
                     let mut c = self.cols[self.joints[k].parent].clone();
-                    c.push(self.n_params);
+                    c.extend(self.n_params..self.n_params + width);
                     self.cols[b] = c;
-                    self.n_params += 1;
+                    self.n_params += width;
                 }
             }
         }
@@ -406,6 +446,11 @@ impl Observer {
                 None => warm = Some(fit.clone()),
                 Some(w) => {
                     for (a, b) in w.positions.iter_mut().zip(&fit.positions) {
+                        if b.is_some() {
+                            *a = *b;
+                        }
+                    }
+                    for (a, b) in w.rotations.iter_mut().zip(&fit.rotations) {
                         if b.is_some() {
                             *a = *b;
                         }
@@ -556,7 +601,25 @@ impl Observer {
         }
     }
 
-    /// `parent_from_child` of joint `j` at position `q`.
+    /// `parent_from_child` of joint `k` in the state `s` (`None` while its value is unknown).
+    fn local(&self, k: usize, s: &State) -> Option<Isometry3<f64>> {
+        let j = &self.joints[k];
+        match j.measure {
+            Measure::Spherical(centre) => {
+                let turn = s.turn[k]?;
+                Some(
+                    Translation3::from(centre.coords)
+                        * turn
+                        * Translation3::from(-centre.coords)
+                        * j.reference,
+                )
+            }
+            _ => s.q[k].map(|q| Self::joint_transform(j, q)),
+        }
+    }
+
+    /// `parent_from_child` of a single-DoF joint `j` at position `q` (the reference pose for
+    /// other joints).
     pub(crate) fn joint_transform(j: &ObservedJoint, q: f64) -> Isometry3<f64> {
         match j.measure {
             Measure::Revolute(axis, pivot) => {
@@ -568,8 +631,19 @@ impl Observer {
                 turn * j.reference
             }
             Measure::Prismatic(axis) => Translation3::from(axis * q) * j.reference,
-            Measure::None => j.reference,
+            Measure::Spherical(_) | Measure::None => j.reference,
         }
+    }
+
+    /// The rotation vector of spherical joint `j` from the relative pose `x`
+    /// (`parent_from_child`): the child's rotation from its reference pose, in the parent's
+    /// frame.
+    fn measure_rotation(j: &ObservedJoint, x: &Isometry3<f64>) -> Option<[f64; 3]> {
+        let Measure::Spherical(_) = j.measure else {
+            return None;
+        };
+        let v = (x.rotation * j.reference.rotation.inverse()).scaled_axis();
+        Some([v.x, v.y, v.z])
     }
 
     /// The measured position of joint `j` from the relative pose `x` (`parent_from_child`).
@@ -582,7 +656,7 @@ impl Observer {
             Measure::Prismatic(axis) => {
                 Some(axis.dot(&(x.translation.vector - j.reference.translation.vector)))
             }
-            Measure::None => None,
+            Measure::Spherical(_) | Measure::None => None,
         }
     }
 
@@ -600,13 +674,10 @@ impl Observer {
         for &b in &self.topo {
             poses[b] = match self.link[b] {
                 None => s.free[b],
-                Some(k) => {
-                    let j = &self.joints[k];
-                    match (poses[j.parent], s.q[k]) {
-                        (Some(p), Some(q)) => Some(p * Self::joint_transform(j, q)),
-                        _ => None,
-                    }
-                }
+                Some(k) => match (poses[self.joints[k].parent], self.local(k, s)) {
+                    (Some(p), Some(x)) => Some(p * x),
+                    _ => None,
+                },
             };
         }
     }
@@ -627,6 +698,7 @@ impl Observer {
         let mut s = State {
             free: vec![None; nb],
             q: vec![None; self.joints.len()],
+            turn: vec![None; self.joints.len()],
         };
         // Per-body poses only where a freely posed body needs one: they are the costliest
         // part of the start (one 3 x 3 SVD each).
@@ -658,6 +730,9 @@ impl Observer {
                 for (k, q) in trial.q.iter_mut().enumerate() {
                     *q = Some(previous.and_then(|p| p.positions[k]).unwrap_or(0.0));
                 }
+                for (k, t) in trial.turn.iter_mut().enumerate() {
+                    *t = Some(previous_turn(previous, k).unwrap_or_default());
+                }
                 if let (Some(db), Some(od)) = (self.forward(&trial)[d], own_pose_of(d)) {
                     s.free[b] = Some(od * db.inverse());
                 }
@@ -671,6 +746,24 @@ impl Observer {
                 continue;
             };
             let j = &self.joints[k];
+            if let Measure::Spherical(centre) = j.measure {
+                let before = previous_turn(previous, k);
+                let closed = poses[j.parent]
+                    .and_then(|parent| best_turn(j, &centre, &parent, &visible[b], self.sigma));
+                s.turn[k] = if prefer_previous {
+                    before.or(closed)
+                } else {
+                    closed.or(before)
+                };
+                if s.turn[k].is_none() && poses[j.parent].is_some() {
+                    s.turn[k] = Some(UnitQuaternion::identity());
+                }
+                poses[b] = match (poses[j.parent], self.local(k, &s)) {
+                    (Some(p), Some(x)) => Some(p * x),
+                    _ => None,
+                };
+                continue;
+            }
             let before = previous.and_then(|p| p.positions[k]);
             let closed = poses[j.parent]
                 .and_then(|parent| best_position(j, &parent, &visible[b], self.sigma));
@@ -693,7 +786,11 @@ impl Observer {
         // Joints below a body with no pose: zero (their part of the tree is undetermined).
         for &b in &self.topo {
             if let Some(k) = self.link[b] {
-                s.q[k].get_or_insert(0.0);
+                if let Measure::Spherical(_) = self.joints[k].measure {
+                    s.turn[k].get_or_insert_with(UnitQuaternion::identity);
+                } else {
+                    s.q[k].get_or_insert(0.0);
+                }
             }
         }
         s
@@ -716,6 +813,9 @@ impl Observer {
         let mut trial = s.clone();
         for q in &mut trial.q {
             q.get_or_insert(0.0);
+        }
+        for t in &mut trial.turn {
+            t.get_or_insert_with(UnitQuaternion::identity);
         }
         let mut best = (f64::INFINITY, 0.0);
         for i in 0..12 {
@@ -788,19 +888,27 @@ impl Observer {
                     let (Some(c), Some(parent)) = (self.joint_col[k], poses[j.parent]) else {
                         continue;
                     };
-                    twist[c] = match j.measure {
+                    let turning = |w: Vector3<f64>, pivot: &Point3<f64>| {
+                        let at = (parent * pivot).coords - origin;
+                        let v = at.cross(&w);
+                        Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z)
+                    };
+                    match j.measure {
                         Measure::Revolute(axis, pivot) => {
-                            let w = parent.rotation * axis;
-                            let at = (parent * pivot).coords - origin;
-                            let v = at.cross(&w);
-                            Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z)
+                            twist[c] = turning(parent.rotation * axis, &pivot);
                         }
                         Measure::Prismatic(axis) => {
                             let v = parent.rotation * axis;
-                            Vector6::new(v.x, v.y, v.z, 0.0, 0.0, 0.0)
+                            twist[c] = Vector6::new(v.x, v.y, v.z, 0.0, 0.0, 0.0);
                         }
-                        Measure::None => Vector6::zeros(),
-                    };
+                        // A turn about each of the parent's axes through the centre.
+                        Measure::Spherical(centre) => {
+                            for (i, t) in twist[c..c + 3].iter_mut().enumerate() {
+                                *t = turning(parent.rotation * Vector3::ith(i, 1.0), &centre);
+                            }
+                        }
+                        Measure::None => twist[c] = Vector6::zeros(),
+                    }
                 }
             }
         }
@@ -842,7 +950,7 @@ impl Observer {
             }
             let own: &[usize] = match self.link[b] {
                 None => &self.cols[b][..],
-                Some(_) => &self.cols[b][self.cols[b].len() - 1..],
+                Some(k) => &self.cols[b][self.cols[b].len() - self.joints[k].measure.width()..],
             };
             for &c in own {
                 let moved = info[b] * twist[c];
@@ -887,11 +995,14 @@ impl Observer {
         }
         for (k, c) in self.joint_col.iter().enumerate() {
             let Some(c) = *c else { continue };
-            let v = step[c].abs();
-            size = size.max(match self.joints[k].measure {
-                Measure::Revolute(..) => v,
-                _ => v / unit,
-            });
+            let measure = self.joints[k].measure;
+            for i in 0..measure.width() {
+                let v = step[c + i].abs();
+                size = size.max(match measure {
+                    Measure::Revolute(..) | Measure::Spherical(..) => v,
+                    _ => v / unit,
+                });
+            }
         }
         size
     }
@@ -900,6 +1011,7 @@ impl Observer {
     fn apply(&self, s: &State, step: &DVector<f64>, origin: &Vector3<f64>, out: &mut State) {
         out.free.clone_from(&s.free);
         out.q.clone_from(&s.q);
+        out.turn.clone_from(&s.turn);
         for (b, free) in out.free.iter_mut().enumerate() {
             let (Some(c), Some(pose)) = (self.free_col[b], free.as_mut()) else {
                 continue;
@@ -916,6 +1028,13 @@ impl Observer {
                 *v += step[c];
             }
         }
+        // A spherical joint's step turns the child about the parent's axes (see `linearise`).
+        for (k, t) in out.turn.iter_mut().enumerate() {
+            if let (Some(c), Some(turn)) = (self.joint_col[k], t.as_mut()) {
+                let w = Vector3::new(step[c], step[c + 1], step[c + 2]);
+                *turn = UnitQuaternion::from_scaled_axis(w) * *turn;
+            }
+        }
     }
 
     /// The fit's outputs, with every position's standard deviation from the normal matrix.
@@ -929,8 +1048,28 @@ impl Observer {
         };
         let mut std = vec![None; self.joints.len()];
         let mut positions = vec![None; self.joints.len()];
+        let mut rotations = vec![None; self.joints.len()];
+        let mut rotation_std = vec![None; self.joints.len()];
         for (k, j) in self.joints.iter().enumerate() {
             let Some(c) = self.joint_col[k] else { continue };
+            if let Measure::Spherical(_) = j.measure {
+                let Some(var) = variance.as_ref() else {
+                    continue;
+                };
+                let sd: Option<Vec<f64>> = (c..c + 3)
+                    .map(|i| var[i].map(|(v, _)| self.sigma * v.sqrt()))
+                    .collect();
+                let Some(sd) = sd else { continue };
+                let sd = [sd[0], sd[1], sd[2]];
+                rotation_std[k] = Some(sd);
+                if (c..c + 3).all(determined) && sd.iter().all(|&v| v <= self.limits.max_std_rad) {
+                    rotations[k] = d.state.turn[k].map(|t| {
+                        let v = t.scaled_axis();
+                        [v.x, v.y, v.z]
+                    });
+                }
+                continue;
+            }
             let Some((var, _)) = variance.as_ref().and_then(|v| v[c]) else {
                 continue;
             };
@@ -956,6 +1095,7 @@ impl Observer {
                 && let (Some(a), Some(b)) = (poses[j.parent], poses[j.child])
             {
                 positions[k] = Self::measure(j, &(a.inverse() * b));
+                rotations[k] = Self::measure_rotation(j, &(a.inverse() * b));
             }
         }
         let n_points = d
@@ -968,6 +1108,8 @@ impl Observer {
         FrameFit {
             positions,
             std,
+            rotations,
+            rotation_std,
             poses,
             n_points,
             sum_sq_m2: d.cost,
@@ -1161,8 +1303,48 @@ pub(crate) fn best_position(
                 .sum();
             Some(sum / visible.len() as f64)
         }
-        Measure::None => None,
+        Measure::Spherical(_) | Measure::None => None,
     }
+}
+
+/// A spherical joint's rotation from `previous`, when it has one.
+fn previous_turn(previous: Option<&FrameFit>, k: usize) -> Option<UnitQuaternion<f64>> {
+    let v = previous?.rotations.get(k).copied().flatten()?;
+    Some(UnitQuaternion::from_scaled_axis(vector(v)))
+}
+
+/// The rotation about `centre` (parent's frame) that best carries spherical joint `j`'s
+/// visible child points onto their observations, given the parent's pose: the orthogonal
+/// Procrustes rotation of the points about the centre (two points not in line with it
+/// suffice). `None` when the points do not fix it.
+fn best_turn(
+    j: &ObservedJoint,
+    centre: &Point3<f64>,
+    parent: &Isometry3<f64>,
+    visible: &[(Point3<f64>, Point3<f64>)],
+    sigma: f64,
+) -> Option<UnitQuaternion<f64>> {
+    let mut h = Matrix3::zeros();
+    for (sp, o) in visible {
+        let a = (j.reference * sp) - centre;
+        let b = parent.inverse_transform_point(o) - centre;
+        h += b * a.transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    // Two independent directions are needed (the third follows); below the noise they are
+    // not.
+    let mut values = svd.singular_values;
+    values.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if values[1] <= 9.0 * sigma * sigma {
+        return None;
+    }
+    let mut d = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let r = kinetree_core::nalgebra::Rotation3::from_matrix_unchecked(u * d * v_t);
+    Some(UnitQuaternion::from_rotation_matrix(&r))
 }
 
 /// A body's pose from its own visible points alone (Kabsch-Umeyama), `None` with fewer than

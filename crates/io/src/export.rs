@@ -1,4 +1,5 @@
-//! Exports of a discovered model: URDF for robotics tools and DOT for graph viewers.
+//! Exports of a discovered model: URDF and MJCF (MuJoCo) for robotics tools and DOT for graph
+//! viewers.
 
 use kinetree_core::model::{Joint, JointType, Model, RigidTransform};
 use kinetree_core::nalgebra::{Rotation3, Vector3};
@@ -68,9 +69,10 @@ fn joint_frame(j: &Joint) -> Result<JointFrame> {
     })?;
     let r = rotation(&reference)?;
     let t = Vector3::from(reference.translation);
-    // Revolute: the joint frame sits on the axis, so the rotation is about its origin.
+    // Revolute: the joint frame sits on the axis, so the rotation is about its origin;
+    // spherical: at the centre.
     let origin = match (j.joint_type, j.point_in_parent) {
-        (JointType::Revolute, Some(p)) => Vector3::from(p),
+        (JointType::Revolute | JointType::Spherical, Some(p)) => Vector3::from(p),
         _ => t,
     };
     Ok(JointFrame {
@@ -191,6 +193,10 @@ pub fn to_urdf(model: &Model) -> Result<String> {
             JointType::Revolute if span.is_some_and(|d| d > std::f64::consts::TAU) => "continuous",
             JointType::Revolute => "revolute",
             JointType::Prismatic => "prismatic",
+            JointType::Spherical => {
+                write_spherical(&mut s, j, &xyz, (roll, pitch, yaw));
+                continue;
+            }
             JointType::Rigid | JointType::MultiDof => "floating",
         };
         let _ = writeln!(
@@ -244,6 +250,48 @@ pub fn to_urdf(model: &Model) -> Result<String> {
     }
     let _ = writeln!(s, "</robot>");
     Ok(s)
+}
+
+/// A spherical joint as URDF, which has no ball joint: three `continuous` joints about the
+/// joint frame's x, y and z axes through the centre, chained through two massless links named
+/// after the joint. Their angles are XYZ Euler angles, not the model's rotation vector.
+fn write_spherical(s: &mut String, j: &Joint, xyz: &Vector3<f64>, rpy: (f64, f64, f64)) {
+    let name = joint_name(j.parent, j.child);
+    let _ = writeln!(
+        s,
+        "  <!-- {name}: a spherical joint about the centre, as three revolute joints through \
+         massless links (their angles are XYZ Euler angles, not the model's rotation vector) -->"
+    );
+    let links = [
+        link_name(j.parent),
+        format!("{name}_x"),
+        format!("{name}_y"),
+        link_name(j.child),
+    ];
+    for link in &links[1..3] {
+        let _ = writeln!(s, r#"  <link name="{link}"/>"#);
+    }
+    for (i, axis) in ["1 0 0", "0 1 0", "0 0 1"].iter().enumerate() {
+        let _ = writeln!(
+            s,
+            r#"  <joint name="{name}_{}" type="continuous">"#,
+            ["rx", "ry", "rz"][i]
+        );
+        if i == 0 {
+            let (roll, pitch, yaw) = rpy;
+            let _ = writeln!(
+                s,
+                r#"    <origin xyz="{}" rpy="{roll} {pitch} {yaw}"/>"#,
+                v3(xyz)
+            );
+        } else {
+            let _ = writeln!(s, r#"    <origin xyz="0 0 0" rpy="0 0 0"/>"#);
+        }
+        let _ = writeln!(s, r#"    <parent link="{}"/>"#, links[i]);
+        let _ = writeln!(s, r#"    <child link="{}"/>"#, links[i + 1]);
+        let _ = writeln!(s, r#"    <axis xyz="{axis}"/>"#);
+        let _ = writeln!(s, "  </joint>");
+    }
 }
 
 /// DOT (Graphviz) of the kinematic tree: the camera, a node per body (static ones marked), an
@@ -311,4 +359,210 @@ pub fn to_dot(model: &Model) -> String {
     }
     let _ = writeln!(s, "}}");
     s
+}
+
+/// MJCF joint body name of the joint from `parent` to `child` ([`to_mjcf`]).
+pub fn mjcf_joint_body_name(parent: usize, child: usize) -> String {
+    format!("{}_joint", joint_name(parent, child))
+}
+
+/// `w x y z`, MJCF's quaternion order.
+fn wxyz(q: &kinetree_core::nalgebra::UnitQuaternion<f64>) -> String {
+    format!("{} {} {} {}", q.w, q.i, q.j, q.k)
+}
+
+/// Nominal mass and inertia of every body, so MuJoCo loads the model: keypoints do not
+/// observe them.
+const NOMINAL_INERTIAL: &str =
+    r#"<inertial pos="0 0 0" mass="0.001" diaginertia="1e-6 1e-6 1e-6"/>"#;
+
+/// MJCF (MuJoCo) of the model. The world frame is the root body's frame when the root is
+/// static; a root that is not static moves on a `freejoint` (its position and quaternion
+/// `w x y z` in the world, which is then the camera frame), and so does a detached body.
+///
+/// Each joint is a massless-in-effect body named [`mjcf_joint_body_name`], placed in the
+/// parent at the joint's pivot (revolute), centre (spherical) or origin (others) with the
+/// parent's axes, that carries the joint; the child body, named [`link_name`], sits inside it
+/// at the joint's reference pose. The joints' `qpos` are then the model's own coordinates: a
+/// `hinge` about `axis_in_parent` by the position (radians), a `slide` along it (metres), a
+/// `ball` by the quaternion of the rotation vector in `coordinates`; a multi-DoF joint is
+/// three `slide`s along the parent's axes and a `ball` (MuJoCo allows a `free` joint on
+/// top-level bodies only), and a rigid joint has none. The hinge and slide ranges are the
+/// observed ones. Keypoints are `site`s of their bodies, named `point<index>` and their label.
+///
+/// # Errors
+/// [`Error::InvalidModel`] for a model [`Model::validate`] refuses, and
+/// [`Error::InvalidParameter`] when a joint has no reference pose (schema 1).
+pub fn to_mjcf(model: &Model) -> Result<String> {
+    model.validate()?;
+    let nb = model.bodies.len();
+    let mut children: Vec<Vec<&Joint>> = vec![Vec::new(); nb];
+    for j in &model.joints {
+        children[j.parent].push(j);
+    }
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "<!-- Written by {} from a model of schema {}: {} bodies, {} frames. Masses and \
+         inertias are nominal: keypoints do not observe them. -->",
+        comment_text(&model.generator),
+        model.schema_version,
+        nb,
+        model.n_frames
+    );
+    let _ = writeln!(s, r#"<mujoco model="kinetree_model">"#);
+    let _ = writeln!(s, r#"  <compiler angle="radian"/>"#);
+    let _ = writeln!(s, "  <worldbody>");
+    let label = |p: usize| {
+        model
+            .point_labels
+            .as_ref()
+            .and_then(|l| l.get(p).cloned())
+            .map_or_else(
+                || format!("point{p}"),
+                |l| format!("point{p}_{}", xml_attribute(&l)),
+            )
+    };
+    // Bodies are written depth first; a body's open tag and its joints come from its joint.
+    fn write_body(
+        s: &mut String,
+        model: &Model,
+        children: &[Vec<&Joint>],
+        b: usize,
+        depth: usize,
+        label: &dyn Fn(usize) -> String,
+    ) -> Result<()> {
+        let pad = "  ".repeat(depth);
+        let _ = writeln!(s, "{pad}  {NOMINAL_INERTIAL}");
+        let body = &model.bodies[b];
+        for (p, shape) in body.points.iter().zip(&body.shape) {
+            if let Some(x) = shape {
+                let _ = writeln!(
+                    s,
+                    r#"{pad}  <site name="{}" pos="{} {} {}" size="0.005"/>"#,
+                    label(*p),
+                    x[0],
+                    x[1],
+                    x[2]
+                );
+            }
+        }
+        for j in &children[b] {
+            write_joint(s, model, children, j, depth + 1, label)?;
+        }
+        Ok(())
+    }
+    fn write_joint(
+        s: &mut String,
+        model: &Model,
+        children: &[Vec<&Joint>],
+        j: &Joint,
+        depth: usize,
+        label: &dyn Fn(usize) -> String,
+    ) -> Result<()> {
+        let pad = "  ".repeat(depth);
+        let reference = j
+            .reference_pose
+            .and_then(|r| r.to_isometry())
+            .ok_or_else(|| Error::InvalidParameter {
+                name: format!("joints[{} -> {}].reference_pose", j.parent, j.child),
+                message: "missing; MJCF needs the child's pose in its parent (schema v1 \
+                          models written before it was added cannot be exported)"
+                    .into(),
+            })?;
+        let at = match j.joint_type {
+            JointType::Revolute | JointType::Spherical => {
+                j.point_in_parent.map_or_else(Vector3::zeros, Vector3::from)
+            }
+            _ => Vector3::zeros(),
+        };
+        let _ = writeln!(
+            s,
+            r#"{pad}<body name="{}" pos="{}">"#,
+            mjcf_joint_body_name(j.parent, j.child),
+            v3(&at)
+        );
+        let _ = writeln!(s, "{pad}  {NOMINAL_INERTIAL}");
+        let axis = j.axis_in_parent.map(Vector3::from);
+        let range = j
+            .range
+            .map_or(String::new(), |[lo, hi]| format!(r#" range="{lo} {hi}""#));
+        let name = joint_name(j.parent, j.child);
+        match (j.joint_type, axis) {
+            (JointType::Revolute, Some(a)) => {
+                let _ = writeln!(
+                    s,
+                    r#"{pad}  <joint name="{name}" type="hinge" axis="{}"{range}/>"#,
+                    v3(&a)
+                );
+            }
+            (JointType::Prismatic, Some(a)) => {
+                let _ = writeln!(
+                    s,
+                    r#"{pad}  <joint name="{name}" type="slide" axis="{}"{range}/>"#,
+                    v3(&a)
+                );
+            }
+            (JointType::Spherical, _) => {
+                let _ = writeln!(s, r#"{pad}  <joint name="{name}" type="ball"/>"#);
+            }
+            (JointType::Rigid, _) => {
+                let _ = writeln!(s, "{pad}  <!-- {name}: rigid, no joint -->");
+            }
+            _ => {
+                let _ = writeln!(
+                    s,
+                    "{pad}  <!-- {name}: {} DoF of no known type, as three slides and a ball \
+                     (ranks: translation {}, rotation {}) -->",
+                    j.dof, j.ranks.translation, j.ranks.rotation
+                );
+                for (i, a) in ["1 0 0", "0 1 0", "0 0 1"].iter().enumerate() {
+                    let _ = writeln!(
+                        s,
+                        r#"{pad}  <joint name="{name}_{}" type="slide" axis="{a}"/>"#,
+                        ["x", "y", "z"][i]
+                    );
+                }
+                let _ = writeln!(s, r#"{pad}  <joint name="{name}_ball" type="ball"/>"#);
+            }
+        }
+        let inside = Vector3::from(reference.translation.vector) - at;
+        let _ = writeln!(
+            s,
+            r#"{pad}  <body name="{}" pos="{}" quat="{}">"#,
+            link_name(j.child),
+            v3(&inside),
+            wxyz(&reference.rotation)
+        );
+        write_body(s, model, children, j.child, depth + 1, label)?;
+        let _ = writeln!(s, "{pad}  </body>");
+        let _ = writeln!(s, "{pad}</body>");
+        Ok(())
+    }
+    let free = |b: &kinetree_core::model::Body| {
+        b.id != model.root_body && b.parent.is_none() || b.id == model.root_body && !b.is_static
+    };
+    for b in &model.bodies {
+        if b.id != model.root_body && b.parent.is_some() {
+            continue;
+        }
+        let _ = writeln!(s, r#"    <body name="{}">"#, link_name(b.id));
+        if free(b) {
+            let _ = writeln!(s, r#"      <freejoint name="{}_free"/>"#, link_name(b.id));
+        }
+        write_body(&mut s, model, &children, b.id, 2, &label)?;
+        let _ = writeln!(s, "    </body>");
+    }
+    let _ = writeln!(s, "  </worldbody>");
+    let _ = writeln!(s, "</mujoco>");
+    Ok(s)
+}
+
+/// Text safe inside an XML attribute value.
+fn xml_attribute(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('"', "&quot;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace(['\n', '\r'], " ")
 }

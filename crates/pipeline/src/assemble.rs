@@ -78,10 +78,27 @@ pub(crate) fn assemble(
         let (axis_p, point_p) = match &pair.joint {
             JointKind::Revolute { axis, pivot } => (Some(*axis), Some(*pivot)),
             JointKind::Prismatic { axis } => (Some(*axis), None),
+            JointKind::Spherical { centre } => (None, Some(*centre)),
             _ => (None, None),
         };
+        // A spherical joint's rotation vectors from the two bodies' own poses, until the
+        // whole-tree fit writes its own.
+        let coordinates = match (&pair.joint, reference_pose.and_then(|r| r.to_isometry())) {
+            (JointKind::Spherical { .. }, Some(zero)) => {
+                kinetree_core::geom::relative_poses(poses, Some(parent), child)
+                    .iter()
+                    .map(|x| {
+                        x.map(|x| {
+                            let v = (x.rotation * zero.rotation.inverse()).scaled_axis();
+                            vec![v.x, v.y, v.z]
+                        })
+                    })
+                    .collect()
+            }
+            _ => Vec::new(),
+        };
         let arr = |v: kinetree_core::nalgebra::Vector3<f64>| [v.x, v.y, v.z];
-        if !pair.joint.is_single_dof() {
+        if !pair.joint.is_single_dof() && !matches!(pair.joint, JointKind::Spherical { .. }) {
             warnings.push(Warning::MultiDofJoint {
                 parent: new_id[parent],
                 child: new_id[child],
@@ -109,6 +126,10 @@ pub(crate) fn assemble(
             position_std: Vec::new(),
             smoothed_positions: Vec::new(),
             smoothed_std: Vec::new(),
+            coordinates,
+            coordinate_std: Vec::new(),
+            smoothed_coordinates: Vec::new(),
+            smoothed_coordinate_std: Vec::new(),
             range: None,
             dof: pair.dof,
             ranks: Ranks {

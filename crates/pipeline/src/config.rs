@@ -321,6 +321,8 @@ pub enum DataConfig {
     PaperArm(PaperArmData),
     /// A random mechanism ([`kinetree_synth::random_scenario`]).
     Random(RandomParams),
+    /// A human-like skeleton of ball joints and hinges ([`kinetree_synth::skeleton_scenario`]).
+    Skeleton(kinetree_synth::SkeletonParams),
     /// A tracks file (`.npy`, `.npz`, `.csv` or `.c3d`), relative to the config file.
     File(FileData),
 }
@@ -329,7 +331,7 @@ pub enum DataConfig {
 /// mechanism by name and the options of both kinds.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimulationRequest {
-    /// `paper-arm` or `random`.
+    /// `paper-arm`, `random` or `skeleton`.
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -339,6 +341,8 @@ pub struct SimulationRequest {
     pub tree: bool,
     /// Probability that a joint is prismatic (random mechanisms).
     pub prismatic_fraction: f64,
+    /// Probability that a joint that is not prismatic is a ball joint (random mechanisms).
+    pub spherical_fraction: f64,
     /// Per-coordinate noise, metres.
     pub noise_sigma_m: f64,
     /// Extra random occlusion fraction.
@@ -367,6 +371,7 @@ impl SimulationRequest {
             "random" => DataConfig::Random(RandomParams {
                 n_joints: self.joints,
                 prismatic_fraction: self.prismatic_fraction,
+                spherical_fraction: self.spherical_fraction,
                 tree: self.tree,
                 n_frames: self.n_frames.unwrap_or(DEFAULT_RANDOM_FRAMES),
                 noise_sigma_m: self.noise_sigma_m,
@@ -374,9 +379,18 @@ impl SimulationRequest {
                 seed: self.seed,
                 ..RandomParams::default()
             }),
+            "skeleton" => DataConfig::Skeleton(kinetree_synth::SkeletonParams {
+                n_frames: self
+                    .n_frames
+                    .unwrap_or(kinetree_synth::SkeletonParams::default().n_frames),
+                noise_sigma_m: self.noise_sigma_m,
+                dropout: self.dropout,
+                seed: self.seed,
+                ..kinetree_synth::SkeletonParams::default()
+            }),
             other => {
                 return Err(Error::Config(format!(
-                    "unknown mechanism `{other}`; use paper-arm or random"
+                    "unknown mechanism `{other}`; use paper-arm, random or skeleton"
                 )));
             }
         })

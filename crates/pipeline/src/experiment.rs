@@ -43,6 +43,10 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
             p.validate()?;
             Some(random_scenario(p))
         }
+        DataConfig::Skeleton(p) => {
+            p.validate()?;
+            Some(kinetree_synth::skeleton_scenario(p))
+        }
         DataConfig::File(_) => None,
     })
 }
@@ -213,7 +217,7 @@ fn true_joint_positions(
         .joints
         .iter()
         .position(|tj| tj.child == body)?;
-    let q = truth.joint_positions.get(k)?;
+    let q = truth.single_positions(k)?;
     // truth ~ sign * estimate + offset, so estimate ~ sign * (truth - offset).
     let a = kinetree_eval::alignment(&j.positions, q)?;
     Some(q.iter().map(|t| a.sign * (t - a.offset)).collect())

@@ -122,6 +122,10 @@ pub struct SweepRun {
     pub max_revolute_smoothed_rms_rad: Option<f64>,
     /// ... over prismatic joints, metres.
     pub max_prismatic_smoothed_rms_m: Option<f64>,
+    /// Largest distance from a true spherical joint's centre to the model's, in the parent's
+    /// body frame aligned on its true keypoints (`JointEval::centre_error_in_parent_m`),
+    /// metres.
+    pub max_centre_error_m: Option<f64>,
     /// Bodies found.
     pub bodies: Option<usize>,
     /// Wall time of the run, seconds (with `[sweep] timing = true`).
@@ -551,6 +555,7 @@ impl Sweep {
             max_prismatic_rms_m: None,
             max_revolute_smoothed_rms_rad: None,
             max_prismatic_smoothed_rms_m: None,
+            max_centre_error_m: None,
             bodies: None,
             seconds: None,
         };
@@ -592,6 +597,11 @@ impl Sweep {
                     run.max_prismatic_rms_m = worst(false, |j| j.position_rms);
                     run.max_revolute_smoothed_rms_rad = worst(true, |j| j.smoothed_rms);
                     run.max_prismatic_smoothed_rms_m = worst(false, |j| j.smoothed_rms);
+                    run.max_centre_error_m = max(e
+                        .joints
+                        .iter()
+                        .filter_map(|j| j.centre_error_in_parent_m)
+                        .collect());
                 }
             }
         }
@@ -612,7 +622,7 @@ fn csv_field(s: &str) -> String {
 }
 
 /// The columns of `runs.csv` after the grid keys.
-const RUN_COLUMNS: [&str; 12] = [
+const RUN_COLUMNS: [&str; 13] = [
     "seed",
     "error",
     "bodies",
@@ -625,6 +635,7 @@ const RUN_COLUMNS: [&str; 12] = [
     "max_prismatic_rms_m",
     "max_revolute_smoothed_rms_rad",
     "max_prismatic_smoothed_rms_m",
+    "max_centre_error_m",
 ];
 
 /// The header line of `runs.csv`.
@@ -652,7 +663,7 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
     }
     let _ = write!(
         s,
-        "{},{},{},{},{},{},{},{},{},{},{},{}",
+        "{},{},{},{},{},{},{},{},{},{},{},{},{}",
         r.seed,
         csv_field(r.error.as_deref().unwrap_or("")),
         r.bodies.map_or(String::new(), |b| b.to_string()),
@@ -665,6 +676,7 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
         opt(r.max_prismatic_rms_m),
         opt(r.max_revolute_smoothed_rms_rad),
         opt(r.max_prismatic_smoothed_rms_m),
+        opt(r.max_centre_error_m),
     );
     if sweep.spec.timing {
         let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
@@ -779,8 +791,9 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             max_prismatic_rms_m: num(9)?,
             max_revolute_smoothed_rms_rad: num(10)?,
             max_prismatic_smoothed_rms_m: num(11)?,
+            max_centre_error_m: num(12)?,
             seconds: if sweep.spec.timing {
-                rest[12].parse().ok()
+                rest[13].parse().ok()
             } else {
                 None
             },
@@ -809,7 +822,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
     let _ = writeln!(
         s,
-        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) |{}",
+        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) |{}",
         head.join(" | "),
         if head.is_empty() { "" } else { " | " },
         if sweep.spec.timing {
@@ -819,7 +832,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         }
     );
     let timing_cols = if sweep.spec.timing { 2 } else { 0 };
-    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 11 + timing_cols));
+    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 12 + timing_cols));
     for p in 0..sweep.points.len() {
         let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
         let n = rs.len();
@@ -838,7 +851,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         let values: Vec<String> = sweep.points[p].iter().map(|v| format!("`{v}`")).collect();
         let _ = write!(
             s,
-            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             values.join(" | "),
             if values.is_empty() { "" } else { " | " },
             rs.iter().filter(|r| r.error.is_some()).count(),
@@ -872,6 +885,10 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
                         .filter_map(|r| r.max_prismatic_smoothed_rms_m)
                         .collect()
                 ),
+                1e3
+            ),
+            fmt(
+                median(rs.iter().filter_map(|r| r.max_centre_error_m).collect()),
                 1e3
             ),
         );

@@ -91,10 +91,14 @@ pub struct Tree {
 /// [`missed_share`], halved: 1-2); then multi-DoF pairs by their number of DoF and, among
 /// those with as many, the one whose motion beyond its largest translation and rotation is
 /// smallest (the nearest to a joint). Without that last term, equal costs left the choice to
-/// the order of the edges, which follows the numbering of the points.
+/// the order of the edges, which follows the numbering of the points. A spherical joint (a
+/// centre fixed in both bodies) costs 3.5-4, by its fit and missed share as a single-DoF
+/// joint: below any other pair of three DoF, which no joint type explains.
 fn edge_cost(p: &PairDof, missed: f64) -> f64 {
     if p.joint.is_single_dof() {
         1.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
+    } else if let JointKind::Spherical { .. } = p.joint {
+        4.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
     } else {
         let extra: f64 = [&p.translation.whitened, &p.rotation.whitened]
             .iter()
@@ -207,6 +211,9 @@ pub fn spanning_tree_without(
         }
         i += 1;
     }
+    if hoist_spherical_ties(&mut parent, &order, pairs, excluded) {
+        order = breadth_first(root, &parent);
+    }
     order.extend((0..n_bodies).filter(|&b| !seen[b]));
     Some(Tree {
         root,
@@ -214,6 +221,50 @@ pub fn spanning_tree_without(
         parent,
         order,
     })
+}
+
+/// Hangs a body on its grandparent instead of its parent, repeatedly, where both joints are
+/// spherical: two bodies turning on balls about one centre (siblings on a common parent)
+/// each have a ball joint with the other too, and the data fit both trees exactly, so the
+/// shallower tree, the one with independent joint coordinates, is taken. Bodies in `order`
+/// (parents first), so each is hoisted above ancestors already settled. Returns whether a
+/// parent changed.
+fn hoist_spherical_ties(
+    parent: &mut [Option<usize>],
+    order: &[usize],
+    pairs: &[PairDof],
+    excluded: &[(usize, usize)],
+) -> bool {
+    let ball = |a: usize, b: usize| {
+        !excluded.contains(&(a, b))
+            && !excluded.contains(&(b, a))
+            && find_pair(pairs, Some(a), b)
+                .is_some_and(|p| matches!(p.joint, JointKind::Spherical { .. }))
+    };
+    let mut changed = false;
+    for &v in order {
+        while let Some(u) = parent[v]
+            && let Some(w) = parent[u]
+            && ball(u, v)
+            && ball(w, v)
+        {
+            parent[v] = Some(w);
+            changed = true;
+        }
+    }
+    changed
+}
+
+/// Bodies reachable from `root` through `parent`, breadth first, children by ascending id.
+fn breadth_first(root: usize, parent: &[Option<usize>]) -> Vec<usize> {
+    let mut order = vec![root];
+    let mut i = 0;
+    while i < order.len() {
+        let u = order[i];
+        order.extend((0..parent.len()).filter(|&v| parent[v] == Some(u)));
+        i += 1;
+    }
+    order
 }
 
 /// Frames each body is posed in (its test against the camera's columns).

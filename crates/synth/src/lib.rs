@@ -1,10 +1,12 @@
-//! Synthetic articulated mechanisms: boxes joined by revolute and prismatic joints, joint
+//! Synthetic articulated mechanisms: boxes joined by revolute, prismatic and spherical joints
+//! (random mechanisms, the paper's arm, a human-like skeleton), joint
 //! trajectories, a camera with a field of view, self-occlusion by ray casting, extra burst
 //! dropout and Gaussian noise, all from a seed.
 
 mod mechanism;
 mod named;
 mod scenario;
+mod skeleton;
 mod spec;
 #[cfg(feature = "proptest")]
 pub mod strategies;
@@ -12,6 +14,7 @@ pub mod strategies;
 pub use mechanism::{BodySpec, BoxShape, JointSpec, JointType, Mechanism};
 pub use named::{RandomParams, paper_arm, random_scenario};
 pub use scenario::{Camera, GroundTruth, Scenario, SynthData, Trajectory, simulate};
+pub use skeleton::{SkeletonParams, skeleton_scenario};
 pub use spec::{JointDraw, MechanismSpec, SPEC_FRAMES};
 
 #[cfg(test)]
@@ -79,5 +82,46 @@ mod tests {
             .collect();
         let sd = (diffs.iter().map(|d| d * d).sum::<f64>() / diffs.len() as f64).sqrt();
         assert!((sd / s.noise_sigma_m - 1.0).abs() < 0.05, "noise sd {sd}");
+    }
+
+    #[test]
+    fn a_ball_joint_takes_three_coordinates_and_keeps_its_centre() {
+        let mut s = random_scenario(&RandomParams {
+            n_joints: 4,
+            prismatic_fraction: 0.0,
+            spherical_fraction: 1.0,
+            ..RandomParams::default()
+        });
+        s.n_frames = 40;
+        let m = &s.mechanism;
+        assert!(
+            m.joints
+                .iter()
+                .all(|j| j.joint_type == JointType::Spherical)
+        );
+        assert_eq!(m.n_coordinates(), 12);
+        assert_eq!(m.coordinate_offsets(), vec![0, 3, 6, 9]);
+        assert_eq!(s.trajectories.len(), 12);
+        let d = simulate(&s).expect("simulate");
+        assert_eq!(d.truth.joint_positions.len(), 12);
+        assert!(d.truth.single_positions(0).is_none());
+        let mut turned = 0.0f64;
+        for t in 0..s.n_frames {
+            let q: Vec<f64> = d.truth.joint_positions.iter().map(|p| p[t]).collect();
+            let poses = m.forward(&q);
+            for j in &m.joints {
+                // The centre is fixed in both bodies: where the parent carries it, the child
+                // carries it too.
+                let c = nalgebra::Point3::from(j.anchor);
+                let in_child = poses[j.child] * c;
+                assert!((poses[j.parent] * c - in_child).norm() < 1e-12);
+                turned = turned.max(
+                    (poses[j.parent].inverse() * poses[j.child])
+                        .rotation
+                        .angle(),
+                );
+            }
+        }
+        assert!(turned > 0.3, "largest relative turn {turned} rad");
     }
 }

@@ -1,4 +1,4 @@
-//! Mechanisms: boxes joined by a tree of revolute and prismatic joints.
+//! Mechanisms: boxes joined by a tree of revolute, prismatic and spherical joints.
 
 use kinetree_core::{Error, Result};
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
@@ -82,9 +82,23 @@ pub enum JointType {
     Revolute,
     /// Translation along the axis.
     Prismatic,
+    /// Rotation about the anchor, any axis: three coordinates, the rotation vector (radians,
+    /// world axes at the zero configuration); the spec's axis is not used.
+    Spherical,
 }
 
-/// A single-DoF joint; axis and anchor in world coordinates at the zero configuration.
+impl JointType {
+    /// Number of coordinates of a joint of this type.
+    pub fn n_coordinates(self) -> usize {
+        match self {
+            Self::Revolute | Self::Prismatic => 1,
+            Self::Spherical => 3,
+        }
+    }
+}
+
+/// A joint; axis and anchor (a point on a revolute axis, a spherical joint's centre) in world
+/// coordinates at the zero configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct JointSpec {
     /// Parent body index.
@@ -143,23 +157,53 @@ impl Mechanism {
         Ok(())
     }
 
-    /// `world_from_body` for every body at joint positions `q` (radians or metres).
+    /// Number of joint coordinates: one per revolute or prismatic joint, three per spherical
+    /// one.
+    pub fn n_coordinates(&self) -> usize {
+        self.joints
+            .iter()
+            .map(|j| j.joint_type.n_coordinates())
+            .sum()
+    }
+
+    /// Index of each joint's first coordinate in the configuration vector (joints in order,
+    /// each with [`JointType::n_coordinates`] entries).
+    pub fn coordinate_offsets(&self) -> Vec<usize> {
+        self.joints
+            .iter()
+            .scan(0, |next, j| {
+                let at = *next;
+                *next += j.joint_type.n_coordinates();
+                Some(at)
+            })
+            .collect()
+    }
+
+    /// `world_from_body` for every body at the configuration `q` (radians or metres, laid out
+    /// as [`Mechanism::coordinate_offsets`] says); missing coordinates count as zero.
     pub fn forward(&self, q: &[f64]) -> Vec<Isometry3<f64>> {
         let mut pose = vec![Isometry3::identity(); self.bodies.len()];
-        for (j, qj) in self.joints.iter().zip(q) {
-            let axis = Unit::new_normalize(Vector3::from(j.axis));
+        let mut next = 0;
+        for j in &self.joints {
+            let n = j.joint_type.n_coordinates();
+            let coordinate = |i: usize| q.get(next + i).copied().unwrap_or(0.0);
+            let a = Vector3::from(j.anchor);
+            let about_anchor =
+                |turn: UnitQuaternion<f64>| Translation3::from(a) * turn * Translation3::from(-a);
             let local = match j.joint_type {
-                JointType::Revolute => {
-                    let a = Vector3::from(j.anchor);
-                    Translation3::from(a)
-                        * UnitQuaternion::from_axis_angle(&axis, *qj)
-                        * Translation3::from(-a)
-                }
+                JointType::Revolute => about_anchor(UnitQuaternion::from_axis_angle(
+                    &Unit::new_normalize(Vector3::from(j.axis)),
+                    coordinate(0),
+                )),
                 JointType::Prismatic => Isometry3::from_parts(
-                    Translation3::from(axis.into_inner() * *qj),
+                    Translation3::from(Vector3::from(j.axis).normalize() * coordinate(0)),
                     UnitQuaternion::identity(),
                 ),
+                JointType::Spherical => about_anchor(UnitQuaternion::from_scaled_axis(
+                    Vector3::new(coordinate(0), coordinate(1), coordinate(2)),
+                )),
             };
+            next += n;
             pose[j.child] = pose[j.parent] * local;
         }
         pose

@@ -72,6 +72,9 @@ pub struct RandomParams {
     pub n_joints: usize,
     /// Probability that a joint is prismatic.
     pub prismatic_fraction: f64,
+    /// Probability that a joint that is not prismatic is spherical (a ball joint, drawn
+    /// only when positive, so the draws of mechanisms without them do not change).
+    pub spherical_fraction: f64,
     /// Attach each new body to a random earlier one (a tree) instead of the last (a chain).
     pub tree: bool,
     /// Keypoints per body beyond the 8 corners.
@@ -91,6 +94,7 @@ impl Default for RandomParams {
         Self {
             n_joints: 3,
             prismatic_fraction: 0.3,
+            spherical_fraction: 0.0,
             tree: false,
             extra_points: 2,
             n_frames: 200,
@@ -113,6 +117,7 @@ impl RandomParams {
         check_count("data.extra_points", self.extra_points, 0, 10_000)?;
         check_count("data.n_frames", self.n_frames, 2, 1_000_000)?;
         check_within("data.prismatic_fraction", self.prismatic_fraction, 0.0, 1.0)?;
+        check_within("data.spherical_fraction", self.spherical_fraction, 0.0, 1.0)?;
         check_within("data.dropout", self.dropout, 0.0, 1.0)?;
         check_within("data.noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)
     }
@@ -124,7 +129,9 @@ impl RandomParams {
 /// Excitation rule: every joint follows its own sine with a distinct frequency between 0.15
 /// and 0.45 Hz over at least one half period, with amplitude 0.6-1.4 rad (revolute) or
 /// 6-15 cm (prismatic), so each joint moves far beyond the noise and joints are not
-/// correlated.
+/// correlated. A spherical joint's three rotation-vector coordinates each follow such a sine
+/// with amplitude 0.35-0.8 rad (20-45 deg) and their own frequencies, so it turns about
+/// every axis.
 pub fn random_scenario(p: &RandomParams) -> Scenario {
     let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
     let mut bodies = vec![body("base", [0.0, 0.0, -0.05], [0.2, 0.2, 0.05])];
@@ -166,17 +173,35 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
         tips.push((tip, d));
         let prismatic = rng.random_bool(p.prismatic_fraction.clamp(0.0, 1.0));
         let axis = random_unit(&mut rng);
+        let spherical = !prismatic
+            && p.spherical_fraction > 0.0
+            && rng.random_bool(p.spherical_fraction.clamp(0.0, 1.0));
         joints.push(JointSpec {
             parent,
             child: j + 1,
             joint_type: if prismatic {
                 JointType::Prismatic
+            } else if spherical {
+                JointType::Spherical
             } else {
                 JointType::Revolute
             },
             axis: [axis.x, axis.y, axis.z],
             anchor,
         });
+        if spherical {
+            for i in 0..3 {
+                let share = (j as f64 + (i as f64 + rng.random_range(0.0..1.0)) / 3.0)
+                    / p.n_joints.max(1) as f64;
+                trajectories.push(Trajectory::Sine {
+                    offset: 0.0,
+                    amplitude: rng.random_range(0.35..0.8),
+                    frequency_hz: 0.15 + 0.3 * share,
+                    phase_rad: rng.random_range(0.0..std::f64::consts::TAU),
+                });
+            }
+            continue;
+        }
         let amplitude = if prismatic {
             rng.random_range(0.06..0.15)
         } else {

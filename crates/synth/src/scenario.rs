@@ -93,7 +93,8 @@ impl Camera {
 pub struct Scenario {
     /// The mechanism.
     pub mechanism: Mechanism,
-    /// One trajectory per joint.
+    /// One trajectory per joint coordinate (three for a spherical joint), in the order of
+    /// [`Mechanism::coordinate_offsets`].
     pub trajectories: Vec<Trajectory>,
     /// Number of frames.
     pub n_frames: usize,
@@ -123,7 +124,9 @@ fn default_true() -> bool {
 pub struct GroundTruth {
     /// Body of every keypoint.
     pub point_body: Vec<usize>,
-    /// Joint positions, `[joint][frame]`.
+    /// Joint coordinates, `[coordinate][frame]`, laid out by
+    /// [`Mechanism::coordinate_offsets`]: one row per revolute or prismatic joint (its
+    /// position), three per spherical joint (its rotation vector).
     pub joint_positions: Vec<Vec<f64>>,
     /// The mechanism.
     pub mechanism: Mechanism,
@@ -155,6 +158,18 @@ impl GroundTruth {
         let poses = self.mechanism.forward(&q);
         let spec = &self.mechanism.joints[j];
         self.cam_from_world * poses[spec.parent] * Point3::from(spec.anchor)
+    }
+
+    /// The positions of joint `j` when it has one coordinate (revolute or prismatic), by
+    /// frame; `None` for a spherical joint or a joint that does not exist.
+    pub fn single_positions(&self, j: usize) -> Option<&Vec<f64>> {
+        let spec = self.mechanism.joints.get(j)?;
+        (spec.joint_type.n_coordinates() == 1)
+            .then(|| {
+                self.joint_positions
+                    .get(self.mechanism.coordinate_offsets()[j])
+            })
+            .flatten()
     }
 
     /// Number of bodies.
@@ -221,11 +236,12 @@ fn keypoints(m: &Mechanism, rng: &mut ChaCha8Rng) -> (Vec<Point3<f64>>, Vec<usiz
 /// [`Tracks::new`] (for example when nothing is visible).
 pub fn simulate(s: &Scenario) -> Result<SynthData> {
     s.mechanism.validate()?;
-    if s.trajectories.len() != s.mechanism.joints.len() {
+    let n_coordinates = s.mechanism.n_coordinates();
+    if s.trajectories.len() != n_coordinates {
         return Err(Error::Config(format!(
-            "{} joints need {} trajectories, found {}",
+            "{} joints need {} trajectories (one per coordinate), found {}",
             s.mechanism.joints.len(),
-            s.mechanism.joints.len(),
+            n_coordinates,
             s.trajectories.len()
         )));
     }

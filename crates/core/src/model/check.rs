@@ -56,6 +56,50 @@ fn per_frame(field: &str, values: &[Option<f64>], n_frames: usize, min: f64) -> 
     Ok(())
 }
 
+/// [`per_frame`] for arrays of `width` coordinates a frame; `width` below 2 takes none.
+fn per_frame_vectors(
+    field: &str,
+    values: &[Option<Vec<f64>>],
+    n_frames: usize,
+    width: usize,
+    min: f64,
+) -> Result<()> {
+    if values.is_empty() {
+        return Ok(());
+    }
+    if width < 2 {
+        return Err(bad(
+            field,
+            format!("is given on a joint of {width} coordinate(s); leave it empty"),
+        ));
+    }
+    if values.len() != n_frames {
+        return Err(bad(
+            field,
+            format!(
+                "has {} entries; n_frames is {n_frames} (or leave it empty)",
+                values.len()
+            ),
+        ));
+    }
+    for (t, v) in values.iter().enumerate() {
+        let Some(v) = v else { continue };
+        if v.len() != width {
+            return Err(bad(
+                format!("{field}[{t}]"),
+                format!("has {} entries; the joint has {width} coordinates", v.len()),
+            ));
+        }
+        if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x >= min)) {
+            return Err(bad(
+                format!("{field}[{t}]"),
+                format!("must be finite and at least {min}, got {x}"),
+            ));
+        }
+    }
+    Ok(())
+}
+
 impl Model {
     /// Checks the rules every consumer of a model relies on, so that a hand-edited or damaged
     /// file is refused where it is read rather than giving a panic or a silently wrong export:
@@ -348,6 +392,25 @@ impl Model {
                 f64::NEG_INFINITY,
             )?;
             per_frame(&field("smoothed_std"), &j.smoothed_std, nf, 0.0)?;
+            let width = j.joint_type.n_coordinates();
+            for (name, values, min) in [
+                ("coordinates", &j.coordinates, f64::NEG_INFINITY),
+                ("coordinate_std", &j.coordinate_std, 0.0),
+                (
+                    "smoothed_coordinates",
+                    &j.smoothed_coordinates,
+                    f64::NEG_INFINITY,
+                ),
+                ("smoothed_coordinate_std", &j.smoothed_coordinate_std, 0.0),
+            ] {
+                per_frame_vectors(&field(name), values, nf, width, min)?;
+            }
+            if j.joint_type == JointType::Spherical && j.point_in_parent.is_none() {
+                return Err(bad(
+                    field("point_in_parent"),
+                    "is null on a spherical joint",
+                ));
+            }
             if let Some([lo, hi]) = j.range
                 && !(lo.is_finite() && hi.is_finite() && lo <= hi)
             {

@@ -398,11 +398,13 @@ fn fit_proposal(
     kinetree_core::Proposal::new(kinetree_core::Edit::Fit(Box::new(draft)), summary)
 }
 
-/// Joints of `m` typed multi-DoF.
+/// Joints of `m` typed multi-DoF or spherical: a small body's noisy poses can fake a second
+/// rotation, and every hinge has a fixed centre, so a hinge seen so comes out spherical.
 pub(crate) fn multi_dof_joints(m: &Model) -> usize {
+    use kinetree_core::model::JointType;
     m.joints
         .iter()
-        .filter(|j| j.joint_type == kinetree_core::model::JointType::MultiDof)
+        .filter(|j| matches!(j.joint_type, JointType::MultiDof | JointType::Spherical))
         .count()
 }
 
@@ -425,7 +427,8 @@ pub(crate) fn not_followed(model: &Model) -> Vec<(usize, usize)> {
         .collect()
 }
 
-/// Joints of `m` that are multi-DoF, not followed by its whole-tree fit, or typed by it.
+/// Joints of `m` that are multi-DoF or spherical, not followed by its whole-tree fit, or typed
+/// by it.
 pub(crate) fn doubtful_joints(m: &Model) -> usize {
     multi_dof_joints(m) + not_followed(m).len() + typed_by_fit(m)
 }

@@ -22,8 +22,12 @@ pub struct TypeByFitParams {
     /// Only joints whose pair test found at most this many rotation directions are tried
     /// (default 1).
     pub max_rotation_rank: usize,
-    /// ... and at most this many translation directions (default 2).
+    /// ... and at most this many translation directions (default 2). Spherical joints are
+    /// tried as hinges whatever their ranks...
     pub max_translation_rank: usize,
+    /// ... when their fitted rotations stray from one axis by at most this many standard
+    /// deviations, RMS (default 20).
+    pub max_ball_off_axis_in_std: f64,
     /// Most bundle-adjustment steps on each candidate type (default 20, as
     /// `bundle_adjust.max_steps`).
     pub bundle_max_steps: usize,
@@ -41,6 +45,7 @@ impl Default for TypeByFitParams {
             others_max_excess: l.others_max_excess,
             max_rotation_rank: l.max_rotation_rank,
             max_translation_rank: l.max_translation_rank,
+            max_ball_off_axis_in_std: l.max_ball_off_axis_in_std,
             bundle_max_steps: l.bundle.max_steps,
             bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
         }
@@ -63,6 +68,13 @@ impl TypeByFitParams {
             self.max_translation_rank,
             0,
             3,
+        )?;
+        in_range(
+            NAME,
+            "max_ball_off_axis_in_std",
+            self.max_ball_off_axis_in_std,
+            0.0,
+            1e12,
         )?;
         count_in_range(NAME, "bundle_max_steps", self.bundle_max_steps, 1, 1000)?;
         in_range(
@@ -108,6 +120,7 @@ impl Repair for TypeByFit {
             others_max_excess: p.others_max_excess,
             max_rotation_rank: p.max_rotation_rank,
             max_translation_rank: p.max_translation_rank,
+            max_ball_off_axis_in_std: p.max_ball_off_axis_in_std,
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
                 min_gain_in_variances: p.bundle_min_gain_in_variances,

@@ -1,0 +1,298 @@
+//! A human-like skeleton: a static pelvis with a spine and head, arms and legs, ball joints at
+//! the spine, neck, shoulders, wrists, hips and ankles, hinges at the elbows and knees, and
+//! markers on the segments' surfaces.
+
+use crate::mechanism::{BodySpec, BoxShape, JointSpec, JointType, Mechanism};
+use crate::scenario::{Camera, Scenario, Trajectory};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`skeleton_scenario`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SkeletonParams {
+    /// Markers on each segment's surface.
+    pub markers_per_segment: usize,
+    /// Least and most range of motion of each joint, degrees: a hinge's full swing, a ball
+    /// joint's swing about each of its axes.
+    pub motion_deg: [f64; 2],
+    /// Number of frames.
+    pub n_frames: usize,
+    /// Frame rate, hertz.
+    pub frame_rate_hz: f64,
+    /// Per-coordinate noise, metres.
+    pub noise_sigma_m: f64,
+    /// Random occlusion (see [`Scenario::dropout`]); segments do not hide each other, as in
+    /// a many-camera motion-capture room.
+    pub dropout: f64,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl Default for SkeletonParams {
+    fn default() -> Self {
+        Self {
+            markers_per_segment: 6,
+            motion_deg: [30.0, 90.0],
+            n_frames: 300,
+            frame_rate_hz: 30.0,
+            noise_sigma_m: 0.001,
+            dropout: 0.2,
+            seed: 0,
+        }
+    }
+}
+
+impl SkeletonParams {
+    /// Checks the ranges: 3 to 1000 markers a segment, a motion range within 1-170 deg
+    /// (least first), 2 to 1 000 000 frames, a positive frame rate, noise from 0 to 1 m, a
+    /// dropout in `[0, 1)`.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming `data.<parameter>`.
+    pub fn validate(&self) -> kinetree_core::Result<()> {
+        use kinetree_core::limits::{check_count, check_within};
+        check_count(
+            "data.markers_per_segment",
+            self.markers_per_segment,
+            3,
+            1000,
+        )?;
+        check_within("data.motion_deg", self.motion_deg[0], 1.0, 170.0)?;
+        check_within(
+            "data.motion_deg",
+            self.motion_deg[1],
+            self.motion_deg[0],
+            170.0,
+        )?;
+        check_count("data.n_frames", self.n_frames, 2, 1_000_000)?;
+        check_within("data.frame_rate_hz", self.frame_rate_hz, 1e-3, 1e6)?;
+        check_within("data.noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)?;
+        check_within("data.dropout", self.dropout, 0.0, 0.99)
+    }
+}
+
+/// One segment: its name, the joint that carries it (parent segment, type, centre or a point
+/// on the hinge axis, hinge axis), and its box, all in metres, standing upright (z up, the
+/// person facing -y, left at +x).
+struct Segment {
+    name: &'static str,
+    parent: usize,
+    joint: JointType,
+    centre: [f64; 3],
+    axis: [f64; 3],
+    box_centre: [f64; 3],
+    half: [f64; 3],
+}
+
+const fn segment(
+    name: &'static str,
+    parent: usize,
+    joint: JointType,
+    centre: [f64; 3],
+    box_centre: [f64; 3],
+    half: [f64; 3],
+) -> Segment {
+    Segment {
+        name,
+        parent,
+        joint,
+        centre,
+        axis: [1.0, 0.0, 0.0],
+        box_centre,
+        half,
+    }
+}
+
+const BALL: JointType = JointType::Spherical;
+const HINGE: JointType = JointType::Revolute;
+
+/// The segments after the pelvis (body 0), parents first. Elbows and knees are hinges about
+/// the medio-lateral axis.
+const SEGMENTS: [Segment; 14] = [
+    segment(
+        "torso",
+        0,
+        BALL,
+        [0.0, 0.0, 1.1],
+        [0.0, 0.0, 1.33],
+        [0.15, 0.1, 0.2],
+    ),
+    segment(
+        "head",
+        1,
+        BALL,
+        [0.0, 0.0, 1.58],
+        [0.0, 0.0, 1.71],
+        [0.08, 0.09, 0.11],
+    ),
+    segment(
+        "upper_arm_l",
+        1,
+        BALL,
+        [0.2, 0.0, 1.48],
+        [0.2, 0.0, 1.33],
+        [0.04, 0.04, 0.13],
+    ),
+    segment(
+        "forearm_l",
+        3,
+        HINGE,
+        [0.2, 0.0, 1.18],
+        [0.2, 0.0, 1.05],
+        [0.035, 0.035, 0.11],
+    ),
+    segment(
+        "hand_l",
+        4,
+        BALL,
+        [0.2, 0.0, 0.92],
+        [0.2, 0.0, 0.85],
+        [0.04, 0.02, 0.05],
+    ),
+    segment(
+        "upper_arm_r",
+        1,
+        BALL,
+        [-0.2, 0.0, 1.48],
+        [-0.2, 0.0, 1.33],
+        [0.04, 0.04, 0.13],
+    ),
+    segment(
+        "forearm_r",
+        6,
+        HINGE,
+        [-0.2, 0.0, 1.18],
+        [-0.2, 0.0, 1.05],
+        [0.035, 0.035, 0.11],
+    ),
+    segment(
+        "hand_r",
+        7,
+        BALL,
+        [-0.2, 0.0, 0.92],
+        [-0.2, 0.0, 0.85],
+        [0.04, 0.02, 0.05],
+    ),
+    segment(
+        "thigh_l",
+        0,
+        BALL,
+        [0.1, 0.0, 0.92],
+        [0.1, 0.0, 0.71],
+        [0.06, 0.06, 0.18],
+    ),
+    segment(
+        "shank_l",
+        9,
+        HINGE,
+        [0.1, 0.0, 0.5],
+        [0.1, 0.0, 0.3],
+        [0.045, 0.045, 0.18],
+    ),
+    segment(
+        "foot_l",
+        10,
+        BALL,
+        [0.1, 0.0, 0.08],
+        [0.1, -0.05, 0.035],
+        [0.045, 0.1, 0.03],
+    ),
+    segment(
+        "thigh_r",
+        0,
+        BALL,
+        [-0.1, 0.0, 0.92],
+        [-0.1, 0.0, 0.71],
+        [0.06, 0.06, 0.18],
+    ),
+    segment(
+        "shank_r",
+        12,
+        HINGE,
+        [-0.1, 0.0, 0.5],
+        [-0.1, 0.0, 0.3],
+        [0.045, 0.045, 0.18],
+    ),
+    segment(
+        "foot_r",
+        13,
+        BALL,
+        [-0.1, 0.0, 0.08],
+        [-0.1, -0.05, 0.035],
+        [0.045, 0.1, 0.03],
+    ),
+];
+
+/// A skeleton of 15 segments (the pelvis static, 10 ball joints and 4 hinges) with
+/// `markers_per_segment` markers at random places on each segment's box surface, seen by a
+/// camera 4 m in front.
+///
+/// Motion: every coordinate follows its own sine with a frequency of 0.1-0.4 Hz and a random
+/// phase. A hinge swings through a range drawn from `motion_deg` (flexion from near straight);
+/// a ball joint's rotation vector has each component swing through such a range about zero.
+pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
+    let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
+    let markers = |centre: [f64; 3], half: [f64; 3]| BodySpec {
+        name: String::new(),
+        shape: BoxShape {
+            centre,
+            half_extents: half,
+        },
+        skip_corners: (0..8).collect(),
+        extra_points: p.markers_per_segment,
+        interior_points: 0,
+    };
+    let mut bodies = vec![BodySpec {
+        name: "pelvis".into(),
+        ..markers([0.0, 0.0, 1.0], [0.15, 0.1, 0.08])
+    }];
+    let mut joints = Vec::new();
+    let mut trajectories = Vec::new();
+    let [least, most] = p.motion_deg.map(f64::to_radians);
+    for (k, s) in SEGMENTS.iter().enumerate() {
+        bodies.push(BodySpec {
+            name: s.name.into(),
+            ..markers(s.box_centre, s.half)
+        });
+        joints.push(JointSpec {
+            parent: s.parent,
+            child: k + 1,
+            joint_type: s.joint,
+            axis: s.axis,
+            anchor: s.centre,
+        });
+        for _ in 0..s.joint.n_coordinates() {
+            let range = rng.random_range(least..=most);
+            let offset = if s.joint == HINGE {
+                // Flexion: from near straight to bent (elbows forward, knees backward).
+                let sign = if s.name.starts_with("shank") {
+                    1.0
+                } else {
+                    -1.0
+                };
+                sign * (0.1 + range / 2.0)
+            } else {
+                0.0
+            };
+            trajectories.push(Trajectory::Sine {
+                offset,
+                amplitude: range / 2.0,
+                frequency_hz: rng.random_range(0.1..0.4),
+                phase_rad: rng.random_range(0.0..std::f64::consts::TAU),
+            });
+        }
+    }
+    Scenario {
+        mechanism: Mechanism { bodies, joints },
+        trajectories,
+        n_frames: p.n_frames,
+        frame_rate_hz: p.frame_rate_hz,
+        camera: Camera::looking_at([0.5, -4.0, 1.2], [0.0, 0.0, 0.9], 90.0, 80.0),
+        noise_sigma_m: p.noise_sigma_m,
+        dropout: p.dropout,
+        seed: p.seed,
+        self_occlusion: false,
+    }
+}

@@ -1,0 +1,282 @@
+//! Joint types beyond one degree of freedom: ball joints typed, centred, fitted, observed and
+//! exported, on simulated skeletons and random mechanisms; hinges kept revolute under heavy
+//! noise.
+
+use kinetree_core::model::{JointType, Model};
+use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use kinetree_eval::{body_map, evaluate};
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_synth::{
+    RandomParams, SkeletonParams, SynthData, random_scenario, simulate, skeleton_scenario,
+};
+
+fn discover(data: &SynthData) -> Model {
+    Pipeline::from_config(&PipelineConfig::default())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model
+}
+
+fn skeleton(seed: u64, noise_sigma_m: f64) -> SynthData {
+    simulate(&skeleton_scenario(&SkeletonParams {
+        seed,
+        noise_sigma_m,
+        ..SkeletonParams::default()
+    }))
+    .expect("simulate")
+}
+
+/// The true rotation of spherical joint `k` at `frame`, in the parent's frame at the zero
+/// configuration (the truth's coordinates are its rotation vector).
+fn true_turn(data: &SynthData, k: usize, frame: usize) -> UnitQuaternion<f64> {
+    let at = data.truth.mechanism.coordinate_offsets()[k];
+    let q = &data.truth.joint_positions;
+    UnitQuaternion::from_scaled_axis(Vector3::new(
+        q[at][frame],
+        q[at + 1][frame],
+        q[at + 2][frame],
+    ))
+}
+
+#[test]
+fn skeleton_ball_joints_are_spherical_with_centres_within_two_millimetres() {
+    let (mut joints, mut typed, mut balls, mut centred, mut hinges, mut straight) =
+        (0, 0, 0, 0, 0, 0);
+    let mut worst_centre: f64 = 0.0;
+    let mut worst_axis: f64 = 0.0;
+    for seed in 0..4 {
+        let data = skeleton(seed, 0.001);
+        let model = discover(&data);
+        let e = evaluate(&model, &data.truth);
+        for (j, spec) in e.joints.iter().zip(&data.truth.mechanism.joints) {
+            joints += 1;
+            typed += usize::from(j.found && j.type_ok);
+            if spec.joint_type == kinetree_synth::JointType::Spherical {
+                balls += 1;
+                if let Some(c) = j.centre_error_in_parent_m {
+                    worst_centre = worst_centre.max(c);
+                    centred += usize::from(c <= 0.002);
+                }
+            } else {
+                hinges += 1;
+                if let Some(a) = j.axis_error_in_parent_deg {
+                    worst_axis = worst_axis.max(a);
+                    straight += usize::from(a < 1.0);
+                }
+            }
+        }
+    }
+    assert!(
+        typed * 100 >= joints * 95,
+        "{typed} of {joints} joints found and typed right"
+    );
+    assert_eq!(
+        centred, balls,
+        "ball centres within 2 mm (worst {worst_centre} m)"
+    );
+    assert_eq!(
+        straight, hinges,
+        "hinge axes within 1 deg (worst {worst_axis} deg)"
+    );
+}
+
+#[test]
+fn ball_joint_rotations_follow_the_truth_within_their_stated_precision() {
+    let data = skeleton(7, 0.001);
+    let model = discover(&data);
+    let map = body_map(&model, &data.truth);
+    let mut checked = 0;
+    let mut z2 = Vec::new();
+    for (k, spec) in data.truth.mechanism.joints.iter().enumerate() {
+        if spec.joint_type != kinetree_synth::JointType::Spherical {
+            continue;
+        }
+        let j = model
+            .joints
+            .iter()
+            .find(|j| map[j.parent] == spec.parent && map[j.child] == spec.child)
+            .expect("ball joint found");
+        assert_eq!(j.joint_type, JointType::Spherical);
+        assert!(
+            j.positions.iter().all(Option::is_none),
+            "no scalar positions"
+        );
+        assert_eq!(j.coordinates.len(), model.n_frames);
+        let zero = true_turn(&data, k, j.reference_frame);
+        for (t, (c, s)) in j.coordinates.iter().zip(&j.coordinate_std).enumerate() {
+            let (Some(c), Some(s)) = (c, s) else { continue };
+            // The model's rotation is the true one seen from the parent's body frame, which
+            // the angle does not depend on.
+            let ours = UnitQuaternion::from_scaled_axis(Vector3::new(c[0], c[1], c[2]));
+            let truth = true_turn(&data, k, t) * zero.inverse();
+            let miss = ours.angle() - truth.angle();
+            let sd = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt() / 3f64.sqrt();
+            assert!(
+                sd > 0.0 && sd <= model.position_limits.max_std_rad,
+                "joint {k} frame {t}: std {s:?} rad"
+            );
+            z2.push((miss / sd).powi(2));
+            checked += 1;
+        }
+        let smoothed = j.smoothed_coordinates.iter().flatten().count();
+        assert!(smoothed > model.n_frames / 2, "{smoothed} smoothed frames");
+    }
+    assert!(checked > 1000, "{checked} frames checked");
+    let z_rms = (z2.iter().sum::<f64>() / z2.len() as f64).sqrt();
+    // The angle's error against the mean of the three axes' deviations: about 1 for a
+    // deviation as good as it says.
+    assert!(z_rms > 0.2 && z_rms < 3.0, "z RMS {z_rms}");
+}
+
+/// Whether nine in ten of model body `b`'s points are on true body `truth_body`.
+fn pure(model: &Model, data: &SynthData, b: usize, truth_body: usize) -> bool {
+    let points = &model.bodies[b].points;
+    let own = points
+        .iter()
+        .filter(|&&i| data.truth.point_body[i] == truth_body)
+        .count();
+    own * 10 >= points.len() * 9
+}
+
+#[test]
+fn hinges_stay_revolute_at_ten_millimetres_of_noise() {
+    // The typing is judged where the bodies are right: a body mixing two links has no joint
+    // of any type.
+    let (mut hinges, mut spherical) = (0, Vec::new());
+    for seed in 0..16 {
+        let data = simulate(&random_scenario(&RandomParams {
+            n_joints: 3,
+            prismatic_fraction: 0.0,
+            extra_points: 10,
+            noise_sigma_m: 0.01,
+            n_frames: 300,
+            seed,
+            ..RandomParams::default()
+        }))
+        .expect("simulate");
+        let model = discover(&data);
+        let map = body_map(&model, &data.truth);
+        for spec in &data.truth.mechanism.joints {
+            let Some(j) = model
+                .joints
+                .iter()
+                .find(|j| map[j.parent] == spec.parent && map[j.child] == spec.child)
+            else {
+                continue;
+            };
+            if !(pure(&model, &data, j.parent, spec.parent)
+                && pure(&model, &data, j.child, spec.child))
+            {
+                continue;
+            }
+            hinges += 1;
+            if j.joint_type == JointType::Spherical {
+                spherical.push((seed, spec.child));
+            }
+        }
+    }
+    assert!(hinges >= 12, "{hinges} hinges between pure bodies");
+    assert!(spherical.is_empty(), "hinges typed spherical: {spherical:?}");
+}
+
+#[test]
+fn the_observer_follows_ball_joints_in_new_frames() {
+    let data = skeleton(3, 0.001);
+    let model = discover(&data);
+    let observer = kinetree_fit::Observer::new(&model).expect("observer");
+    let fits = observer.fit_sequence(&data.tracks).expect("fit");
+    let balls: Vec<usize> = (0..model.joints.len())
+        .filter(|&k| model.joints[k].joint_type == JointType::Spherical)
+        .collect();
+    assert!(balls.len() >= 9, "{} ball joints", balls.len());
+    for &k in &balls {
+        let j = &model.joints[k];
+        let mut compared = 0;
+        for (t, f) in fits.iter().enumerate() {
+            let (Some(ours), Some(batch)) = (f.rotations[k], j.coordinates[t].as_ref()) else {
+                continue;
+            };
+            // The batch's coordinates are the observer's, turned to zero at the reference
+            // frame: the rotation between two frames is the same.
+            let a = UnitQuaternion::from_scaled_axis(Vector3::from(ours));
+            let b = UnitQuaternion::from_scaled_axis(Vector3::new(batch[0], batch[1], batch[2]));
+            let r = fits[j.reference_frame].rotations[k]
+                .map(|v| UnitQuaternion::from_scaled_axis(Vector3::from(v)));
+            if let Some(r) = r {
+                let off = (a * r.inverse()).angle_to(&b);
+                assert!(off < 1e-4, "joint {k} frame {t}: {off} rad apart");
+                compared += 1;
+            }
+        }
+        assert!(compared > 100, "joint {k}: {compared} frames compared");
+    }
+}
+
+#[test]
+fn urdf_ball_joints_turn_about_their_centre() {
+    let data = skeleton(1, 0.001);
+    let model = discover(&data);
+    let text = kinetree_io::export::to_urdf(&model).expect("urdf");
+    let robot = urdf_rs::read_from_string(&text).expect("urdf-rs parses it");
+    let offsets = kinetree_io::export::link_offsets(&model).expect("offsets");
+    let pose = |p: &urdf_rs::Pose| {
+        let [r, pi, y] = p.rpy.0;
+        Isometry3::from_parts(
+            Translation3::from(Vector3::from(p.xyz.0)),
+            UnitQuaternion::from_euler_angles(r, pi, y),
+        )
+    };
+    let mut checked = 0;
+    for j in model
+        .joints
+        .iter()
+        .filter(|j| j.joint_type == JointType::Spherical)
+    {
+        let name = kinetree_io::export::joint_name(j.parent, j.child);
+        let chain: Vec<&urdf_rs::Joint> = ["rx", "ry", "rz"]
+            .iter()
+            .map(|s| {
+                robot
+                    .joints
+                    .iter()
+                    .find(|u| u.name == format!("{name}_{s}"))
+                    .expect("three joints")
+            })
+            .collect();
+        assert!(
+            chain
+                .iter()
+                .all(|u| matches!(u.joint_type, urdf_rs::JointType::Continuous))
+        );
+        let centre_p = Point3::from(Vector3::from(j.point_in_parent.expect("centre")));
+        let reference = j
+            .reference_pose
+            .and_then(|r| r.to_isometry())
+            .expect("pose");
+        let centre_c = reference.inverse_transform_point(&centre_p);
+        let off_p = Translation3::from(Vector3::from(offsets[j.parent]));
+        let off_c = Translation3::from(Vector3::from(offsets[j.child]));
+        for angles in [[0.0, 0.0, 0.0], [0.4, -0.7, 1.1], [-1.2, 0.3, -0.5]] {
+            let mut link = Isometry3::identity();
+            for (u, a) in chain.iter().zip(angles) {
+                let axis = Vector3::from(u.axis.xyz.0);
+                link = link * pose(&u.origin) * UnitQuaternion::from_scaled_axis(axis * a);
+            }
+            // Child body frame -> child link -> parent link -> parent body frame.
+            let moved = off_p.inverse() * link * off_c * centre_c;
+            assert!(
+                (moved - centre_p).norm() < 1e-9,
+                "{name} at {angles:?}: centre moved by {}",
+                (moved - centre_p).norm()
+            );
+            if angles == [0.0; 3] {
+                let at_zero = off_p.inverse() * link * off_c;
+                let diff = at_zero.inverse() * reference;
+                assert!(diff.translation.vector.norm() < 1e-9 && diff.rotation.angle() < 1e-9);
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked >= 27, "{checked} checks");
+}
