@@ -284,10 +284,12 @@ class Observation:
     """Joint positions of tracks from a model (:func:`observe`).
 
     Attributes:
-        joint_names: ``<type>_<parent>_<child>`` per joint, the CLI's column names.
-        positions: ``(T, J)`` joint positions (radians, unwrapped, or metres), NaN where the
+        joint_names: ``<type>_<parent>_<child>`` per column, the CLI's column names: one
+            per joint, three per spherical joint (``_rx``, ``_ry``, ``_rz``, its rotation
+            vector in the parent's frame from the reference pose).
+        positions: ``(T, C)`` joint positions (radians, unwrapped, or metres), NaN where the
             frame does not determine one.
-        std: ``(T, J)`` their standard deviations.
+        std: ``(T, C)`` their standard deviations.
         residual_in_sigma: ``(T,)`` RMS distance of each frame's keypoints from the fitted
             model, in units of the model's noise; NaN for a frame with no visible keypoint.
         unexplained: Frames whose residual exceeds ``unexplained_bound``: their positions are

@@ -177,7 +177,10 @@ fn hinges_stay_revolute_at_ten_millimetres_of_noise() {
         }
     }
     assert!(hinges >= 12, "{hinges} hinges between pure bodies");
-    assert!(spherical.is_empty(), "hinges typed spherical: {spherical:?}");
+    assert!(
+        spherical.is_empty(),
+        "hinges typed spherical: {spherical:?}"
+    );
 }
 
 #[test]

@@ -138,7 +138,7 @@ proptest! {
     #[test]
     fn tree_extraction_returns_a_tree(
         n in 1usize..9,
-        kinds in proptest::collection::vec((0usize..4, 0.0..1.0f64), 45),
+        kinds in proptest::collection::vec((0usize..5, 0.0..1.0f64), 45),
         has_static in any::<bool>(),
     ) {
         let mut pairs = Vec::new();
@@ -148,6 +148,7 @@ proptest! {
                 0 => JointKind::Rigid,
                 1 => JointKind::Revolute { axis: Vector3::z(), pivot: Point3::origin() },
                 2 => JointKind::Prismatic { axis: Vector3::x() },
+                4 => JointKind::Spherical { centre: Point3::origin() },
                 _ => JointKind::MultiDof,
             };
             PairDof {
@@ -186,6 +187,19 @@ proptest! {
                 prop_assert!(steps <= n);
             }
             prop_assert_eq!(x, tree.root);
+        }
+        // No body hangs by a ball joint on a parent whose own parent it also has a ball joint
+        // with: the shallower of two exactly tied trees is taken.
+        let ball = |a: usize, b: usize| {
+            kinetree_structure::find_pair(&pairs, Some(a), b)
+                .is_some_and(|p| matches!(p.joint, JointKind::Spherical { .. }))
+        };
+        for v in 0..n {
+            if let Some(u) = tree.parent[v]
+                && let Some(w) = tree.parent[u]
+            {
+                prop_assert!(!(ball(u, v) && ball(w, v)), "{v} on {u} under {w}");
+            }
         }
     }
 }

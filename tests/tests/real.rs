@@ -6,6 +6,7 @@
 //! experiments/real/results.md from these runs.
 
 use kinetree_core::Model;
+use kinetree_core::model::JointType;
 use kinetree_pipeline::Pipeline;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -75,7 +76,7 @@ fn run(folder: &'static str) -> Outcome {
 fn real_recordings_segment_into_their_labelled_segments() {
     let outcomes: Vec<Outcome> = kinetree_tests::RECORDINGS.iter().map(|f| run(f)).collect();
     let mut table = String::from(
-        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
+        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / spherical / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
     );
     for o in &outcomes {
         let count = |t: &str| {
@@ -87,7 +88,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
         };
         let _ = writeln!(
             table,
-            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} | {} |",
+            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} / {} | {} |",
             o.folder,
             o.frames,
             o.markers,
@@ -98,6 +99,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
             o.ari,
             count("revolute"),
             count("prismatic"),
+            count("spherical"),
             count("multi_dof"),
             count("rigid"),
             o.model
@@ -160,14 +162,15 @@ fn real_recordings_segment_into_their_labelled_segments() {
             );
             assert!(o.ari > 0.6, "{}: ARI {}", o.folder, o.ari);
         }
-        // Every model exports, multi-DoF (and rigid) joints included as floating joints.
+        // Every model exports, multi-DoF (and rigid) joints included as floating joints, and
+        // spherical ones as three continuous joints.
         let urdf = kinetree_io::export::to_urdf(&o.model)
             .unwrap_or_else(|e| panic!("{}: URDF export: {e}", o.folder));
         let multi = o
             .model
             .joints
             .iter()
-            .filter(|j| !j.joint_type.is_single_dof())
+            .filter(|j| matches!(j.joint_type, JointType::MultiDof | JointType::Rigid))
             .count();
         assert_eq!(
             urdf.matches("type=\"floating\"").count(),

@@ -807,7 +807,9 @@ fn bundle_adjust_refines_the_axes_of_the_followed_joints() {
 }
 
 /// A keypoint of link 2 clustered onto link 1 makes link 1's joint multi-DoF; the other
-/// points repairs, which would move or drop it first, are off.
+/// points repairs, which would move or drop it first, are off. With ball joints typed, the
+/// joint passes for a ball (a hinge has a fixed centre), which the repair leaves alone (on
+/// mechanisms with real balls, trying them lost joints): they are not typed here.
 #[test]
 fn joint_spoilers_take_off_a_keypoint_that_alone_makes_a_joint_multi_dof() {
     let data = arm();
@@ -815,6 +817,10 @@ fn joint_spoilers_take_off_a_keypoint_that_alone_makes_a_joint_multi_dof() {
     let stray = l2[0];
     let wrong = labels(&data, |l| l[stray] = Some(1));
     let mut c = config();
+    c.dof = kinetree_pipeline::config::DofConfig::Chi2Rank(kinetree_dof::Chi2RankParams {
+        spherical: false,
+        ..Default::default()
+    });
     c.repairs.split.enabled = false;
     c.repairs.move_points.enabled = false;
     c.repairs.eject_points.enabled = false;

@@ -415,6 +415,23 @@ fn pivot_test(c: &PairColumns) -> Option<(f64, f64, Point3<f64>)> {
     chi2.is_finite().then_some((chi2 / dof, dof, centre))
 }
 
+/// [`pivot_test`] as a rank test of the centre: rank 0 when `chi^2 / dof` is within `slack`
+/// times its `z`-quantile (a fixed centre), 1 otherwise; with the centre in `a`'s frame.
+fn pivot_rank_test(c: &PairColumns, z: f64, slack: f64) -> Option<(RankTest, Point3<f64>)> {
+    let (per_dof, dof, centre) = pivot_test(c)?;
+    let bound = slack * crate::rank::chi2_per_dof_quantile(dof, z);
+    let test = RankTest {
+        singular_values: Vec::new(),
+        whitened: Vec::new(),
+        threshold: None,
+        rank: usize::from(per_dof > bound),
+        n_columns: c.x_abs.len(),
+        chi2_per_dof: vec![per_dof],
+        chi2_bound: vec![bound],
+    };
+    Some((test, centre))
+}
+
 /// Inverse left Jacobian of SO(3) at `phi = theta a`:
 /// `(theta/2) cot(theta/2) I + (1 - (theta/2) cot(theta/2)) a a^T - [phi/2]x`.
 fn inverse_left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
@@ -429,11 +446,14 @@ fn inverse_left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() * c + a * a.transpose() * (1.0 - c) - half
 }
 
-/// Settings shared by the testers: which frames count for the centre of rotation.
+/// Settings shared by the testers: which frames count for the centre of rotation, and
+/// whether a centre fixed in both bodies makes a pair that turns about more than one axis a
+/// ball joint.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct CentreSettings {
     min_angle_rad: f64,
     min_angle_in_std: f64,
+    spherical: bool,
 }
 
 /// Types the joint between `a` and `b` from the rank decisions of `rule`.
@@ -571,17 +591,8 @@ fn classify_ranks(
             match rule {
                 RankRule::Chi2 { z: zq, slack, .. } => {
                     // One reference-free test covers a moving centre and sliding.
-                    if let Some((per_dof, dof, _)) = pivot_test(c) {
-                        let bound = slack * crate::rank::chi2_per_dof_quantile(dof, zq);
-                        centre = RankTest {
-                            singular_values: Vec::new(),
-                            whitened: Vec::new(),
-                            threshold: None,
-                            rank: usize::from(per_dof > bound),
-                            n_columns: c.x_abs.len(),
-                            chi2_per_dof: vec![per_dof],
-                            chi2_bound: vec![bound],
-                        };
+                    if let Some((test, _)) = pivot_rank_test(c, zq, slack) {
+                        centre = test;
                     }
                 }
                 RankRule::Whitened { .. } => {
@@ -610,42 +621,25 @@ fn classify_ranks(
             }
         }
         _ => {
-            dof = (rotation.rank + translation.rank).min(6);
-            fit_ratio = rotation.next_rank_ratio();
+            let mut multi = (
+                (rotation.rank + translation.rank).min(6),
+                rotation.next_rank_ratio(),
+            );
             // More than one rotation: a centre fixed in both bodies makes it a ball joint,
             // judged by the same reference-free chi-square as a revolute joint's pivot.
             if let RankRule::Chi2 { z: zq, slack, .. } = rule
-                && let Some((per_dof, n, centre_in_a)) = pivot_test(c)
+                && centre_settings.spherical
+                && let Some((test, centre_in_a)) = pivot_rank_test(c, zq, slack)
             {
-                let bound = slack * crate::rank::chi2_per_dof_quantile(n, zq);
-                centre = RankTest {
-                    singular_values: Vec::new(),
-                    whitened: Vec::new(),
-                    threshold: None,
-                    rank: usize::from(per_dof > bound),
-                    n_columns: c.x_abs.len(),
-                    chi2_per_dof: vec![per_dof],
-                    chi2_bound: vec![bound],
-                };
-                if centre.rank == 0 {
+                if test.rank == 0 {
                     joint = JointKind::Spherical {
                         centre: centre_in_a,
                     };
-                    return Ok(PairDof {
-                        a,
-                        b,
-                        reference_frame: c.reference_frame,
-                        translation,
-                        rotation,
-                        centre,
-                        sliding,
-                        centre_uncentred,
-                        dof: 3,
-                        joint,
-                        fit_ratio: fit_ratio.max(per_dof / bound),
-                    });
+                    multi = (3, multi.1.max(test.next_rank_ratio()));
                 }
+                centre = test;
             }
+            (dof, fit_ratio) = multi;
         }
     }
     Ok(PairDof {
@@ -759,6 +753,7 @@ impl DofTester for SvdRank {
             CentreSettings {
                 min_angle_rad: self.params.min_centre_angle_rad,
                 min_angle_in_std: self.params.min_centre_angle_in_std,
+                spherical: false,
             },
         )
     }
@@ -789,6 +784,10 @@ pub struct Chi2RankParams {
     /// rotation the slack hides to be looked for (default [`crate::MIN_EXCESS`], the nominal
     /// noise level).
     pub min_excess: f64,
+    /// Whether a pair turning about more than one axis is a spherical joint when a centre
+    /// fixed in both bodies explains its motion (the revolute joint's pivot test); `false`
+    /// calls it multi-DoF, as `svd_rank` does (default true).
+    pub spherical: bool,
 }
 
 impl Default for Chi2RankParams {
@@ -801,6 +800,7 @@ impl Default for Chi2RankParams {
             model_error_m: 0.0,
             model_error_rad: 0.0,
             min_excess: crate::MIN_EXCESS,
+            spherical: true,
         }
     }
 }
@@ -877,6 +877,7 @@ impl DofTester for Chi2Rank {
             CentreSettings {
                 min_angle_rad: self.params.min_centre_angle_rad,
                 min_angle_in_std: self.params.min_centre_angle_in_std,
+                spherical: self.params.spherical,
             },
         )
     }

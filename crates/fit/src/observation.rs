@@ -36,12 +36,15 @@ impl Default for ObserveOptions {
 /// The joint positions of every frame of some tracks, from a model.
 #[derive(Debug, Clone)]
 pub struct Observation {
-    /// Each joint's name, `<type>_<parent>_<child>`, in the model's joint order.
+    /// Each column's name, in the model's joint order: `<type>_<parent>_<child>` for a
+    /// joint of one coordinate (and for rigid and multi-DoF joints, whose column is empty),
+    /// with `_rx`, `_ry`, `_rz` for a spherical joint's three (its rotation vector in the
+    /// parent's frame from the reference pose, as the model's `coordinates`).
     pub joint_names: Vec<String>,
-    /// Per joint, per frame: the position (radians, unwrapped over the frames, or metres);
+    /// Per column, per frame: the position (radians, unwrapped over the frames, or metres);
     /// `None` where the frame does not determine it.
     pub positions: Vec<Vec<Option<f64>>>,
-    /// Per joint, per frame: the standard deviation of the position.
+    /// Per column, per frame: the standard deviation of the position.
     pub std: Vec<Vec<Option<f64>>>,
     /// Per frame: the RMS distance of its keypoints from the fitted model in units of the
     /// model's noise; `None` for a frame with no visible placed keypoint.
@@ -79,19 +82,36 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
     }
     let observer = Observer::new(model)?;
     let fits = observer.fit_sequence(tracks)?;
-    let n_joints = observer.n_joints();
-    let mut positions: Vec<Vec<Option<f64>>> = (0..n_joints)
-        .map(|k| fits.iter().map(|f| f.positions[k]).collect())
-        .collect();
-    let mut std: Vec<Vec<Option<f64>>> = (0..n_joints)
-        .map(|k| fits.iter().map(|f| f.std[k]).collect())
-        .collect();
+    let mut joint_names = Vec::new();
+    let mut positions: Vec<Vec<Option<f64>>> = Vec::new();
+    let mut std: Vec<Vec<Option<f64>>> = Vec::new();
+    let mut angular = Vec::new();
+    for (k, j) in model.joints.iter().enumerate() {
+        let name = format!("{}_{}_{}", j.joint_type, j.parent, j.child);
+        if observer.is_spherical(k) {
+            for (i, axis) in ["rx", "ry", "rz"].iter().enumerate() {
+                joint_names.push(format!("{name}_{axis}"));
+                positions.push(fits.iter().map(|f| f.rotations[k].map(|v| v[i])).collect());
+                std.push(
+                    fits.iter()
+                        .map(|f| f.rotation_std[k].map(|s| s[i]))
+                        .collect(),
+                );
+                angular.push(true);
+            }
+        } else {
+            joint_names.push(name);
+            positions.push(fits.iter().map(|f| f.positions[k]).collect());
+            std.push(fits.iter().map(|f| f.std[k]).collect());
+            angular.push(observer.is_revolute(k));
+        }
+    }
     if options.smooth {
-        for k in 0..n_joints {
-            (positions[k], std[k]) = smooth_fitted_positions(
-                &positions[k],
-                &std[k],
-                observer.is_revolute(k),
+        for c in 0..positions.len() {
+            (positions[c], std[c]) = smooth_fitted_positions(
+                &positions[c],
+                &std[c],
+                angular[c],
                 &model.position_limits,
             )?;
         }
@@ -110,11 +130,7 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
         .filter(|&t| residual_in_sigma[t].is_some_and(|r| r.is_nan() || r > bound))
         .collect();
     Ok(Observation {
-        joint_names: model
-            .joints
-            .iter()
-            .map(|j| format!("{}_{}_{}", j.joint_type, j.parent, j.child))
-            .collect(),
+        joint_names,
         positions,
         std,
         residual_in_sigma,

@@ -364,6 +364,14 @@ impl Observer {
         )
     }
 
+    /// Whether joint `k` is spherical (its rotations are in [`FrameFit::rotations`]).
+    pub fn is_spherical(&self, k: usize) -> bool {
+        matches!(
+            self.joints.get(k).map(|j| j.measure),
+            Some(Measure::Spherical(..))
+        )
+    }
+
     /// Every body's `camera_from_body` in one frame from its own visible points alone
     /// (Kabsch-Umeyama), `None` with fewer than three visible placed points or collinear ones.
     pub fn body_poses(&self, frame: &[Option<Point3<f64>>]) -> Vec<Option<Isometry3<f64>>> {

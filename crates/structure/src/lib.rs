@@ -439,3 +439,76 @@ pub fn joint_reference(
         UnitQuaternion::from_quaternion(Quaternion::from(rot)),
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kinetree_core::RankTest;
+    use kinetree_core::nalgebra::{Point3, Vector3};
+
+    fn pair(a: Option<usize>, b: usize, joint: JointKind, fit_ratio: f64) -> PairDof {
+        let dof = match joint {
+            JointKind::Rigid => 0,
+            JointKind::Spherical { .. } => 3,
+            JointKind::MultiDof => 6,
+            _ => 1,
+        };
+        PairDof {
+            a,
+            b,
+            reference_frame: 0,
+            translation: RankTest::empty(),
+            rotation: RankTest::empty(),
+            centre: RankTest::empty(),
+            sliding: RankTest::empty(),
+            centre_uncentred: RankTest::empty(),
+            dof,
+            joint,
+            fit_ratio,
+        }
+    }
+
+    fn ball() -> JointKind {
+        JointKind::Spherical {
+            centre: Point3::origin(),
+        }
+    }
+
+    /// A static base with two children on balls about one centre: the siblings' own ball
+    /// joint fits best, but both hang on the base.
+    #[test]
+    fn siblings_on_balls_about_one_centre_hang_on_their_parent() {
+        let pairs = vec![
+            pair(None, 0, JointKind::Rigid, 0.1),
+            pair(None, 1, JointKind::MultiDof, 0.0),
+            pair(None, 2, JointKind::MultiDof, 0.0),
+            pair(Some(0), 1, ball(), 0.5),
+            pair(Some(0), 2, ball(), 0.9),
+            pair(Some(1), 2, ball(), 0.1),
+        ];
+        let tree = spanning_tree(3, &pairs).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
+        assert_eq!(tree.order, vec![0, 1, 2]);
+        // A parent turning on a hinge through the centre ties the same way.
+        let mut hinge = pairs.clone();
+        hinge[3] = pair(
+            Some(0),
+            1,
+            JointKind::Revolute {
+                axis: Vector3::z(),
+                pivot: Point3::origin(),
+            },
+            0.5,
+        );
+        let tree = spanning_tree(3, &hinge).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
+        // Without a ball joint to the grandparent, the body stays where the tree hung it.
+        let mut chain = pairs.clone();
+        chain[4] = pair(Some(0), 2, JointKind::MultiDof, 0.0);
+        let tree = spanning_tree(3, &chain).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+        // Excluded edges are not taken back by the hoisting.
+        let tree = spanning_tree_without(3, &pairs, &[(0, 2)]).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+    }
+}

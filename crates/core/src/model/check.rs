@@ -34,15 +34,7 @@ fn unit_axis(field: &str, axis: &[f64; 3]) -> Result<()> {
 }
 
 fn per_frame(field: &str, values: &[Option<f64>], n_frames: usize, min: f64) -> Result<()> {
-    if !values.is_empty() && values.len() != n_frames {
-        return Err(bad(
-            field,
-            format!(
-                "has {} entries; n_frames is {n_frames} (or leave it empty)",
-                values.len()
-            ),
-        ));
-    }
+    frames_or_empty(field, values.len(), n_frames)?;
     for (t, v) in values.iter().enumerate() {
         if let Some(v) = v
             && !(v.is_finite() && *v >= min)
@@ -52,6 +44,17 @@ fn per_frame(field: &str, values: &[Option<f64>], n_frames: usize, min: f64) -> 
                 format!("must be finite and at least {min}, got {v}"),
             ));
         }
+    }
+    Ok(())
+}
+
+/// A per-frame array has `n_frames` entries or none.
+fn frames_or_empty(field: &str, len: usize, n_frames: usize) -> Result<()> {
+    if len != 0 && len != n_frames {
+        return Err(bad(
+            field,
+            format!("has {len} entries; n_frames is {n_frames} (or leave it empty)"),
+        ));
     }
     Ok(())
 }
@@ -73,15 +76,7 @@ fn per_frame_vectors(
             format!("is given on a joint of {width} coordinate(s); leave it empty"),
         ));
     }
-    if values.len() != n_frames {
-        return Err(bad(
-            field,
-            format!(
-                "has {} entries; n_frames is {n_frames} (or leave it empty)",
-                values.len()
-            ),
-        ));
-    }
+    frames_or_empty(field, values.len(), n_frames)?;
     for (t, v) in values.iter().enumerate() {
         let Some(v) = v else { continue };
         if v.len() != width {
