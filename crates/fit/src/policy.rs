@@ -285,8 +285,9 @@ pub struct TypeByFitLimits {
     pub max_translation_rank: usize,
     /// A spherical joint is tried as a hinge only when its fitted rotations stray from their
     /// principal axis by at most this many of their standard deviations, RMS (default 20;
-    /// hinges typed spherical at 10 mm of noise stray by 6-18, the ball joints of simulated
-    /// skeletons by 20-180, and each trial costs a refinement and a bundle adjustment).
+    /// two hinges typed spherical at 10 mm of noise strayed by 6-18, the ball joints of a
+    /// simulated skeleton by 20-180, and each trial costs a refinement and a bundle
+    /// adjustment).
     pub max_ball_off_axis_in_std: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
