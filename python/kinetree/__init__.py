@@ -284,9 +284,11 @@ class Observation:
     """Joint positions of tracks from a model (:func:`observe`).
 
     Attributes:
-        joint_names: ``<type>_<parent>_<child>`` per column, the CLI's column names: one
-            per joint, three per spherical joint (``_rx``, ``_ry``, ``_rz``, its rotation
-            vector in the parent's frame from the reference pose).
+        joint_names: The CLI's column names: when the root is not static, its pose first
+            (``root_<id>_x``, ``_y``, ``_z``, ``_rx``, ``_ry``, ``_rz``: origin and rotation
+            vector in the camera frame); then ``<type>_<parent>_<child>`` per joint, three
+            per spherical joint (``_rx``, ``_ry``, ``_rz``, its rotation vector in the
+            parent's frame from the reference pose).
         positions: ``(T, C)`` joint positions (radians, unwrapped, or metres), NaN where the
             frame does not determine one.
         std: ``(T, C)`` their standard deviations.

@@ -16,13 +16,6 @@ def quaternion_wxyz(rotation_vector):
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
 
 
-def matrix_quaternion_wxyz(r):
-    """The unit quaternion (w, x, y, z) of a rotation matrix."""
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, r.reshape(-1))
-    return q
-
-
 def check_forward_kinematics(model, tracks, every=7):
     """Sets every joint's qpos from the observer's fit at every `every`-th frame where all
     are known, runs MuJoCo's kinematics, and compares each body's pose with the same fit's
@@ -59,10 +52,14 @@ def check_forward_kinematics(model, tracks, every=7):
         if root.is_static:
             world = np.linalg.inv(poses[root.id])
         else:
+            # The configuration's first six columns: the root's origin and rotation vector.
+            first = observed.joint_names.index(f"root_{root.id}_x")
+            origin = observed.positions[t, first : first + 3]
+            turn = observed.positions[t, first + 3 : first + 6]
             name = f"body{root.id}_free"
             address = mj.jnt_qposadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, name)]
-            qpos[address : address + 3] = poses[root.id][:3, 3]
-            qpos[address + 3 : address + 7] = matrix_quaternion_wxyz(poses[root.id][:3, :3])
+            qpos[address : address + 3] = origin
+            qpos[address + 3 : address + 7] = quaternion_wxyz(turn)
         data.qpos[:] = qpos
         mujoco.mj_kinematics(mj, data)
         for body in model.bodies:
@@ -105,12 +102,13 @@ def test_mjcf_of_a_mechanism_with_slides_and_balls():
 
 
 def test_mjcf_of_a_mechanism_with_no_static_body_has_a_free_root():
-    tracks, truth = kinetree.simulate("random", seed=6, joints=3, prismatic_fraction=0.0,
-                                      frames=300)
+    tracks, truth = kinetree.simulate("random", seed=5, joints=3, prismatic_fraction=0.0,
+                                      spherical_fraction=0.5, frames=300)
     base = np.asarray(truth["point_body"]) == 0
     moving = tracks[:, ~base, :]
     model = kinetree.discover(moving)
     assert model.static_body is None
+    assert "spherical" in [j.type for j in model.joints]
     assert "<freejoint" in model.to_mjcf()
     compared, angle, shift = check_forward_kinematics(model, moving)
     assert compared >= 10, compared

@@ -283,3 +283,53 @@ fn urdf_ball_joints_turn_about_their_centre() {
     }
     assert!(checked >= 27, "{checked} checks");
 }
+
+#[test]
+fn with_no_static_body_the_configuration_starts_with_the_root_pose() {
+    let mut scenario = random_scenario(&RandomParams {
+        n_joints: 3,
+        prismatic_fraction: 0.0,
+        spherical_fraction: 0.5,
+        n_frames: 300,
+        seed: 5,
+        ..RandomParams::default()
+    });
+    // A base without keypoints: nothing static is seen.
+    scenario.mechanism.bodies[0].skip_corners = (0..8).collect();
+    let data = simulate(&scenario).expect("simulate");
+    let model = discover(&data);
+    assert!(model.static_body.is_none());
+    assert!(
+        model
+            .joints
+            .iter()
+            .any(|j| j.joint_type == JointType::Spherical)
+    );
+    let seen = kinetree_fit::observe(&model, &data.tracks, Default::default()).expect("observe");
+    let root = model.root_body;
+    let names: Vec<String> = ["x", "y", "z", "rx", "ry", "rz"]
+        .iter()
+        .map(|a| format!("root_{root}_{a}"))
+        .collect();
+    assert_eq!(seen.joint_names[..6], names[..]);
+    let joint_columns: usize = model
+        .joints
+        .iter()
+        .map(|j| j.joint_type.n_coordinates().max(1))
+        .sum();
+    assert_eq!(seen.joint_names.len(), 6 + joint_columns);
+    let mut checked = 0;
+    for (t, poses) in seen.poses.iter().enumerate() {
+        let Some(pose) = poses[root] else { continue };
+        let column: Vec<f64> = (0..6).filter_map(|c| seen.positions[c][t]).collect();
+        assert_eq!(column.len(), 6, "frame {t}");
+        let back = Isometry3::from_parts(
+            Translation3::new(column[0], column[1], column[2]),
+            UnitQuaternion::from_scaled_axis(Vector3::new(column[3], column[4], column[5])),
+        );
+        assert!((back.inverse() * pose).translation.vector.norm() < 1e-12);
+        assert!((back.inverse() * pose).rotation.angle() < 1e-9);
+        checked += 1;
+    }
+    assert!(checked > 150, "{checked} frames with a root pose");
+}

@@ -260,8 +260,9 @@ enum Command {
         output: PathBuf,
     },
     /// Estimate joint positions of (new) frames from a discovered model: one CSV column per
-    /// joint (three per spherical joint, `_rx`, `_ry`, `_rz`: its rotation vector), revolute
-    /// angles unwrapped over the frames, empty where unknown.
+    /// joint (three per spherical joint, `_rx`, `_ry`, `_rz`: its rotation vector), after the
+    /// root's pose (six columns) when the root is not static; revolute angles unwrapped over
+    /// the frames, empty where unknown.
     Observe {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,

@@ -36,11 +36,17 @@ impl Default for ObserveOptions {
 /// The joint positions of every frame of some tracks, from a model.
 #[derive(Debug, Clone)]
 pub struct Observation {
-    /// Each column's name, in the model's joint order: `<type>_<parent>_<child>` for a
-    /// joint of one coordinate (and for rigid and multi-DoF joints, whose column is empty),
-    /// with `_rx`, `_ry`, `_rz` for a spherical joint's three (its rotation vector in the
-    /// parent's frame from the reference pose, as the model's `coordinates`).
+    /// Each column's name. When the model's root is not static, its pose comes first:
+    /// `root_<id>_x`, `_y`, `_z` (its origin in the camera frame, metres) and `_rx`, `_ry`,
+    /// `_rz` (its rotation vector from the camera's axes, radians), each frame's fit, not
+    /// smoothed and without a standard deviation. Then the joints in the model's order:
+    /// `<type>_<parent>_<child>` for a joint of one coordinate (and for rigid and multi-DoF
+    /// joints, whose column is empty), with `_rx`, `_ry`, `_rz` for a spherical joint's three
+    /// (its rotation vector in the parent's frame from the reference pose, as the model's
+    /// `coordinates`). A row is then the mechanism's whole configuration.
     pub joint_names: Vec<String>,
+    /// Each joint's first column, in the model's joint order.
+    pub joint_columns: Vec<usize>,
     /// Per column, per frame: the position (radians, unwrapped over the frames, or metres);
     /// `None` where the frame does not determine it.
     pub positions: Vec<Vec<Option<f64>>>,
@@ -86,7 +92,33 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
     let mut positions: Vec<Vec<Option<f64>>> = Vec::new();
     let mut std: Vec<Vec<Option<f64>>> = Vec::new();
     let mut angular = Vec::new();
+    // The root's pose when nothing static anchors it: part of the configuration.
+    let free_root = model.static_body.is_none() && model.root_body < model.bodies.len();
+    if free_root {
+        let root = model.root_body;
+        for (i, axis) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
+            joint_names.push(format!("root_{root}_{axis}"));
+            positions.push(
+                fits.iter()
+                    .map(|f| {
+                        f.poses[root].map(|p| {
+                            if i < 3 {
+                                p.translation.vector[i]
+                            } else {
+                                p.rotation.scaled_axis()[i - 3]
+                            }
+                        })
+                    })
+                    .collect(),
+            );
+            std.push(vec![None; fits.len()]);
+            angular.push(i >= 3);
+        }
+    }
+    let first_joint_column = joint_names.len();
+    let mut joint_columns = Vec::with_capacity(model.joints.len());
     for (k, j) in model.joints.iter().enumerate() {
+        joint_columns.push(joint_names.len());
         let name = format!("{}_{}_{}", j.joint_type, j.parent, j.child);
         if observer.is_spherical(k) {
             for (i, axis) in ["rx", "ry", "rz"].iter().enumerate() {
@@ -107,7 +139,7 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
         }
     }
     if options.smooth {
-        for c in 0..positions.len() {
+        for c in first_joint_column..positions.len() {
             (positions[c], std[c]) = smooth_fitted_positions(
                 &positions[c],
                 &std[c],
@@ -131,6 +163,7 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
         .collect();
     Ok(Observation {
         joint_names,
+        joint_columns,
         positions,
         std,
         residual_in_sigma,

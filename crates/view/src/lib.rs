@@ -159,9 +159,8 @@ pub fn to_html(model: &Model, tracks: &Tracks, options: &ViewOptions) -> Result<
     let joints = model
         .joints
         .iter()
-        .zip(&seen.joint_names)
-        .enumerate()
-        .map(|(k, (j, name))| {
+        .zip(&seen.joint_columns)
+        .map(|(j, &column)| {
             let axis = j.axis_in_parent.map(Vector3::from);
             let point = j.point_in_parent.map(Point3::from);
             let in_camera = |f: usize| {
@@ -172,13 +171,28 @@ pub fn to_html(model: &Model, tracks: &Tracks, options: &ViewOptions) -> Result<
             };
             let (pivots, axes): (Vec<_>, Vec<_>) = (0..frames.len()).map(in_camera).unzip();
             let single = matches!(j.joint_type, JointType::Revolute | JointType::Prismatic);
+            // A ball joint's plot is its rotation angle, the length of its rotation vector.
+            let position: Vec<f64> = if j.joint_type == JointType::Spherical {
+                (0..frames.len())
+                    .map(|f| {
+                        let v: Option<Vec<f64>> =
+                            (column..column + 3).map(|c| seen.positions[c][f]).collect();
+                        v.map_or(f64::NAN, |v| v.iter().map(|x| x * x).sum::<f64>().sqrt())
+                    })
+                    .collect()
+            } else {
+                seen.positions[column]
+                    .iter()
+                    .map(|p| p.unwrap_or(f64::NAN))
+                    .collect()
+            };
             JointView {
-                name: name.clone(),
+                name: format!("{}_{}_{}", j.joint_type, j.parent, j.child),
                 joint_type: j.joint_type.to_string(),
                 parent: j.parent,
                 child: j.child,
                 unit: match j.joint_type {
-                    JointType::Revolute => Some("rad"),
+                    JointType::Revolute | JointType::Spherical => Some("rad"),
                     JointType::Prismatic => Some("m"),
                     _ => None,
                 },
@@ -188,7 +202,7 @@ pub fn to_html(model: &Model, tracks: &Tracks, options: &ViewOptions) -> Result<
                         .flat_map(|p| xyz(p.filter(|_| j.joint_type == JointType::Revolute))),
                 ),
                 axis: encode(axes.into_iter().flat_map(|a| xyz(a.filter(|_| single)))),
-                position: encode(seen.positions[k].iter().map(|p| p.unwrap_or(f64::NAN))),
+                position: encode(position),
             }
         })
         .collect();

@@ -147,3 +147,61 @@ fn long_recordings_keep_every_kth_frame_and_bad_options_are_refused() {
     let e = to_html(&model, &five, &ViewOptions::default()).expect_err("other points");
     assert!(e.to_string().contains("points"), "{e}");
 }
+
+/// With ball joints and no static body, the observer's matrix starts with the root's pose and
+/// has three columns per ball: each joint's plot still is its own (a ball's is its angle).
+#[test]
+fn each_joint_plots_its_own_coordinates_with_a_free_root_and_ball_joints() {
+    let mut scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+        n_joints: 3,
+        prismatic_fraction: 0.0,
+        spherical_fraction: 0.5,
+        n_frames: 300,
+        seed: 5,
+        ..Default::default()
+    });
+    scenario.mechanism.bodies[0].skip_corners = (0..8).collect();
+    let tracks = kinetree_synth::simulate(&scenario)
+        .expect("simulate")
+        .tracks;
+    let model = kinetree_pipeline::Pipeline::from_config(&Default::default())
+        .expect("pipeline")
+        .run(&tracks)
+        .expect("discover")
+        .model;
+    assert!(model.static_body.is_none());
+    let balls = model
+        .joints
+        .iter()
+        .filter(|j| j.joint_type == kinetree_core::model::JointType::Spherical)
+        .count();
+    assert!(balls >= 1, "{balls} ball joints");
+    let seen = kinetree_fit::observe(&model, &tracks, Default::default()).expect("observe");
+    let page = to_html(&model, &tracks, &ViewOptions::default()).expect("page");
+    let data = data_of(&page);
+    for ((joint, shown), &column) in model
+        .joints
+        .iter()
+        .zip(data["joints"].as_array().expect("joints"))
+        .zip(&seen.joint_columns)
+    {
+        let name = format!("{}_{}_{}", joint.joint_type, joint.parent, joint.child);
+        assert_eq!(shown["name"], name.as_str());
+        let plotted = floats(&shown["position"]);
+        for (f, &p) in plotted.iter().enumerate() {
+            let expected = if joint.joint_type == kinetree_core::model::JointType::Spherical {
+                (column..column + 3)
+                    .map(|c| seen.positions[c][f].map(|v| v * v))
+                    .sum::<Option<f64>>()
+                    .map(f64::sqrt)
+            } else {
+                seen.positions[column][f]
+            };
+            match expected {
+                Some(v) => assert!((f64::from(p) - v).abs() < 1e-5, "{name} frame {f}"),
+                None => assert!(p.is_nan(), "{name} frame {f}"),
+            }
+        }
+        assert!(plotted.iter().filter(|p| p.is_finite()).count() > 100);
+    }
+}
