@@ -432,13 +432,7 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
             joint.joint_type != JointType::Prismatic,
             &model.position_limits,
         )?;
-        let known: Vec<f64> = joint.positions.iter().flatten().copied().collect();
-        joint.range = (!known.is_empty()).then(|| {
-            [
-                known.iter().copied().fold(f64::INFINITY, f64::min),
-                known.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-            ]
-        });
+        joint.range = span(joint.positions.iter().flatten().copied());
     }
     Ok(rms_in_sigma(fits, model.noise.sigma_m))
 }
@@ -513,14 +507,16 @@ fn write_rotations(
     joint.position_std = vec![None; fits.len()];
     joint.smoothed_positions = vec![None; fits.len()];
     joint.smoothed_std = vec![None; fits.len()];
-    let angles: Vec<f64> = rotations.iter().flatten().map(|r| r.angle()).collect();
-    joint.range = (!angles.is_empty()).then(|| {
-        [
-            angles.iter().copied().fold(f64::INFINITY, f64::min),
-            angles.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-        ]
-    });
+    joint.range = span(rotations.iter().flatten().map(|r| r.angle()));
     Ok(())
+}
+
+/// `[min, max]` of `values`, `None` when there are none.
+fn span(values: impl Iterator<Item = f64>) -> Option<[f64; 2]> {
+    values.fold(None, |acc, v| match acc {
+        None => Some([v, v]),
+        Some([lo, hi]) => Some([lo.min(v), hi.max(v)]),
+    })
 }
 
 /// Bundle-adjusts the joints `observer` (built from `model`) follows ([`crate::bundle`]) and

@@ -187,14 +187,17 @@ impl Observer {
                         j.parent, j.child
                     )));
                 }
+                let rigid = |r: kinetree_core::model::RigidTransform| {
+                    r.to_isometry().ok_or_else(|| {
+                        Error::Config(format!(
+                            "joint {} -> {}: reference_pose {:?} is not a rigid transform",
+                            j.parent, j.child, r
+                        ))
+                    })
+                };
                 let (measure, reference) = match (j.reference_pose, j.axis_in_parent) {
                     (Some(r), Some(axis)) if vector(axis).norm() > 0.0 => {
-                        let reference = r.to_isometry().ok_or_else(|| {
-                            Error::Config(format!(
-                                "joint {} -> {}: reference_pose {:?} is not a rigid transform",
-                                j.parent, j.child, r
-                            ))
-                        })?;
+                        let reference = rigid(r)?;
                         let axis = vector(axis).normalize();
                         let pivot = Point3::from(vector(j.point_in_parent.unwrap_or([0.0; 3])));
                         let measure = match j.joint_type {
@@ -207,12 +210,7 @@ impl Observer {
                         (measure, reference)
                     }
                     (Some(r), _) if j.joint_type == JointType::Spherical => {
-                        let reference = r.to_isometry().ok_or_else(|| {
-                            Error::Config(format!(
-                                "joint {} -> {}: reference_pose {:?} is not a rigid transform",
-                                j.parent, j.child, r
-                            ))
-                        })?;
+                        let reference = rigid(r)?;
                         let measure = j.point_in_parent.map_or(Measure::None, |c| {
                             Measure::Spherical(Point3::from(vector(c)))
                         });
@@ -766,28 +764,24 @@ impl Observer {
                 if s.turn[k].is_none() && poses[j.parent].is_some() {
                     s.turn[k] = Some(UnitQuaternion::identity());
                 }
-                poses[b] = match (poses[j.parent], self.local(k, &s)) {
-                    (Some(p), Some(x)) => Some(p * x),
-                    _ => None,
+            } else {
+                let before = previous.and_then(|p| p.positions[k]);
+                let closed = poses[j.parent]
+                    .and_then(|parent| best_position(j, &parent, &visible[b], self.sigma));
+                s.q[k] = match (closed, before) {
+                    (_, Some(p)) if prefer_previous => Some(p),
+                    (Some(v), Some(p)) if matches!(j.measure, Measure::Revolute(..)) => {
+                        Some(p + wrap_pi(v - p))
+                    }
+                    (Some(v), _) => Some(v),
+                    (None, p) => p,
                 };
-                continue;
-            }
-            let before = previous.and_then(|p| p.positions[k]);
-            let closed = poses[j.parent]
-                .and_then(|parent| best_position(j, &parent, &visible[b], self.sigma));
-            s.q[k] = match (closed, before) {
-                (_, Some(p)) if prefer_previous => Some(p),
-                (Some(v), Some(p)) if matches!(j.measure, Measure::Revolute(..)) => {
-                    Some(p + wrap_pi(v - p))
+                if s.q[k].is_none() && poses[j.parent].is_some() {
+                    s.q[k] = Some(self.scan(&s, k, visible));
                 }
-                (Some(v), _) => Some(v),
-                (None, p) => p,
-            };
-            if s.q[k].is_none() && poses[j.parent].is_some() {
-                s.q[k] = Some(self.scan(&s, k, visible));
             }
-            poses[b] = match (poses[j.parent], s.q[k]) {
-                (Some(p), Some(q)) => Some(p * Self::joint_transform(j, q)),
+            poses[b] = match (poses[j.parent], self.local(k, &s)) {
+                (Some(p), Some(x)) => Some(p * x),
                 _ => None,
             };
         }

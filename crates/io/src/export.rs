@@ -1,8 +1,8 @@
 //! Exports of a discovered model: URDF and MJCF (MuJoCo) for robotics tools and DOT for graph
 //! viewers.
 
-use kinetree_core::model::{Joint, JointType, Model, RigidTransform};
-use kinetree_core::nalgebra::{Rotation3, Vector3};
+use kinetree_core::model::{Joint, JointType, Model};
+use kinetree_core::nalgebra::{Isometry3, Rotation3, UnitQuaternion, Vector3};
 use kinetree_core::{Error, Result};
 use std::fmt::Write as _;
 
@@ -39,15 +39,6 @@ fn dot_text(s: &str) -> String {
         .replace('\n', " ")
 }
 
-fn rotation(t: &RigidTransform) -> Result<Rotation3<f64>> {
-    t.to_isometry()
-        .map(|x| x.rotation.to_rotation_matrix())
-        .ok_or_else(|| Error::InvalidParameter {
-            name: "reference_pose".into(),
-            message: format!("{t:?} is not a rigid transform"),
-        })
-}
-
 fn v3(v: &Vector3<f64>) -> String {
     format!("{} {} {}", v.x, v.y, v.z)
 }
@@ -60,15 +51,28 @@ struct JointFrame {
     offset: Vector3<f64>,
 }
 
-fn joint_frame(j: &Joint) -> Result<JointFrame> {
+/// Joint `j`'s reference pose (the child's frame in the parent's at position zero), which the
+/// `format` export needs.
+fn reference_pose(j: &Joint, format: &str) -> Result<Isometry3<f64>> {
     let reference = j.reference_pose.ok_or_else(|| Error::InvalidParameter {
         name: format!("joints[{} -> {}].reference_pose", j.parent, j.child),
-        message: "missing; URDF needs the child's pose in its parent (schema v1 models written \
-                  before it was added cannot be exported)"
-            .into(),
+        message: format!(
+            "missing; {format} needs the child's pose in its parent (schema v1 models written \
+             before it was added cannot be exported)"
+        ),
     })?;
-    let r = rotation(&reference)?;
-    let t = Vector3::from(reference.translation);
+    reference
+        .to_isometry()
+        .ok_or_else(|| Error::InvalidParameter {
+            name: "reference_pose".into(),
+            message: format!("{reference:?} is not a rigid transform"),
+        })
+}
+
+fn joint_frame(j: &Joint) -> Result<JointFrame> {
+    let reference = reference_pose(j, "URDF")?;
+    let r = reference.rotation.to_rotation_matrix();
+    let t = reference.translation.vector;
     // Revolute: the joint frame sits on the axis, so the rotation is about its origin;
     // spherical: at the centre.
     let origin = match (j.joint_type, j.point_in_parent) {
@@ -367,7 +371,7 @@ pub fn mjcf_joint_body_name(parent: usize, child: usize) -> String {
 }
 
 /// `w x y z`, MJCF's quaternion order.
-fn wxyz(q: &kinetree_core::nalgebra::UnitQuaternion<f64>) -> String {
+fn wxyz(q: &UnitQuaternion<f64>) -> String {
     format!("{} {} {} {}", q.w, q.i, q.j, q.k)
 }
 
@@ -461,15 +465,7 @@ pub fn to_mjcf(model: &Model) -> Result<String> {
         label: &dyn Fn(usize) -> String,
     ) -> Result<()> {
         let pad = "  ".repeat(depth);
-        let reference = j
-            .reference_pose
-            .and_then(|r| r.to_isometry())
-            .ok_or_else(|| Error::InvalidParameter {
-                name: format!("joints[{} -> {}].reference_pose", j.parent, j.child),
-                message: "missing; MJCF needs the child's pose in its parent (schema v1 \
-                          models written before it was added cannot be exported)"
-                    .into(),
-            })?;
+        let reference = reference_pose(j, "MJCF")?;
         let at = match j.joint_type {
             JointType::Revolute | JointType::Spherical => {
                 j.point_in_parent.map_or_else(Vector3::zeros, Vector3::from)
