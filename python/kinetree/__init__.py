@@ -298,7 +298,11 @@ class Observation:
             not to be trusted (tracks in millimetres, other points, another mechanism).
         unexplained_bound: The residual bound, in sigma.
         poses: ``(T, B, 4, 4)`` every body's camera-from-body transform in the fitted
-            configuration, NaN where not determined.
+            configuration, NaN where not determined. The body frame is the model's: origin
+            at the body's centroid, the camera's axes at the body's reference frame.
+        pose_std: ``(T, B, 2)`` each pose's standard deviation at the model's noise level,
+            rotation (radians) and origin (metres), each in its worst direction; NaN where
+            unknown.
     """
 
     joint_names: List[str]
@@ -308,6 +312,7 @@ class Observation:
     unexplained: List[int] = field(default_factory=list)
     unexplained_bound: float = float("nan")
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 4, 4)))
+    pose_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 2)))
 
 
 def _tracks(tracks: Any) -> np.ndarray:
@@ -409,7 +414,7 @@ def observe(
         InputError: Tracks of another number of keypoints or of the wrong shape.
     """
     array = _tracks(tracks)
-    names, positions, std, residual, unexplained, bound, poses = _kinetree.observe(
+    names, positions, std, residual, unexplained, bound, poses, pose_std = _kinetree.observe(
         model.to_json(),
         array,
         smooth=smooth,
@@ -423,6 +428,7 @@ def observe(
         unexplained=list(unexplained),
         unexplained_bound=bound,
         poses=poses,
+        pose_std=pose_std,
     )
 
 

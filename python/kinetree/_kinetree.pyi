@@ -34,6 +34,7 @@ def observe(
     List[int],
     float,
     npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
 ]: ...
 def simulate(
     mechanism: str = "paper-arm",

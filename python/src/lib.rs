@@ -199,7 +199,8 @@ fn export_model(text: &str, format: &str) -> PyResult<String> {
 
 /// Joint positions of `tracks` from a model: (joint names, positions (T, J), standard
 /// deviations (T, J), residual in sigma (T,), unexplained frames, their bound, body poses
-/// (T, B, 4, 4)), NaN where unknown.
+/// (T, B, 4, 4), their standard deviations (T, B, 2): rotation and origin), NaN where
+/// unknown.
 #[pyfunction]
 #[pyo3(signature = (model_text, tracks, smooth=false, unexplained_factor=kinetree_fit::DEFAULT_UNEXPLAINED_FACTOR))]
 #[allow(clippy::type_complexity)]
@@ -216,6 +217,7 @@ fn observe<'py>(
     Bound<'py, PyAny>,
     Vec<usize>,
     f64,
+    Bound<'py, PyAny>,
     Bound<'py, PyAny>,
 )> {
     let model = parse_model(model_text)?;
@@ -267,6 +269,15 @@ fn observe<'py>(
     let poses = PyArray1::from_vec(py, poses)
         .reshape([t, b, 4, 4])?
         .into_any();
+    let pose_std: Vec<f64> = seen
+        .pose_std
+        .iter()
+        .flatten()
+        .flat_map(|s| s.unwrap_or([f64::NAN; 2]))
+        .collect();
+    let pose_std = PyArray1::from_vec(py, pose_std)
+        .reshape([t, b, 2])?
+        .into_any();
     Ok((
         seen.joint_names,
         positions,
@@ -275,6 +286,7 @@ fn observe<'py>(
         seen.unexplained,
         seen.unexplained_bound,
         poses,
+        pose_std,
     ))
 }
 

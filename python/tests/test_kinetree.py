@@ -173,6 +173,14 @@ def test_observe_recovers_the_joint_positions(arm):
     assert seen.positions.shape == (100, 2) and seen.std.shape == (100, 2)
     assert seen.joint_names == ["revolute_0_1", "revolute_1_2"]
     assert seen.poses.shape == (100, 3, 4, 4)
+    # Each known pose has its two standard deviations: sub-degree and sub-millimetre at 1 mm
+    # of noise, and larger for the arm's far link than for the static base.
+    assert seen.pose_std.shape == (100, 3, 2)
+    known = np.isfinite(seen.poses[:, :, 0, 0])
+    assert (np.isfinite(seen.pose_std[..., 0]) == known).all()
+    assert np.nanmax(seen.pose_std[..., 0]) < np.radians(1)
+    assert np.nanmax(seen.pose_std[..., 1]) < 0.001
+    assert np.nanmedian(seen.pose_std[:, 2, 0]) > np.nanmedian(seen.pose_std[:, 0, 0])
     # On the tracks it was discovered on, the observer agrees with the model's positions.
     for k, joint in enumerate(model.joints):
         both = np.isfinite(joint.positions) & np.isfinite(seen.positions[:, k])

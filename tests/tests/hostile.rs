@@ -217,6 +217,16 @@ fn damages() -> Vec<Damage> {
             "point_labels",
         ),
         (
+            "a poses file in another folder",
+            |m| m["body_poses_file"] = json!("../elsewhere/model.poses.npy"),
+            "body_poses_file",
+        ),
+        (
+            "a poses file that is not .npy",
+            |m| m["body_poses_file"] = json!("model.poses.json"),
+            "body_poses_file",
+        ),
+        (
             "a chain through body 40",
             |m| m["chain"] = json!([0, 40]),
             "chain[1]",

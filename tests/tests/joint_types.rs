@@ -4,7 +4,7 @@
 
 use kinetree_core::model::{JointType, Model};
 use kinetree_core::nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
-use kinetree_eval::{body_map, evaluate};
+use kinetree_eval::{body_map, evaluate, functional_errors};
 use kinetree_pipeline::{Pipeline, PipelineConfig};
 use kinetree_synth::{
     RandomParams, SkeletonParams, SynthData, random_scenario, simulate, skeleton_scenario,
@@ -45,15 +45,32 @@ fn skeleton_ball_joints_are_spherical_with_centres_within_two_millimetres() {
         (0, 0, 0, 0, 0, 0);
     let mut worst_centre: f64 = 0.0;
     let mut worst_axis: f64 = 0.0;
+    // SCoRE on the true segmentation's poses: the functional method a biomechanist compares
+    // with. Each centre is within 2 mm or 1.5 times SCoRE's error.
+    let (mut beside_score, mut scored) = (0, 0);
+    let pose = PipelineConfig::default().pose.build().expect("pose stage");
     for seed in 0..4 {
         let data = skeleton(seed, 0.001);
         let model = discover(&data);
         let e = evaluate(&model, &data.truth);
-        for (j, spec) in e.joints.iter().zip(&data.truth.mechanism.joints) {
+        let functional =
+            functional_errors(&data.tracks, &data.truth, pose.as_ref(), 0.001).expect("SCoRE");
+        for ((j, spec), f) in e
+            .joints
+            .iter()
+            .zip(&data.truth.mechanism.joints)
+            .zip(&functional)
+        {
             joints += 1;
             typed += usize::from(j.found && j.type_ok);
             if spec.joint_type == kinetree_synth::JointType::Spherical {
                 balls += 1;
+                if let (Some(c), Some(score)) =
+                    (j.centre_error_in_parent_m, f.centre_error_in_parent_m)
+                {
+                    scored += 1;
+                    beside_score += usize::from(c <= 0.002_f64.max(1.5 * score));
+                }
                 if let Some(c) = j.centre_error_in_parent_m {
                     worst_centre = worst_centre.max(c);
                     centred += usize::from(c <= 0.002);
@@ -74,6 +91,11 @@ fn skeleton_ball_joints_are_spherical_with_centres_within_two_millimetres() {
     assert_eq!(
         centred, balls,
         "ball centres within 2 mm (worst {worst_centre} m)"
+    );
+    assert_eq!(scored, balls, "SCoRE centres every ball joint");
+    assert_eq!(
+        beside_score, balls,
+        "ball centres within 2 mm or 1.5 times SCoRE's error"
     );
     assert_eq!(
         straight, hinges,

@@ -186,3 +186,56 @@ fn merge_refuses_missing_unfinished_mixed_and_foreign_shards() {
     let e = merge_shards(&dir).expect_err("other sweep");
     assert!(message(&e).contains("different sweeps"), "{e}");
 }
+
+/// A sweep with the functional methods' columns reads back through a merge: the same files as
+/// unsharded, the columns filled.
+#[test]
+fn functional_columns_read_back_through_a_merge() {
+    let sweep = Sweep::from_toml(
+        r#"
+[experiment]
+name = "functional"
+
+[sweep]
+seeds = [1, 2, 3]
+functional = true
+
+[sweep.grid]
+"data.n_joints" = [2, 3]
+
+[data]
+kind = "random"
+prismatic_fraction = 0.0
+spherical_fraction = 0.5
+n_frames = 150
+"#,
+    )
+    .expect("parses");
+    let whole = tmp("functional-whole");
+    assert_eq!(run(&sweep, &whole, None), 6);
+    let dir = tmp("functional-split");
+    for index in 0..2 {
+        run(&sweep, &dir, Some(Shard { index, count: 2 }));
+    }
+    merge_shards(&dir).expect("merges");
+    for file in ["runs.csv", "table.md"] {
+        assert_eq!(read(&dir.join(file)), read(&whole.join(file)), "{file}");
+    }
+    let csv = read(&whole.join("runs.csv"));
+    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+    let column = |name: &str| {
+        let k = header.iter().position(|h| *h == name).expect(name);
+        csv.lines()
+            .skip(1)
+            .filter(|l| {
+                l.split(',')
+                    .nth(k)
+                    .is_some_and(|v| v.parse::<f64>().is_ok())
+            })
+            .count()
+    };
+    assert!(column("functional_max_axis_error_deg") > 0, "{csv}");
+    assert!(column("functional_max_centre_error_m") > 0, "{csv}");
+    assert!(column("max_axis_error_in_parent_deg") > 0, "{csv}");
+    assert!(read(&whole.join("table.md")).contains("SCoRE"));
+}

@@ -65,6 +65,14 @@ fn configure_threads() -> Result<()> {
 }
 
 /// Refuses an output path that names one of the inputs: writing it would destroy the input.
+/// The companion poses file of the model file `model`: `<stem>.poses.npy` beside it.
+fn poses_beside(model: &Path) -> PathBuf {
+    let stem = model
+        .file_stem()
+        .map_or_else(|| "model".into(), |s| s.to_string_lossy().into_owned());
+    model.with_file_name(format!("{stem}.poses.npy"))
+}
+
 fn refuse_overwriting(output: &Path, inputs: &[&Path]) -> Result<()> {
     let Ok(out) = std::fs::canonicalize(output) else {
         // No file there yet, so it is none of the inputs.
@@ -258,6 +266,11 @@ enum Command {
         /// Output model JSON.
         #[arg(short, long, default_value = "model.json")]
         output: PathBuf,
+        /// Do not write the companion `<output stem>.poses.npy` with every body's fitted pose
+        /// in every frame (a float64 (T, B, 9) array: quaternion x, y, z, w, origin x, y, z,
+        /// rotation and origin standard deviations; NaN where unknown).
+        #[arg(long)]
+        no_poses: bool,
     },
     /// Estimate joint positions of (new) frames from a discovered model: one CSV column per
     /// joint (three per spherical joint, `_rx`, `_ry`, `_rz`: its rotation vector), after the
@@ -284,6 +297,10 @@ enum Command {
         /// RMS.
         #[arg(long, default_value_t = kinetree_fit::DEFAULT_UNEXPLAINED_FACTOR)]
         unexplained_factor: f64,
+        /// Also write every body's fitted pose in every frame to this `.npy`, laid out as
+        /// `discover`'s companion poses file.
+        #[arg(long, value_name = "FILE")]
+        poses: Option<PathBuf>,
     },
     /// Export a model: URDF (links, joints with origin, axis and observed limits), MJCF
     /// (MuJoCo: hinge, slide, ball and free joints), DOT (the kinematic graph) or JSON (the
@@ -641,6 +658,7 @@ fn run_command() -> Result<()> {
             noise_sigma,
             pipeline,
             output,
+            no_poses,
         } => {
             let mut cfg = match &pipeline {
                 Some(p) => {
@@ -657,13 +675,24 @@ fn run_command() -> Result<()> {
             let mut inputs = vec![tracks.as_path()];
             inputs.extend(pipeline.as_deref());
             refuse_overwriting(&output, &inputs)?;
+            let poses_path = (!no_poses).then(|| poses_beside(&output));
+            if let Some(p) = &poses_path {
+                refuse_overwriting(p, &inputs)?;
+            }
             let built = Pipeline::from_config(&cfg).with_context(|| match &pipeline {
                 Some(p) => format!("in {}", p.display()),
                 None => "in the pipeline options".into(),
             })?;
             let t = read_tracks(&tracks, &keys)?;
-            let d = with_stage_display(quiet, |observer| built.run_observed(&t, observer))?;
+            let mut d = with_stage_display(quiet, |observer| built.run_observed(&t, observer))?;
             emit(&summary(&d.model));
+            if let Some(p) = &poses_path {
+                let seen = kinetree_fit::observe(&d.model, &t, Default::default())?;
+                let (values, shape) = seen.pose_table();
+                kinetree_io::write_array_npy(p, &shape, &values)?;
+                d.model.body_poses_file = p.file_name().map(|n| n.to_string_lossy().into_owned());
+                emitln!("wrote {}", p.display());
+            }
             kinetree_io::write_json(&output, &d.model)?;
             emitln!("wrote {}", output.display());
             Ok(())
@@ -675,6 +704,7 @@ fn run_command() -> Result<()> {
             output,
             smooth,
             unexplained_factor,
+            poses,
         } => observe(
             &model,
             &tracks,
@@ -683,6 +713,7 @@ fn run_command() -> Result<()> {
                 smooth,
                 unexplained_factor,
                 read: keys.options(memory),
+                poses,
             },
         ),
         Command::Export {
@@ -858,6 +889,7 @@ struct ObserveOptions {
     smooth: bool,
     unexplained_factor: f64,
     read: kinetree_io::ReadOptions,
+    poses: Option<PathBuf>,
 }
 
 fn observe(
@@ -878,8 +910,19 @@ fn observe(
         );
     }
     refuse_overwriting(output, &[model_path, tracks_path])?;
+    if let Some(p) = &options.poses {
+        if p == output {
+            bail!("--poses and -o name one file, {}; choose two", p.display());
+        }
+        refuse_overwriting(p, &[model_path, tracks_path, output])?;
+    }
     let (model, tracks) = model_and_tracks(model_path, tracks_path, &options.read)?;
     let seen = kinetree_fit::observe(&model, &tracks, fit_options)?;
+    if let Some(p) = &options.poses {
+        let (values, shape) = seen.pose_table();
+        kinetree_io::write_array_npy(p, &shape, &values)?;
+        emitln!("wrote {}", p.display());
+    }
     let mut header = seen.joint_names.clone();
     header.push("residual_in_sigma".into());
     kinetree_io::write_atomically(output, |w| {

@@ -268,12 +268,45 @@ fn observe_writes_one_column_per_joint() {
     let tracks = dir.join("tracks.csv");
     let (header, rows) = observed(&model, &tracks, &dir.join("config.csv"), &[]);
     assert_eq!(header, "frame,revolute_0_1,revolute_1_2,residual_in_sigma");
+    // `discover` wrote every body's poses beside the model and named the file; `observe
+    // --poses` on the same frames writes the same array: (100, 3, 9) float64.
+    let json = read_json(&model);
+    assert_eq!(json["body_poses_file"], "model.poses.npy");
+    let companion = std::fs::read(dir.join("model.poses.npy")).expect("poses");
+    observed(
+        &model,
+        &dir.join("tracks.npy"),
+        &dir.join("config-npy.csv"),
+        &[
+            "--poses",
+            dir.join("observed.poses.npy").to_str().expect("path"),
+        ],
+    );
+    assert_eq!(
+        std::fs::read(dir.join("observed.poses.npy")).expect("observed poses"),
+        companion
+    );
+    let header_len = usize::from(companion[8]) + 256 * usize::from(companion[9]) + 10;
+    let npy_header = String::from_utf8_lossy(&companion[..header_len]);
+    assert!(npy_header.contains("(100, 3, 9, )"), "{npy_header}");
+    assert_eq!(companion.len() - header_len, 100 * 3 * 9 * 8);
+    run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(dir.join("tracks.npy"))
+            .args(["--noise-sigma", "0.001", "--no-poses", "-o"])
+            .arg(dir.join("bare.json")),
+    );
+    assert!(
+        read_json(&dir.join("bare.json"))
+            .get("body_poses_file")
+            .is_none()
+    );
+    assert!(!dir.join("bare.poses.npy").exists());
     assert_eq!(rows.len(), 100);
     // On the frames it was discovered from, the observed columns are the model's positions
     // up to the same offset in every frame (a whole number of turns): both come from the
     // same warm-started fit, unwrapped.
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&model).expect("model")).expect("json");
     assert_columns_are_the_models(&rows, &json, "positions");
     // `--smooth`: the model's smoothed positions, up to the same offsets, and not the
     // per-frame ones.

@@ -378,6 +378,10 @@ pub struct Model {
     /// Every change the repairs made, in order ([`crate::TraceEntry`]).
     #[serde(default)]
     pub trace: Vec<crate::TraceEntry>,
+    /// The companion `.npy` file, beside the model file, with every body's fitted pose in
+    /// every frame (`kinetree_fit::Observation::pose_table`); `None` when none was written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body_poses_file: Option<String>,
 }
 
 impl Model {

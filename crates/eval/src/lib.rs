@@ -1,8 +1,10 @@
 //! Metrics against ground truth: clustering agreement, axis and pivot errors, joint RMS.
 
 pub mod conformance;
+mod functional;
 mod truth;
 
+pub use functional::{FunctionalEval, functional_errors, sara_axis, score_centre};
 pub use truth::{Evaluation, JointEval, ambiguous_points, body_map, evaluate, identifiable_ari};
 
 use nalgebra::{Point3, Vector3};

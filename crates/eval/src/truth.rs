@@ -108,12 +108,28 @@ fn parent_alignment(
     true_body: usize,
 ) -> Option<Isometry3<f64>> {
     let b = model.bodies.get(body)?;
-    let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = b
-        .points
+    shape_alignment(
+        &b.points,
+        b.shape.iter().map(|s| s.map(Point3::from)),
+        truth,
+        true_body,
+    )
+}
+
+/// The true body frame of `true_body` from an estimated body frame whose points `points` have
+/// the positions `shape` (`None` where not placed): Kabsch-Umeyama on the points of the true
+/// body; `None` for fewer than three non-collinear ones.
+pub(crate) fn shape_alignment(
+    points: &[usize],
+    shape: impl Iterator<Item = Option<Point3<f64>>>,
+    truth: &GroundTruth,
+    true_body: usize,
+) -> Option<Isometry3<f64>> {
+    let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = points
         .iter()
-        .zip(&b.shape)
+        .zip(shape)
         .filter(|(p, _)| truth.point_body.get(**p) == Some(&true_body))
-        .filter_map(|(p, s)| Some((Point3::from(*s.as_ref()?), truth.body_points[*p])))
+        .filter_map(|(p, s)| Some((s?, truth.body_points[*p])))
         .unzip();
     kinetree_core::geom::kabsch_with_rank_check(&src, &dst, 1e-3)
 }

@@ -25,7 +25,8 @@ pub use motions::{
     MotionLimits, OUTLIER_RATIO,
 };
 pub use observation::{
-    DEFAULT_UNEXPLAINED_FACTOR, Observation, ObserveOptions, TYPICAL_REPREDICTION_IN_SIGMA, observe,
+    DEFAULT_UNEXPLAINED_FACTOR, Observation, ObserveOptions, POSE_COLUMNS,
+    TYPICAL_REPREDICTION_IN_SIGMA, observe,
 };
 pub use policy::{
     FitState, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,

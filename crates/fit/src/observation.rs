@@ -1,6 +1,7 @@
 //! Joint positions of new frames from a discovered model, with each frame's fit: what
 //! `kinetree observe` writes and the Python package's `observe` returns.
 
+use crate::solver::Scratch;
 use crate::{Observer, smooth_fitted_positions};
 use kinetree_core::nalgebra::Isometry3;
 use kinetree_core::{Error, Model, Result, Tracks};
@@ -55,8 +56,15 @@ pub struct Observation {
     /// Per frame: the RMS distance of its keypoints from the fitted model in units of the
     /// model's noise; `None` for a frame with no visible placed keypoint.
     pub residual_in_sigma: Vec<Option<f64>>,
-    /// Per frame, per body: `camera_from_body` of the fitted configuration.
+    /// Per frame, per body: `camera_from_body` of the fitted configuration (the body frame
+    /// of the model's `shape`: origin at the body's centroid, the camera's axes at the body's
+    /// reference frame).
     pub poses: Vec<Vec<Option<Isometry3<f64>>>>,
+    /// Per frame, per body: the standard deviation of that pose at the model's noise level,
+    /// `[rotation (radians), origin (metres)]`, each in its worst direction, from the whole
+    /// fit's normal equations; `None` where the pose is, or the frame's equations are
+    /// singular.
+    pub pose_std: Vec<Vec<Option<[f64; 2]>>>,
     /// The residual above which a frame is not explained by the model, in sigma.
     pub unexplained_bound: f64,
     /// The model's own re-prediction RMS in sigma the bound is a multiple of.
@@ -87,7 +95,18 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
         });
     }
     let observer = Observer::new(model)?;
-    let fits = observer.fit_sequence(tracks)?;
+    let sigma = model.noise.sigma_m;
+    let mut scratch = Scratch::default();
+    let mut pose_std = Vec::with_capacity(tracks.n_frames());
+    let fits = observer.fit_sequence_with(tracks, |descent, visible| {
+        let qualities = observer.pose_qualities(&descent, &visible, &mut scratch);
+        pose_std.push(
+            qualities
+                .iter()
+                .map(|q| q.map(|q| [q.rot_std_per_sigma * sigma, q.trans_std_per_sigma * sigma]))
+                .collect(),
+        );
+    })?;
     let mut joint_names = Vec::new();
     let mut positions: Vec<Vec<Option<f64>>> = Vec::new();
     let mut std: Vec<Vec<Option<f64>>> = Vec::new();
@@ -168,8 +187,47 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
         std,
         residual_in_sigma,
         poses: fits.into_iter().map(|f| f.poses).collect(),
+        pose_std,
         unexplained_bound: bound,
         own_rms_in_sigma: own,
         unexplained,
     })
+}
+
+/// The columns of [`Observation::pose_table`], per frame and body.
+pub const POSE_COLUMNS: [&str; 9] = [
+    "qx",
+    "qy",
+    "qz",
+    "qw",
+    "x",
+    "y",
+    "z",
+    "rotation_std_rad",
+    "origin_std_m",
+];
+
+impl Observation {
+    /// Every body's pose in every frame as one `(T, B, 9)` array in C order, with the columns
+    /// [`POSE_COLUMNS`]: `camera_from_body` as a unit quaternion (`x, y, z, w`) and the body
+    /// origin in the camera frame (metres), then the pose's two standard deviations
+    /// ([`Observation::pose_std`]); NaN where unknown. Returns the array and its shape.
+    pub fn pose_table(&self) -> (Vec<f64>, [usize; 3]) {
+        let n_bodies = self.poses.first().map_or(0, Vec::len);
+        let mut out = Vec::with_capacity(self.poses.len() * n_bodies * POSE_COLUMNS.len());
+        for (frame, std) in self.poses.iter().zip(&self.pose_std) {
+            for (pose, sd) in frame.iter().zip(std) {
+                match pose {
+                    Some(p) => {
+                        let q = p.rotation.coords;
+                        let t = p.translation.vector;
+                        out.extend([q.x, q.y, q.z, q.w, t.x, t.y, t.z]);
+                    }
+                    None => out.extend([f64::NAN; 7]),
+                }
+                out.extend(sd.filter(|_| pose.is_some()).unwrap_or([f64::NAN; 2]));
+            }
+        }
+        (out, [self.poses.len(), n_bodies, POSE_COLUMNS.len()])
+    }
 }

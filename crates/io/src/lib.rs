@@ -270,13 +270,37 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
 /// # Errors
 /// [`Error::File`] wrapping the I/O error.
 pub fn write_npy(path: &Path, tracks: &Tracks) -> Result<()> {
+    write_array_npy(
+        path,
+        &[tracks.n_frames(), tracks.n_points(), 3],
+        tracks.raw(),
+    )
+}
+
+/// Writes `values` as a float64 `.npy` array of `shape` (C order), atomically.
+///
+/// # Errors
+/// [`Error::Shape`] when `values` does not hold the product of `shape`; [`Error::File`]
+/// wrapping the I/O error.
+pub fn write_array_npy(path: &Path, shape: &[usize], values: &[f64]) -> Result<()> {
+    if shape.iter().product::<usize>() != values.len() {
+        return Err(Error::Shape {
+            expected: format!(
+                "{} values for an array of shape {shape:?}",
+                shape.iter().product::<usize>()
+            ),
+            found: format!("{} values", values.len()),
+        }
+        .in_file(path));
+    }
+    let dims: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
     write_atomically(path, |file| {
         let mut w = npyz::WriteOptions::new()
             .default_dtype()
-            .shape(&[tracks.n_frames() as u64, tracks.n_points() as u64, 3])
+            .shape(&dims)
             .writer(file)
             .begin_nd()?;
-        w.extend(tracks.raw().iter().copied())?;
+        w.extend(values.iter().copied())?;
         w.finish()?;
         Ok(())
     })

@@ -220,6 +220,7 @@ pub(crate) fn assemble(
         reprediction_rms_in_sigma: None,
         warnings,
         trace: Vec::new(),
+        body_poses_file: None,
     };
     Ok(ModelDraft {
         model,

@@ -61,6 +61,12 @@ pub struct SweepSpec {
     /// parallel), so such files differ between sittings; compare them within one.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub timing: bool,
+    /// Runs the functional methods of biomechanics on each synthetic run's true segmentation
+    /// (`kinetree_eval::functional_errors`: SCoRE centres, SARA axes) and writes their worst
+    /// errors beside kinetree's in the parent's frame: the columns [`FUNCTIONAL_COLUMNS`] in
+    /// `runs.csv` and their medians in `table.md`.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub functional: bool,
 }
 
 /// Seeds of a sweep.
@@ -126,6 +132,16 @@ pub struct SweepRun {
     /// body frame aligned on its true keypoints (`JointEval::centre_error_in_parent_m`),
     /// metres.
     pub max_centre_error_m: Option<f64>,
+    /// Largest axis error over the revolute joints in the parent's body frame aligned on its
+    /// true keypoints (`JointEval::axis_error_in_parent_deg`), degrees (with `[sweep]
+    /// functional = true`).
+    pub max_axis_error_in_parent_deg: Option<f64>,
+    /// Largest SCoRE centre error over the true spherical joints, in the same frame, metres
+    /// (with `[sweep] functional = true`).
+    pub functional_max_centre_error_m: Option<f64>,
+    /// Largest SARA axis error over the true revolute joints, in the same frame, degrees (with
+    /// `[sweep] functional = true`).
+    pub functional_max_axis_error_deg: Option<f64>,
     /// Bodies found.
     pub bodies: Option<usize>,
     /// Wall time of the run, seconds (with `[sweep] timing = true`).
@@ -340,6 +356,7 @@ impl Sweep {
                 seed_keys: Vec::new(),
                 grid: toml::Table::new(),
                 timing: false,
+                functional: false,
             },
         };
         if let Seeds::Count(n) = spec.seeds
@@ -556,20 +573,37 @@ impl Sweep {
             max_revolute_smoothed_rms_rad: None,
             max_prismatic_smoothed_rms_m: None,
             max_centre_error_m: None,
+            max_axis_error_in_parent_deg: None,
+            functional_max_centre_error_m: None,
+            functional_max_axis_error_deg: None,
             bodies: None,
             seconds: None,
         };
         let started = std::time::Instant::now();
         let outcome = self.config(p, seed).and_then(|c| {
             let sigma = crate::experiment::scenario(&c.data)?.map(|s| s.noise_sigma_m);
-            run_experiment(&c, base_dir).map(|o| (o, sigma))
+            let o = run_experiment(&c, base_dir)?;
+            let functional = match (&o.truth, self.spec.functional) {
+                (Some(truth), true) => {
+                    let pose = c.pipeline.pose.build()?;
+                    let sigma = sigma.unwrap_or(o.discovery.model.noise.sigma_m);
+                    Some(kinetree_eval::functional_errors(
+                        &o.tracks,
+                        truth,
+                        pose.as_ref(),
+                        sigma,
+                    )?)
+                }
+                _ => None,
+            };
+            Ok((o, sigma, functional))
         });
         if self.spec.timing {
             run.seconds = Some(started.elapsed().as_secs_f64());
         }
         match outcome {
             Err(e) => run.error = Some(e.to_string()),
-            Ok((o, sigma)) => {
+            Ok((o, sigma, functional)) => {
                 run.bodies = Some(o.discovery.model.bodies.len());
                 if let (Some(e), Some(truth)) = (&o.evaluation, &o.truth) {
                     run.ari = Some(e.ari);
@@ -602,6 +636,18 @@ impl Sweep {
                         .iter()
                         .filter_map(|j| j.centre_error_in_parent_m)
                         .collect());
+                    if let Some(f) = functional {
+                        run.max_axis_error_in_parent_deg =
+                            worst(true, |j| j.axis_error_in_parent_deg);
+                        run.functional_max_centre_error_m = max(f
+                            .iter()
+                            .filter_map(|j| j.centre_error_in_parent_m)
+                            .collect());
+                        run.functional_max_axis_error_deg = max(f
+                            .iter()
+                            .filter_map(|j| j.axis_error_in_parent_deg)
+                            .collect());
+                    }
                 }
             }
         }
@@ -638,6 +684,13 @@ const RUN_COLUMNS: [&str; 13] = [
     "max_centre_error_m",
 ];
 
+/// The columns of `runs.csv` after [`RUN_COLUMNS`] with `[sweep] functional = true`.
+pub const FUNCTIONAL_COLUMNS: [&str; 3] = [
+    "max_axis_error_in_parent_deg",
+    "functional_max_centre_error_m",
+    "functional_max_axis_error_deg",
+];
+
 /// The header line of `runs.csv`.
 fn csv_header(sweep: &Sweep) -> String {
     let mut s = String::new();
@@ -646,6 +699,10 @@ fn csv_header(sweep: &Sweep) -> String {
         s.push(',');
     }
     s.push_str(&RUN_COLUMNS.join(","));
+    if sweep.spec.functional {
+        s.push(',');
+        s.push_str(&FUNCTIONAL_COLUMNS.join(","));
+    }
     s.push_str(if sweep.spec.timing {
         ",seconds\n"
     } else {
@@ -678,6 +735,15 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
         opt(r.max_prismatic_smoothed_rms_m),
         opt(r.max_centre_error_m),
     );
+    if sweep.spec.functional {
+        let _ = write!(
+            s,
+            ",{},{},{}",
+            opt(r.max_axis_error_in_parent_deg),
+            opt(r.functional_max_centre_error_m),
+            opt(r.functional_max_axis_error_deg)
+        );
+    }
     if sweep.spec.timing {
         let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
     }
@@ -750,6 +816,8 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             .get(&values)
             .ok_or_else(|| bad(line, format!("grid values {values:?} are not this sweep's")))?;
         let rest = &f[nk..];
+        // The functional methods' columns, when the sweep has them, follow the standard ones.
+        let functional = sweep.spec.functional.then_some(RUN_COLUMNS.len());
         let num = |i: usize| -> Result<Option<f64>> {
             let v = rest[i];
             if v.is_empty() {
@@ -757,7 +825,7 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             }
             v.parse()
                 .map(Some)
-                .map_err(|_| bad(line, format!("{} `{v}` is not a number", RUN_COLUMNS[i])))
+                .map_err(|_| bad(line, format!("{} `{v}` is not a number", header[nk + i])))
         };
         let flag = |i: usize| -> Result<Option<bool>> {
             match rest[i] {
@@ -766,7 +834,7 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
                 "false" => Ok(Some(false)),
                 v => Err(bad(
                     line,
-                    format!("{} `{v}` is not true or false", RUN_COLUMNS[i]),
+                    format!("{} `{v}` is not true or false", header[nk + i]),
                 )),
             }
         };
@@ -792,8 +860,13 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             max_revolute_smoothed_rms_rad: num(10)?,
             max_prismatic_smoothed_rms_m: num(11)?,
             max_centre_error_m: num(12)?,
+            max_axis_error_in_parent_deg: functional.map(num).transpose()?.flatten(),
+            functional_max_centre_error_m: functional.map(|i| num(i + 1)).transpose()?.flatten(),
+            functional_max_axis_error_deg: functional.map(|i| num(i + 2)).transpose()?.flatten(),
             seconds: if sweep.spec.timing {
-                rest[13].parse().ok()
+                rest[RUN_COLUMNS.len() + functional.map_or(0, |_| FUNCTIONAL_COLUMNS.len())]
+                    .parse()
+                    .ok()
             } else {
                 None
             },
@@ -822,9 +895,14 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
     let _ = writeln!(
         s,
-        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) |{}",
+        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) |{}{}",
         head.join(" | "),
         if head.is_empty() { "" } else { " | " },
+        if sweep.spec.functional {
+            " median max axis error in parent (deg) | SCoRE: median max centre error (mm) | SARA: median max axis error (deg) |"
+        } else {
+            ""
+        },
         if sweep.spec.timing {
             " median s | total s |"
         } else {
@@ -832,7 +910,16 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         }
     );
     let timing_cols = if sweep.spec.timing { 2 } else { 0 };
-    let _ = writeln!(s, "|{}", "---|".repeat(sweep.keys.len() + 12 + timing_cols));
+    let functional_cols = if sweep.spec.functional {
+        FUNCTIONAL_COLUMNS.len()
+    } else {
+        0
+    };
+    let _ = writeln!(
+        s,
+        "|{}",
+        "---|".repeat(sweep.keys.len() + 12 + functional_cols + timing_cols)
+    );
     for p in 0..sweep.points.len() {
         let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
         let n = rs.len();
@@ -892,6 +979,18 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
                 1e3
             ),
         );
+        if sweep.spec.functional {
+            let column = |f: fn(&SweepRun) -> Option<f64>, scale: f64| {
+                fmt(median(rs.iter().filter_map(|r| f(r)).collect()), scale)
+            };
+            let _ = write!(
+                s,
+                " {} | {} | {} |",
+                column(|r| r.max_axis_error_in_parent_deg, 1.0),
+                column(|r| r.functional_max_centre_error_m, 1e3),
+                column(|r| r.functional_max_axis_error_deg, 1.0)
+            );
+        }
         if sweep.spec.timing {
             let times: Vec<f64> = rs.iter().filter_map(|r| r.seconds).collect();
             let total: f64 = times.iter().sum();

@@ -131,6 +131,17 @@ impl Model {
                 format!("has {} labels for {np} points", labels.len()),
             ));
         }
+        if let Some(name) = &self.body_poses_file
+            && (name.is_empty()
+                || name.contains(['/', '\\'])
+                || name == ".."
+                || !name.ends_with(".npy"))
+        {
+            return Err(bad(
+                "body_poses_file",
+                format!("must be the name of a .npy file beside the model, got `{name}`"),
+            ));
+        }
         let noise = &self.noise;
         if !(noise.sigma_m.is_finite() && noise.sigma_m > 0.0) {
             return Err(bad(
