@@ -165,6 +165,7 @@ pub mod build {
             },
             axis,
             anchor,
+            second_axis: None,
         }
     }
 

@@ -192,6 +192,7 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
                     joint_type: JointType::Prismatic,
                     axis: [1.0, 0.0, 0.0],
                     anchor: [0.0; 3],
+                    second_axis: None,
                 },
                 JointSpec {
                     parent: 1,
@@ -199,6 +200,7 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
                     joint_type: JointType::Revolute,
                     axis: [0.0, 0.0, 1.0],
                     anchor: [0.0, 0.0, 0.15],
+                    second_axis: None,
                 },
             ],
         },

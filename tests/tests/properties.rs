@@ -156,6 +156,7 @@ proptest! {
                 translation: RankTest::empty(), rotation: RankTest::empty(),
                 centre: RankTest::empty(), sliding: RankTest::empty(),
                 centre_uncentred: RankTest::empty(),
+                axes: RankTest::empty(),
                 dof: match kind { 0 => 0, 1 | 2 => 1, _ => 3 }, joint, fit_ratio: fit,
             }
         };

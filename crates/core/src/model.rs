@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 /// Version of the model JSON schema.
-pub const SCHEMA_VERSION: u32 = 3;
+pub const SCHEMA_VERSION: u32 = 4;
 
 /// Where the noise level came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -177,8 +177,8 @@ pub struct Ranks {
     pub sliding: usize,
 }
 
-/// A joint's type, written in the model as `rigid`, `revolute`, `prismatic`, `spherical` or
-/// `multi_dof`.
+/// A joint's type, written in the model as `rigid`, `revolute`, `prismatic`, `spherical`,
+/// `universal` or `multi_dof`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum JointType {
@@ -190,6 +190,9 @@ pub enum JointType {
     Prismatic,
     /// Three rotations about a centre fixed in both bodies (a ball joint).
     Spherical,
+    /// Two rotations about intersecting axes, one fixed in the parent and one in the child
+    /// (a universal or Cardan joint).
+    Universal,
     /// More than one degree of freedom that no other type explains (the ranks tell more).
     MultiDof,
 }
@@ -202,6 +205,7 @@ impl JointType {
             Self::Revolute => "revolute",
             Self::Prismatic => "prismatic",
             Self::Spherical => "spherical",
+            Self::Universal => "universal",
             Self::MultiDof => "multi_dof",
         }
     }
@@ -212,12 +216,13 @@ impl JointType {
     }
 
     /// Number of coordinates in a frame's configuration: 0 (rigid, and multi-DoF joints,
-    /// which have no parametrisation), 1 (revolute, prismatic) or 3 (spherical, the rotation
-    /// vector).
+    /// which have no parametrisation), 1 (revolute, prismatic), 2 (universal, its two
+    /// angles) or 3 (spherical, the rotation vector).
     pub fn n_coordinates(self) -> usize {
         match self {
             Self::Rigid | Self::MultiDof => 0,
             Self::Revolute | Self::Prismatic => 1,
+            Self::Universal => 2,
             Self::Spherical => 3,
         }
     }
@@ -250,20 +255,27 @@ pub struct Joint {
     pub parent: usize,
     /// Child body id.
     pub child: usize,
-    /// `rigid`, `revolute`, `prismatic`, `spherical` or `multi_dof` (with the ranks telling
-    /// more).
+    /// `rigid`, `revolute`, `prismatic`, `spherical`, `universal` or `multi_dof` (with the
+    /// ranks telling more).
     #[serde(rename = "type")]
     pub joint_type: JointType,
-    /// Unit axis in the camera frame at `reference_frame` (null for `spherical` and
-    /// `multi_dof`).
+    /// Unit axis in the camera frame at `reference_frame` (a universal joint's first axis,
+    /// fixed in the parent; null for `spherical` and `multi_dof`).
     pub axis: Option<[f64; 3]>,
-    /// A point on the axis (revolute), or the centre (spherical), in the camera frame at
-    /// `reference_frame`, metres.
+    /// A point on the axis (revolute), or the centre (spherical, universal), in the camera
+    /// frame at `reference_frame`, metres.
     pub point: Option<[f64; 3]>,
     /// The same axis in the parent's body frame.
     pub axis_in_parent: Option<[f64; 3]>,
     /// The same point in the parent's body frame.
     pub point_in_parent: Option<[f64; 3]>,
+    /// A universal joint's second axis, fixed in the child, in the camera frame at
+    /// `reference_frame` (absent for other joints).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_axis: Option<[f64; 3]>,
+    /// The same in the parent's body frame at joint position zero (`reference_pose`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_axis_in_parent: Option<[f64; 3]>,
     /// Frame at which the joint position is zero.
     pub reference_frame: usize,
     /// The child's body frame in the parent's body frame at joint position zero, estimated from
@@ -297,7 +309,10 @@ pub struct Joint {
     /// The coordinates of a joint with more than one ([`JointType::n_coordinates`]), per
     /// frame; empty for other joints, whose coordinate is in `positions`. A spherical joint's
     /// are its rotation vector: the child's rotation about the centre from `reference_pose`,
-    /// in the parent's body frame, radians, zero at `reference_frame`. Null where the frame
+    /// in the parent's body frame, radians, zero at `reference_frame`. A universal joint's
+    /// are its two angles, radians, zero at `reference_frame`: the child turns from
+    /// `reference_pose` about `second_axis_in_parent` by the second, then about
+    /// `axis_in_parent` by the first, both through `point_in_parent`. Null where the frame
     /// does not determine them, as for `positions`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub coordinates: Vec<Option<Vec<f64>>>,
@@ -311,8 +326,8 @@ pub struct Joint {
     /// Standard deviation of each smoothed coordinate.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub smoothed_coordinate_std: Vec<Option<Vec<f64>>>,
-    /// Observed range `[min, max]` of the positions (for a spherical joint, of its rotation
-    /// angle, the rotation vector's length).
+    /// Observed range `[min, max]` of the positions (for a spherical or universal joint, of
+    /// its rotation angle from the reference pose).
     pub range: Option<[f64; 2]>,
     /// Estimated relative DoF.
     pub dof: usize,

@@ -182,6 +182,17 @@ pub enum JointKind {
         /// The centre in frame `a`'s body frame.
         centre: Point3<f64>,
     },
+    /// Two rotational DoF about intersecting axes (a universal or Cardan joint): `axis`
+    /// fixed in `a`, `child_axis` fixed in `b`, at a fixed angle to each other, through a
+    /// centre fixed in both.
+    Universal {
+        /// The first axis (unit), fixed in `a`, in `a`'s body frame.
+        axis: Vector3<f64>,
+        /// The second axis (unit), fixed in `b`, in `b`'s body frame.
+        child_axis: Vector3<f64>,
+        /// The axes' intersection in `a`'s body frame.
+        centre: Point3<f64>,
+    },
     /// More than one DoF (or a motion no single-DoF type explains); see the ranks.
     MultiDof,
 }
@@ -208,6 +219,7 @@ impl JointKind {
             JointKind::Revolute { .. } => JointType::Revolute,
             JointKind::Prismatic { .. } => JointType::Prismatic,
             JointKind::Spherical { .. } => JointType::Spherical,
+            JointKind::Universal { .. } => JointType::Universal,
             JointKind::MultiDof => JointType::MultiDof,
         }
     }
@@ -236,6 +248,12 @@ pub struct PairDof {
     /// one rank 2. Table I prints these; `centre` decides.
     #[serde(default = "RankTest::empty")]
     pub centre_uncentred: RankTest,
+    /// For a pair that turns about more than one axis about a fixed centre: the two-axis test,
+    /// rank 0 when an axis fixed in `a` and one fixed in `b`, at a fixed angle, explain its
+    /// rotations (a universal joint); its `chi2_per_dof` and `chi2_bound` tell by how much
+    /// (empty otherwise, and in files written before it existed).
+    #[serde(default = "RankTest::empty")]
+    pub axes: RankTest,
     /// Estimated number of relative degrees of freedom.
     pub dof: usize,
     /// The joint type the ranks support.

@@ -432,6 +432,262 @@ fn pivot_rank_test(c: &PairColumns, z: f64, slack: f64) -> Option<(RankTest, Poi
     Some((test, centre))
 }
 
+/// Reference-free test for a universal joint: are there unit axes `n` fixed in `a` and `m`
+/// fixed in `b` at a fixed angle, `n . R_k m = cos(angle)` in every frame (`R_k` = `a_from_b`'s
+/// rotation)? Two intersecting axes, one turning with each body, keep that angle whatever
+/// their two angles; a third rotation breaks it. Weighted least squares, each frame's residual
+/// weighted by its variance from the relative rotation's covariance (`g^T C g`, with
+/// `g = (R_k m) x n`), by alternating eigenvector steps in `n` and `m` from the linear
+/// relaxation (the direction `N` of the 3 x 3 matrices with `<N, R_k>` most nearly constant,
+/// split into `n m^T`). Returns `(chi^2 / dof, dof, n, m)` with `dof = K - 5`.
+fn axes_test(c: &PairColumns) -> Option<(f64, f64, Vector3<f64>, Vector3<f64>)> {
+    let k = c.x_abs.len();
+    if k < 8 {
+        return None;
+    }
+    // The residual has many local minima in the axes: a coarse search over the first axis,
+    // each direction with its best second axis (the smallest direction of the weighted,
+    // centred `R_k^T n`), and a descent from the best few.
+    let mut scored: Vec<(f64, Vector3<f64>, Vector3<f64>)> = hemisphere(AXES_GRID)
+        .into_iter()
+        .filter_map(|n| {
+            let pulled: Vec<Vector3<f64>> =
+                c.x_abs.iter().map(|(r, _)| r.transpose() * n).collect();
+            let uniform = vec![1.0; k];
+            let m = smallest_spread(&pulled, &uniform)?;
+            let m = smallest_spread(&pulled, &axes_weights(c, &n, &m))?;
+            Some((axes_chi2(c, &n, &m), n, m))
+        })
+        .filter(|(chi2, ..)| chi2.is_finite())
+        .collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Wrong basins are broad and fill the top of the list; the starts are the best
+    // directions at least `AXES_SEPARATION_RAD` from each other.
+    let mut starts: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new();
+    for &(_, n, m) in &scored {
+        if starts.len() == AXES_STARTS {
+            break;
+        }
+        if starts
+            .iter()
+            .all(|(s, _)| s.dot(&n).abs() < AXES_SEPARATION_RAD.cos())
+        {
+            starts.push((n, m));
+        }
+    }
+    starts.extend(relaxed_axes(c));
+    let mut best: Option<(f64, Vector3<f64>, Vector3<f64>)> = None;
+    for (n, m) in starts {
+        let found = refine_axes(c, n, m);
+        if best.is_none_or(|b| found.0 < b.0) {
+            best = Some(found);
+        }
+    }
+    let (chi2, n, m) = best?;
+    let dof = (k - 5) as f64;
+    chi2.is_finite().then_some((chi2 / dof, dof, n, m))
+}
+
+/// Starts of [`axes_test`] from its linear relaxation: `n . R_k m` constant is `<N, R_k>`
+/// constant for the rank-one `N = n m^T`, so each direction of the centred 9-vectors of the
+/// rotations, smallest first, split by its largest singular value into `(n, m)`.
+fn relaxed_axes(c: &PairColumns) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    use kinetree_core::nalgebra::{SMatrix, SVector};
+    let k = c.x_abs.len() as f64;
+    let flat = |r: &Matrix3<f64>| SVector::<f64, 9>::from_column_slice(r.as_slice());
+    let mean: SVector<f64, 9> = c
+        .x_abs
+        .iter()
+        .map(|(r, _)| flat(r))
+        .sum::<SVector<f64, 9>>()
+        / k;
+    let scatter: SMatrix<f64, 9, 9> = c
+        .x_abs
+        .iter()
+        .map(|(r, _)| {
+            let d = flat(r) - mean;
+            d * d.transpose()
+        })
+        .sum();
+    let eig = scatter.symmetric_eigen();
+    let mut order: Vec<usize> = (0..9).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    order
+        .into_iter()
+        .filter_map(|e| {
+            let split =
+                Matrix3::from_column_slice(eig.eigenvectors.column(e).as_slice()).svd(true, true);
+            let top = split.singular_values.imax();
+            Some((
+                split.u?.column(top).into_owned(),
+                split.v_t?.row(top).transpose(),
+            ))
+        })
+        .collect()
+}
+
+/// `count` unit vectors spread evenly over the half sphere `z >= 0` (a Fibonacci spiral): a
+/// direction and its opposite are one axis.
+fn hemisphere(count: usize) -> Vec<Vector3<f64>> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..count)
+        .map(|i| {
+            let z = (i as f64 + 0.5) / count as f64;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let phi = golden * i as f64;
+            Vector3::new(r * phi.cos(), r * phi.sin(), z)
+        })
+        .collect()
+}
+
+/// Directions of [`axes_test`]'s coarse search over the first axis: about 4.5 deg apart.
+const AXES_GRID: usize = 1000;
+
+/// Descents of [`axes_test`], from the best directions of its search...
+const AXES_STARTS: usize = 12;
+
+/// ... at least this far apart (radians, 10 deg).
+const AXES_SEPARATION_RAD: f64 = 0.175;
+
+/// Most damped Gauss-Newton steps of each descent of [`axes_test`].
+const AXES_ITERATIONS: usize = 100;
+
+/// Each frame's weight in [`axes_test`] at the axes `n` (in `a`) and `m` (in `b`): the inverse
+/// variance of `n . R_k m` from the relative rotation's covariance.
+fn axes_weights(c: &PairColumns, n: &Vector3<f64>, m: &Vector3<f64>) -> Vec<f64> {
+    c.x_abs
+        .iter()
+        .zip(&c.rel_rot_cov)
+        .map(|((r, _), cov)| {
+            let g = (r * m).cross(n);
+            let var = g.dot(&(cov * g));
+            if var > 0.0 && var.is_finite() {
+                1.0 / var
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// [`axes_test`]'s `chi^2` at the axes `n` and `m`, the fixed angle at its weighted best.
+fn axes_chi2(c: &PairColumns, n: &Vector3<f64>, m: &Vector3<f64>) -> f64 {
+    let w = axes_weights(c, n, m);
+    let values: Vec<f64> = c.x_abs.iter().map(|(r, _)| n.dot(&(r * m))).collect();
+    let total: f64 = w.iter().sum();
+    if total <= 0.0 {
+        return f64::INFINITY;
+    }
+    let mean = values.iter().zip(&w).map(|(v, w)| v * w).sum::<f64>() / total;
+    values
+        .iter()
+        .zip(&w)
+        .map(|(v, w)| w * (v - mean).powi(2))
+        .sum()
+}
+
+/// The unit vector `x` minimising `sum w (x . v - mean)^2`: the smallest direction of the
+/// weighted scatter of `vs` about their weighted mean.
+fn smallest_spread(vs: &[Vector3<f64>], w: &[f64]) -> Option<Vector3<f64>> {
+    let total: f64 = w.iter().sum();
+    if total <= 0.0 {
+        return None;
+    }
+    let centre: Vector3<f64> = vs.iter().zip(w).map(|(v, w)| v * *w).sum::<Vector3<f64>>() / total;
+    let spread: Matrix3<f64> = vs
+        .iter()
+        .zip(w)
+        .map(|(v, w)| (v - centre) * (v - centre).transpose() * *w)
+        .sum();
+    let e = spread.symmetric_eigen();
+    Some(e.eigenvectors.column(e.eigenvalues.imin()).into_owned())
+}
+
+/// [`axes_test`]'s descent from the axes `n` and `m`: damped Gauss-Newton in the two axes'
+/// tangent planes and the fixed angle's cosine, the weights taken at each step's start and a
+/// step kept only when the `chi^2` (with its own weights) falls. Returns `(chi^2, n, m)`.
+fn refine_axes(
+    c: &PairColumns,
+    mut n: Vector3<f64>,
+    mut m: Vector3<f64>,
+) -> (f64, Vector3<f64>, Vector3<f64>) {
+    use kinetree_core::nalgebra::{SMatrix, SVector};
+    let mut chi2 = axes_chi2(c, &n, &m);
+    let mut lambda = 1e-3;
+    for _ in 0..AXES_ITERATIONS {
+        let w = axes_weights(c, &n, &m);
+        let total: f64 = w.iter().sum();
+        if total <= 0.0 {
+            break;
+        }
+        let values: Vec<f64> = c.x_abs.iter().map(|(r, _)| n.dot(&(r * m))).collect();
+        let cosine = values.iter().zip(&w).map(|(v, w)| v * w).sum::<f64>() / total;
+        let (n1, n2) = perpendicular_basis(&n);
+        let (m1, m2) = perpendicular_basis(&m);
+        let mut normal = SMatrix::<f64, 5, 5>::zeros();
+        let mut gradient = SVector::<f64, 5>::zeros();
+        for (((r, _), v), w) in c.x_abs.iter().zip(&values).zip(&w) {
+            let (in_a, in_b) = (r * m, r.transpose() * n);
+            let j = SVector::<f64, 5>::new(
+                in_a.dot(&n1),
+                in_a.dot(&n2),
+                in_b.dot(&m1),
+                in_b.dot(&m2),
+                -1.0,
+            );
+            normal += j * j.transpose() * *w;
+            gradient += j * ((v - cosine) * w);
+        }
+        let mut improved = false;
+        while lambda < 1e8 {
+            let mut damped = normal;
+            for i in 0..5 {
+                damped[(i, i)] *= 1.0 + lambda;
+            }
+            let Some(step) = damped.try_inverse().map(|inv| -(inv * gradient)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial_n = (n + n1 * step[0] + n2 * step[1]).normalize();
+            let trial_m = (m + m1 * step[2] + m2 * step[3]).normalize();
+            let trial = axes_chi2(c, &trial_n, &trial_m);
+            if trial < chi2 {
+                improved = chi2 - trial > 1e-10 * chi2;
+                (n, m, chi2) = (trial_n, trial_m, trial);
+                lambda = (lambda * 0.1).max(1e-9);
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (chi2, n, m)
+}
+
+/// [`axes_test`] as a rank test: rank 0 when `chi^2 / dof` is within `slack` times its
+/// `z`-quantile (two intersecting axes), 1 otherwise; with the axis fixed in `a` (in `a`'s
+/// frame) and the one fixed in `b` (in `b`'s).
+fn axes_rank_test(
+    c: &PairColumns,
+    z: f64,
+    slack: f64,
+) -> Option<(RankTest, Vector3<f64>, Vector3<f64>)> {
+    let (per_dof, dof, n, m) = axes_test(c)?;
+    let bound = slack * crate::rank::chi2_per_dof_quantile(dof, z);
+    let test = RankTest {
+        singular_values: Vec::new(),
+        whitened: Vec::new(),
+        threshold: None,
+        rank: usize::from(per_dof > bound),
+        n_columns: c.x_abs.len(),
+        chi2_per_dof: vec![per_dof],
+        chi2_bound: vec![bound],
+    };
+    Some((test, n, m))
+}
+
 /// Inverse left Jacobian of SO(3) at `phi = theta a`:
 /// `(theta/2) cot(theta/2) I + (1 - (theta/2) cot(theta/2)) a a^T - [phi/2]x`.
 fn inverse_left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
@@ -454,6 +710,7 @@ struct CentreSettings {
     min_angle_rad: f64,
     min_angle_in_std: f64,
     spherical: bool,
+    universal: bool,
 }
 
 /// Types the joint between `a` and `b` from the rank decisions of `rule`.
@@ -499,6 +756,7 @@ fn classify_ranks(
 ) -> Result<PairDof> {
     let mut centre = RankTest::empty();
     let mut centre_uncentred = RankTest::empty();
+    let mut axes = RankTest::empty();
     let mut sliding = RankTest::empty();
     let mut joint = JointKind::MultiDof;
     let dof;
@@ -636,6 +894,22 @@ fn classify_ranks(
                         centre: centre_in_a,
                     };
                     multi = (3, multi.1.max(test.next_rank_ratio()));
+                    // Fewer DoF when the data allow: two intersecting axes, one in each body.
+                    if centre_settings.universal
+                        && let Some((two, n, m)) = axes_rank_test(c, zq, slack)
+                    {
+                        if two.rank == 0 {
+                            let axis = canonical_sign(n);
+                            let child_axis = if axis.dot(&n) < 0.0 { -m } else { m };
+                            joint = JointKind::Universal {
+                                axis,
+                                child_axis,
+                                centre: centre_in_a,
+                            };
+                            multi = (2, multi.1.max(two.next_rank_ratio()));
+                        }
+                        axes = two;
+                    }
                 }
                 centre = test;
             }
@@ -651,6 +925,7 @@ fn classify_ranks(
         centre,
         sliding,
         centre_uncentred,
+        axes,
         dof,
         joint,
         fit_ratio,
@@ -754,6 +1029,7 @@ impl DofTester for SvdRank {
                 min_angle_rad: self.params.min_centre_angle_rad,
                 min_angle_in_std: self.params.min_centre_angle_in_std,
                 spherical: false,
+                universal: false,
             },
         )
     }
@@ -788,6 +1064,9 @@ pub struct Chi2RankParams {
     /// fixed in both bodies explains its motion (the revolute joint's pivot test); `false`
     /// calls it multi-DoF, as `svd_rank` does (default true).
     pub spherical: bool,
+    /// Whether such a pair is a universal joint when two intersecting axes, one fixed in each
+    /// body, explain its rotations (`spherical` must be on; default true).
+    pub universal: bool,
 }
 
 impl Default for Chi2RankParams {
@@ -801,6 +1080,7 @@ impl Default for Chi2RankParams {
             model_error_rad: 0.0,
             min_excess: crate::MIN_EXCESS,
             spherical: true,
+            universal: true,
         }
     }
 }
@@ -878,6 +1158,7 @@ impl DofTester for Chi2Rank {
                 min_angle_rad: self.params.min_centre_angle_rad,
                 min_angle_in_std: self.params.min_centre_angle_in_std,
                 spherical: self.params.spherical,
+                universal: self.params.universal,
             },
         )
     }
@@ -922,6 +1203,81 @@ mod tests {
                 Some(Isometry3::from_parts(Translation3::identity(), q))
             })
             .collect()
+    }
+
+    /// The columns [`axes_test`] reads of `n` frames of relative rotations `turn(k)`, each
+    /// perturbed by an independent rotation of `noise` rad per axis (a fixed xorshift
+    /// generator's Gaussian draws) with that covariance.
+    fn turned(n: usize, noise: f64, turn: impl Fn(f64) -> UnitQuaternion<f64>) -> PairColumns {
+        let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut gauss = move || {
+            let (u, v) = (uniform().max(1e-300), uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        let x_abs: Vec<(Matrix3<f64>, Vector3<f64>)> = (0..n)
+            .map(|k| {
+                let e = Vector3::new(gauss(), gauss(), gauss()) * noise;
+                let r = UnitQuaternion::from_scaled_axis(e) * turn(k as f64);
+                (r.to_rotation_matrix().into_inner(), Vector3::zeros())
+            })
+            .collect();
+        PairColumns {
+            reference_frame: 0,
+            reference_index: 0,
+            u: Vec::new(),
+            u_cov: Vec::new(),
+            rot: Vec::new(),
+            rot_cov: Vec::new(),
+            q_rel: Vec::new(),
+            rel_rot_cov: vec![Matrix3::identity() * noise * noise; n],
+            y_ref: Vector3::zeros(),
+            x_abs,
+            a_cov: Vec::new(),
+            b_cov: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn the_axes_test_finds_a_universal_joint_and_rejects_a_ball() {
+        let first = Vector3::new(1.0, 0.2, -0.1).normalize();
+        let offset = UnitQuaternion::from_euler_angles(0.3, -0.5, 1.1);
+        // The child's own axis: perpendicular to the first at zero.
+        let second = offset.inverse() * Vector3::new(-0.2, 1.0, 0.0).normalize();
+        let axis_angle =
+            |a: Vector3<f64>, q: f64| UnitQuaternion::from_axis_angle(&Unit::new_normalize(a), q);
+        let c = turned(300, 0.005, |t| {
+            axis_angle(first, 0.6 * (0.07 * t).sin())
+                * offset
+                * axis_angle(second, 0.5 * (0.11 * t + 1.0).sin())
+        });
+        let (per_dof, dof, n, m) = axes_test(&c).expect("test");
+        // As low as a descent from the true axes: the starts found the best minimum.
+        let (from_truth, ..) = refine_axes(&c, first, second);
+        assert!(
+            per_dof * dof <= from_truth * (1.0 + 1e-6),
+            "{per_dof} {from_truth}"
+        );
+        assert!((0.7..1.4).contains(&per_dof), "chi^2/dof {per_dof}");
+        assert!(n.dot(&first).abs() > 0.9998, "first axis {n}");
+        assert!(m.dot(&second).abs() > 0.9998, "second axis {m}");
+        let (test, _, _) = axes_rank_test(&c, 4.0, 2.5).expect("rank test");
+        assert_eq!(test.rank, 0);
+        // A ball joint turning about all three axes breaks the fixed angle.
+        let ball = turned(300, 0.005, |t| {
+            UnitQuaternion::from_scaled_axis(Vector3::new(
+                0.5 * (0.07 * t).sin(),
+                0.4 * (0.11 * t).cos(),
+                0.3 * (0.05 * t + 2.0).sin(),
+            ))
+        });
+        let (test, _, _) = axes_rank_test(&ball, 4.0, 2.5).expect("rank test");
+        assert_eq!(test.rank, 1, "{:?}", test.chi2_per_dof);
     }
 
     #[test]

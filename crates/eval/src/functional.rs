@@ -112,7 +112,7 @@ pub fn sara_axis(
 pub struct FunctionalEval {
     /// True joint index.
     pub joint: usize,
-    /// SCoRE's centre error, metres (spherical joints).
+    /// SCoRE's centre error, metres (spherical and universal joints).
     pub centre_error_in_parent_m: Option<f64>,
     /// SARA's axis error, degrees (revolute joints).
     pub axis_error_in_parent_deg: Option<f64>,
@@ -120,7 +120,7 @@ pub struct FunctionalEval {
     pub pivot_error_in_parent_m: Option<f64>,
 }
 
-/// SCoRE on every true spherical joint and SARA on every revolute one, on the poses that
+/// SCoRE on every true spherical and universal joint and SARA on every revolute one, on the poses that
 /// `pose` (a pose stage) gives the true segmentation of `tracks` at noise level
 /// `noise_sigma_m`.
 ///
@@ -187,7 +187,7 @@ fn errors_on(of_true: &[Option<&BodyTrack>], truth: &GroundTruth) -> Vec<Functio
             };
             let anchor = Point3::from(spec.anchor);
             match spec.joint_type {
-                JointType::Spherical => {
+                JointType::Spherical | JointType::Universal => {
                     e.centre_error_in_parent_m = score_centre(&p.cam_from_body, &c.cam_from_body)
                         .map(|(centre, _)| (align * centre - anchor).norm());
                 }

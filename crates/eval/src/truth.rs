@@ -48,14 +48,19 @@ pub struct JointEval {
     /// RMS of the smoothed positions' errors in units of their standard deviations.
     #[serde(default)]
     pub smoothed_z_rms: Option<f64>,
-    /// Distance from a true spherical joint's centre to the model's joint point in the camera
-    /// frame at the joint's reference frame, metres.
+    /// Distance from a true spherical or universal joint's centre to the model's joint point
+    /// in the camera frame at the joint's reference frame, metres.
     #[serde(default)]
     pub centre_error_m: Option<f64>,
     /// The same in the parent's body frame, with the alignment of
     /// `axis_error_in_parent_deg`, so one frame's pose noise does not enter.
     #[serde(default)]
     pub centre_error_in_parent_m: Option<f64>,
+    /// A universal joint's second axis error in the parent's body frame at the model's
+    /// reference frame, with the same alignment, degrees (its first axis is in
+    /// `axis_error_in_parent_deg`).
+    #[serde(default)]
+    pub second_axis_error_in_parent_deg: Option<f64>,
 }
 
 /// The comparison of a model with the truth.
@@ -172,12 +177,14 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             smoothed_z_rms: None,
             centre_error_m: None,
             centre_error_in_parent_m: None,
+            second_axis_error_in_parent_deg: None,
         };
         if let Some(j) = found {
             let expected = match spec.joint_type {
                 JointType::Revolute => kinetree_core::model::JointType::Revolute,
                 JointType::Prismatic => kinetree_core::model::JointType::Prismatic,
                 JointType::Spherical => kinetree_core::model::JointType::Spherical,
+                JointType::Universal => kinetree_core::model::JointType::Universal,
             };
             e.type_ok = j.joint_type == expected;
             let true_axis = truth.axis_in_camera(k, j.reference_frame);
@@ -207,13 +214,12 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                     ));
                 }
             }
-            if spec.joint_type == JointType::Spherical
-                && let Some(p) = j.point
-            {
+            let centred = matches!(spec.joint_type, JointType::Spherical | JointType::Universal);
+            if centred && let Some(p) = j.point {
                 let centre = truth.anchor_in_camera(k, j.reference_frame);
                 e.centre_error_m = Some((Point3::from(p) - centre).norm());
             }
-            if spec.joint_type == JointType::Spherical
+            if centred
                 && let (Some(p), Some(align)) = (
                     j.point_in_parent,
                     parent_alignment(model, truth, j.parent, spec.parent),
@@ -221,6 +227,25 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             {
                 let centre = align * Point3::from(p);
                 e.centre_error_in_parent_m = Some((centre - Point3::from(spec.anchor)).norm());
+            }
+            // A universal joint's second axis where the model's reference frame holds it: the
+            // true one turned by the true first angle there.
+            if let (JointType::Universal, Some(a), Some(second), Some(align)) = (
+                spec.joint_type,
+                j.second_axis_in_parent,
+                spec.second_axis,
+                parent_alignment(model, truth, j.parent, spec.parent),
+            ) {
+                let at = truth.mechanism.coordinate_offsets()[k];
+                let q1 = truth.joint_positions[at][j.reference_frame];
+                let turned = nalgebra::UnitQuaternion::from_axis_angle(
+                    &nalgebra::Unit::new_normalize(Vector3::from(spec.axis)),
+                    q1,
+                ) * Vector3::from(second).normalize();
+                e.second_axis_error_in_parent_deg = Some(axis_error_deg(
+                    &(align.rotation * Vector3::from(a)),
+                    &turned,
+                ));
             }
             if let Some(q) = truth.single_positions(k) {
                 e.position_rms = aligned_rms(&j.positions, q);

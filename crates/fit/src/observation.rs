@@ -44,7 +44,8 @@ pub struct Observation {
     /// `<type>_<parent>_<child>` for a joint of one coordinate (and for rigid and multi-DoF
     /// joints, whose column is empty), with `_rx`, `_ry`, `_rz` for a spherical joint's three
     /// (its rotation vector in the parent's frame from the reference pose, as the model's
-    /// `coordinates`). A row is then the mechanism's whole configuration.
+    /// `coordinates`) and `_q1`, `_q2` for a universal joint's two angles. A row is then the
+    /// mechanism's whole configuration.
     pub joint_names: Vec<String>,
     /// Each joint's first column, in the model's joint order.
     pub joint_columns: Vec<usize>,
@@ -139,7 +140,14 @@ pub fn observe(model: &Model, tracks: &Tracks, options: ObserveOptions) -> Resul
     for (k, j) in model.joints.iter().enumerate() {
         joint_columns.push(joint_names.len());
         let name = format!("{}_{}_{}", j.joint_type, j.parent, j.child);
-        if observer.is_spherical(k) {
+        if observer.is_universal(k) {
+            for (i, axis) in ["q1", "q2"].iter().enumerate() {
+                joint_names.push(format!("{name}_{axis}"));
+                positions.push(fits.iter().map(|f| f.angles[k].map(|v| v[i])).collect());
+                std.push(fits.iter().map(|f| f.angle_std[k].map(|s| s[i])).collect());
+                angular.push(true);
+            }
+        } else if observer.is_spherical(k) {
             for (i, axis) in ["rx", "ry", "rz"].iter().enumerate() {
                 joint_names.push(format!("{name}_{axis}"));
                 positions.push(fits.iter().map(|f| f.rotations[k].map(|v| v[i])).collect());

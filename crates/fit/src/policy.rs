@@ -287,7 +287,8 @@ pub struct TypeByFitLimits {
     /// principal axis by at most this many of their standard deviations, RMS (default 20;
     /// two hinges typed spherical at 10 mm of noise strayed by 6-18, the ball joints of a
     /// simulated skeleton by 20-180, and each trial costs a refinement and a bundle
-    /// adjustment).
+    /// adjustment); a universal joint when one of its two angles spreads by at most as
+    /// many.
     pub max_ball_off_axis_in_std: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
@@ -330,20 +331,27 @@ pub fn type_joints_by_fit(
     let mut typed = Vec::new();
     for k in 0..observer.joints.len() {
         let ranks = &model.joints[k].ranks;
-        // A spherical joint is tried as a hinge whatever its ranks: a hinge has a fixed centre
-        // too, and the rank test can take a noisy hinge's rotations for more than one.
-        let ball = model.joints[k].joint_type == JointType::Spherical;
-        if !ball
+        // A spherical or universal joint is tried as a hinge whatever its ranks: a hinge has
+        // a fixed centre and fits a universal joint too, and the rank test can take a noisy
+        // hinge's rotations for more than one.
+        let joint_type = model.joints[k].joint_type;
+        let turning = matches!(joint_type, JointType::Spherical | JointType::Universal);
+        if !turning
             && (ranks.rotation > limits.max_rotation_rank
                 || ranks.translation > limits.max_translation_rank)
         {
             continue;
         }
-        if ball && off_axis_in_std(&fits, k).is_none_or(|r| r > limits.max_ball_off_axis_in_std) {
+        let off = match joint_type {
+            JointType::Spherical => off_axis_in_std(&fits, k),
+            JointType::Universal => least_angle_spread_in_std(&fits, k),
+            _ => None,
+        };
+        if turning && off.is_none_or(|r| r > limits.max_ball_off_axis_in_std) {
             continue;
         }
-        let types: &[bool] = match model.joints[k].joint_type {
-            JointType::Spherical => &[true],
+        let types: &[bool] = match joint_type {
+            JointType::Spherical | JointType::Universal => &[true],
             JointType::MultiDof => &[false, true],
             JointType::Prismatic if observer.freed[k] => &[true],
             JointType::Revolute if observer.freed[k] => &[false],
@@ -385,6 +393,36 @@ fn off_axis_in_std(fits: &[FrameFit], k: usize) -> Option<f64> {
     Some((off / seen.len() as f64).sqrt())
 }
 
+/// How little universal joint `k` turns about one of its axes: the smaller over its two angles
+/// of their RMS spread about their mean over the frames (`fits`), in units of each frame's
+/// standard deviation of that angle (a hinge's other angle stays within noise). `None` with
+/// fewer than three frames.
+fn least_angle_spread_in_std(fits: &[FrameFit], k: usize) -> Option<f64> {
+    let seen: Vec<([f64; 2], [f64; 2])> = fits
+        .iter()
+        .filter_map(|f| {
+            Some((
+                f.angles.get(k).copied().flatten()?,
+                f.angle_std.get(k).copied().flatten()?,
+            ))
+        })
+        .filter(|(_, s)| s.iter().all(|&v| v > 0.0 && v.is_finite()))
+        .collect();
+    if seen.len() < 3 {
+        return None;
+    }
+    (0..2)
+        .map(|i| {
+            let mean = seen.iter().map(|(a, _)| a[i]).sum::<f64>() / seen.len() as f64;
+            let z2: f64 = seen
+                .iter()
+                .map(|(a, s)| ((a[i] - mean) / s[i]).powi(2))
+                .sum();
+            (z2 / seen.len() as f64).sqrt()
+        })
+        .reduce(f64::min)
+}
+
 /// Writes the fit into `model`: every followed or freed joint's positions (multi-DoF ones keep
 /// theirs) with its reference pose turned (or slid) to its position at the joint's reference
 /// frame, so the positions stay zero there; the positions' precision and their smoothing;
@@ -406,6 +444,10 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
         let j = &observer.joints[k];
         if let Measure::Spherical(centre) = j.measure {
             write_rotations(joint, k, &centre, j.reference, fits, &model.position_limits)?;
+            continue;
+        }
+        if let Measure::Universal(..) = j.measure {
+            write_angles(joint, k, j, fits, &model.position_limits)?;
             continue;
         }
         // Joints in the fit and freed ones (from the fitted poses); multi-DoF ones keep the
@@ -474,9 +516,74 @@ fn write_rotations(
         .zip(&joint.coordinates)
         .map(|(f, c)| c.as_ref().and(f.rotation_std[k]).map(|s| s.to_vec()))
         .collect();
-    let mut smoothed = vec![Some(Vec::new()); fits.len()];
-    let mut smoothed_std = vec![Some(Vec::new()); fits.len()];
-    for i in 0..3 {
+    smooth_coordinates(joint, 3, limits)?;
+    joint.range = span(rotations.iter().flatten().map(|r| r.angle()));
+    Ok(())
+}
+
+/// [`write_positions`] for universal joint `k` (`j` in the observer): its two angles,
+/// re-zeroed at the joint's reference frame (the reference pose turned by that frame's
+/// angles, and the second axis with it), their standard deviations, each smoothed on its own,
+/// and the range of the rotation angle.
+fn write_angles(
+    joint: &mut kinetree_core::model::Joint,
+    k: usize,
+    j: &crate::solver::ObservedJoint,
+    fits: &[FrameFit],
+    limits: &kinetree_core::model::PositionLimits,
+) -> Result<()> {
+    let Measure::Universal(first, second, _) = j.measure else {
+        return Ok(());
+    };
+    let mut angles: Vec<Option<[f64; 2]>> = fits.iter().map(|f| f.angles[k]).collect();
+    if let Some([q1, q2]) = angles.get(joint.reference_frame).copied().flatten() {
+        let turned = Observer::universal_transform(j, q1, q2);
+        joint.reference_pose = Some(RigidTransform::from_isometry(&turned));
+        // The second axis, fixed in the child, turns with the first angle; in the camera
+        // frame about the first axis there.
+        let about = |axis: Vector3<f64>| {
+            UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_normalize(axis), q1)
+        };
+        let moved = about(first) * second;
+        joint.second_axis_in_parent = Some([moved.x, moved.y, moved.z]);
+        if let (Some(a), Some(b)) = (joint.axis, joint.second_axis) {
+            let moved = about(Vector3::from(a)) * Vector3::from(b);
+            joint.second_axis = Some([moved.x, moved.y, moved.z]);
+        }
+        for v in angles.iter_mut().flatten() {
+            *v = [v[0] - q1, v[1] - q2];
+        }
+    }
+    joint.coordinates = angles.iter().map(|a| a.map(|a| a.to_vec())).collect();
+    joint.coordinate_std = fits
+        .iter()
+        .zip(&joint.coordinates)
+        .map(|(f, c)| c.as_ref().and(f.angle_std[k]).map(|s| s.to_vec()))
+        .collect();
+    smooth_coordinates(joint, 2, limits)?;
+    // The angle of the whole rotation from the reference pose, as for a ball joint.
+    let second_now = joint.second_axis_in_parent.map_or(second, Vector3::from);
+    joint.range = span(angles.iter().flatten().map(|&[q1, q2]| {
+        let turn = |axis: Vector3<f64>, q: f64| {
+            UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_normalize(axis), q)
+        };
+        (turn(first, q1) * turn(second_now, q2)).angle()
+    }));
+    Ok(())
+}
+
+/// Each of the first `width` coordinates of `joint` smoothed on its own (as the positions of
+/// a revolute joint, all of them angles), into its smoothed coordinates; its scalar
+/// positions emptied.
+fn smooth_coordinates(
+    joint: &mut kinetree_core::model::Joint,
+    width: usize,
+    limits: &kinetree_core::model::PositionLimits,
+) -> Result<()> {
+    let n = joint.coordinates.len();
+    let mut smoothed = vec![Some(Vec::new()); n];
+    let mut smoothed_std = vec![Some(Vec::new()); n];
+    for i in 0..width {
         let column: Vec<Option<f64>> = joint
             .coordinates
             .iter()
@@ -503,11 +610,10 @@ fn write_rotations(
     }
     joint.smoothed_coordinates = smoothed;
     joint.smoothed_coordinate_std = smoothed_std;
-    joint.positions = vec![None; fits.len()];
-    joint.position_std = vec![None; fits.len()];
-    joint.smoothed_positions = vec![None; fits.len()];
-    joint.smoothed_std = vec![None; fits.len()];
-    joint.range = span(rotations.iter().flatten().map(|r| r.angle()));
+    joint.positions = vec![None; n];
+    joint.position_std = vec![None; n];
+    joint.smoothed_positions = vec![None; n];
+    joint.smoothed_std = vec![None; n];
     Ok(())
 }
 
@@ -605,6 +711,7 @@ fn type_by_fit(
         };
         model.joints[k].dof = 1;
         let joint = &mut model.joints[k];
+        (joint.second_axis, joint.second_axis_in_parent) = (None, None);
         for coordinates in [
             &mut joint.coordinates,
             &mut joint.coordinate_std,

@@ -46,7 +46,7 @@ impl JointParams {
                 reference: j.reference,
                 revolute: false,
             }),
-            Measure::Spherical(_) | Measure::None => None,
+            Measure::Spherical(_) | Measure::Universal(..) | Measure::None => None,
         }
     }
 

@@ -24,6 +24,10 @@ pub(crate) enum Measure {
     /// A ball joint's centre in the parent's body frame: three parameters, the child's
     /// rotation about it.
     Spherical(Point3<f64>),
+    /// A universal joint: its first axis (fixed in the parent), its second (fixed in the
+    /// child, at joint position zero) and their intersection, all in the parent's body frame;
+    /// two parameters, the angles about each.
+    Universal(Vector3<f64>, Vector3<f64>, Point3<f64>),
     /// Neither, or no reference pose: no position.
     None,
 }
@@ -33,6 +37,7 @@ impl Measure {
     pub(crate) fn width(&self) -> usize {
         match self {
             Measure::Revolute(..) | Measure::Prismatic(..) => 1,
+            Measure::Universal(..) => 2,
             Measure::Spherical(..) => 3,
             Measure::None => 0,
         }
@@ -64,6 +69,11 @@ pub struct FrameFit {
     /// Standard deviation of each spherical joint's rotation about the parent's three axes,
     /// radians.
     pub rotation_std: Vec<Option<[f64; 3]>>,
+    /// The two angles of each universal joint, radians, from its reference pose (`None` for
+    /// other joints, and where the frame does not determine them).
+    pub angles: Vec<Option<[f64; 2]>>,
+    /// Standard deviation of each universal joint's angles, radians.
+    pub angle_std: Vec<Option<[f64; 2]>>,
     /// Every body's `camera_from_body` from the fitted configuration; `None` where its part of
     /// the tree is not determined.
     pub poses: Vec<Option<Isometry3<f64>>>,
@@ -136,6 +146,8 @@ pub(crate) struct State {
     /// Rotation of every spherical joint about its centre from its reference pose, in the
     /// parent's frame (`None`: not yet known).
     pub(crate) turn: Vec<Option<UnitQuaternion<f64>>>,
+    /// The second angle of every universal joint (its first is in `q`).
+    pub(crate) q2: Vec<Option<f64>>,
 }
 
 impl Observer {
@@ -200,12 +212,15 @@ impl Observer {
                         let reference = rigid(r)?;
                         let axis = vector(axis).normalize();
                         let pivot = Point3::from(vector(j.point_in_parent.unwrap_or([0.0; 3])));
-                        let measure = match j.joint_type {
-                            JointType::Revolute => Measure::Revolute(axis, pivot),
-                            JointType::Prismatic => Measure::Prismatic(axis),
-                            JointType::Rigid | JointType::Spherical | JointType::MultiDof => {
-                                Measure::None
+                        let measure = match (j.joint_type, j.second_axis_in_parent) {
+                            (JointType::Revolute, _) => Measure::Revolute(axis, pivot),
+                            (JointType::Prismatic, _) => Measure::Prismatic(axis),
+                            (JointType::Universal, Some(second))
+                                if vector(second).norm() > 0.0 && j.point_in_parent.is_some() =>
+                            {
+                                Measure::Universal(axis, vector(second).normalize(), pivot)
                             }
+                            _ => Measure::None,
                         };
                         (measure, reference)
                     }
@@ -362,6 +377,14 @@ impl Observer {
         )
     }
 
+    /// Whether joint `k` is universal (its angles are in [`FrameFit::angles`]).
+    pub fn is_universal(&self, k: usize) -> bool {
+        matches!(
+            self.joints.get(k).map(|j| j.measure),
+            Some(Measure::Universal(..))
+        )
+    }
+
     /// Whether joint `k` is spherical (its rotations are in [`FrameFit::rotations`]).
     pub fn is_spherical(&self, k: usize) -> bool {
         matches!(
@@ -461,6 +484,11 @@ impl Observer {
                             *a = *b;
                         }
                     }
+                    for (a, b) in w.angles.iter_mut().zip(&fit.angles) {
+                        if b.is_some() {
+                            *a = *b;
+                        }
+                    }
                     for (a, b) in w.poses.iter_mut().zip(&fit.poses) {
                         if b.is_some() {
                             *a = *b;
@@ -546,6 +574,13 @@ impl Observer {
                     *v = before + wrap_pi(*v - before);
                 }
             }
+            for (now, before) in fit.angles.iter_mut().zip(&p.angles) {
+                if let (Some(v), Some(b)) = (now.as_mut(), before) {
+                    for i in 0..2 {
+                        v[i] = b[i] + wrap_pi(v[i] - b[i]);
+                    }
+                }
+            }
         }
         Ok(fit)
     }
@@ -620,8 +655,34 @@ impl Observer {
                         * j.reference,
                 )
             }
+            Measure::Universal(..) => Some(Self::universal_transform(j, s.q[k]?, s.q2[k]?)),
             _ => s.q[k].map(|q| Self::joint_transform(j, q)),
         }
+    }
+
+    /// `parent_from_child` of universal joint `j` at angles `(q1, q2)`: the child turned
+    /// from its reference pose about the second axis by `q2`, then about the first by `q1`,
+    /// both through the centre. Other joints: the reference pose.
+    pub(crate) fn universal_transform(j: &ObservedJoint, q1: f64, q2: f64) -> Isometry3<f64> {
+        let Measure::Universal(first, second, centre) = j.measure else {
+            return j.reference;
+        };
+        Translation3::from(centre.coords)
+            * UnitQuaternion::from_axis_angle(&Unit::new_unchecked(first), q1)
+            * UnitQuaternion::from_axis_angle(&Unit::new_unchecked(second), q2)
+            * Translation3::from(-centre.coords)
+            * j.reference
+    }
+
+    /// The angles of universal joint `j` from the relative pose `x` (`parent_from_child`):
+    /// the first from where the rotation takes the second axis about the first, the second
+    /// from what is left, the rotation about the second axis.
+    fn measure_angles(j: &ObservedJoint, x: &Isometry3<f64>) -> Option<[f64; 2]> {
+        let Measure::Universal(first, second, _) = j.measure else {
+            return None;
+        };
+        let turn = x.rotation * j.reference.rotation.inverse();
+        Some(universal_angles(&turn, &first, &second))
     }
 
     /// `parent_from_child` of a single-DoF joint `j` at position `q` (the reference pose for
@@ -637,7 +698,7 @@ impl Observer {
                 turn * j.reference
             }
             Measure::Prismatic(axis) => Translation3::from(axis * q) * j.reference,
-            Measure::Spherical(_) | Measure::None => j.reference,
+            Measure::Spherical(_) | Measure::Universal(..) | Measure::None => j.reference,
         }
     }
 
@@ -662,7 +723,7 @@ impl Observer {
             Measure::Prismatic(axis) => {
                 Some(axis.dot(&(x.translation.vector - j.reference.translation.vector)))
             }
-            Measure::Spherical(_) | Measure::None => None,
+            Measure::Spherical(_) | Measure::Universal(..) | Measure::None => None,
         }
     }
 
@@ -705,6 +766,7 @@ impl Observer {
             free: vec![None; nb],
             q: vec![None; self.joints.len()],
             turn: vec![None; self.joints.len()],
+            q2: vec![None; self.joints.len()],
         };
         // Per-body poses only where a freely posed body needs one: they are the costliest
         // part of the start (one 3 x 3 SVD each).
@@ -739,6 +801,12 @@ impl Observer {
                 for (k, t) in trial.turn.iter_mut().enumerate() {
                     *t = Some(previous_turn(previous, k).unwrap_or_default());
                 }
+                for (k, (q1, q2)) in trial.q.iter_mut().zip(&mut trial.q2).enumerate() {
+                    if self.is_universal(k) {
+                        let [a, b] = previous.and_then(|p| p.angles[k]).unwrap_or([0.0; 2]);
+                        (*q1, *q2) = (Some(a), Some(b));
+                    }
+                }
                 if let (Some(db), Some(od)) = (self.forward(&trial)[d], own_pose_of(d)) {
                     s.free[b] = Some(od * db.inverse());
                 }
@@ -764,6 +832,23 @@ impl Observer {
                 if s.turn[k].is_none() && poses[j.parent].is_some() {
                     s.turn[k] = Some(UnitQuaternion::identity());
                 }
+            } else if let Measure::Universal(first, second, centre) = j.measure {
+                let before = previous.and_then(|p| p.angles[k]);
+                let closed = poses[j.parent]
+                    .and_then(|parent| best_turn(j, &centre, &parent, &visible[b], self.sigma))
+                    .map(|turn| universal_angles(&turn, &first, &second));
+                let angles = match (closed, before) {
+                    (_, Some(p)) if prefer_previous => Some(p),
+                    (Some(v), Some(p)) => {
+                        Some([p[0] + wrap_pi(v[0] - p[0]), p[1] + wrap_pi(v[1] - p[1])])
+                    }
+                    (v, p) => v.or(p),
+                };
+                if let Some([a, b]) = angles {
+                    (s.q[k], s.q2[k]) = (Some(a), Some(b));
+                } else if poses[j.parent].is_some() {
+                    (s.q[k], s.q2[k]) = (Some(0.0), Some(0.0));
+                }
             } else {
                 let before = previous.and_then(|p| p.positions[k]);
                 let closed = poses[j.parent]
@@ -788,10 +873,17 @@ impl Observer {
         // Joints below a body with no pose: zero (their part of the tree is undetermined).
         for &b in &self.topo {
             if let Some(k) = self.link[b] {
-                if let Measure::Spherical(_) = self.joints[k].measure {
-                    s.turn[k].get_or_insert_with(UnitQuaternion::identity);
-                } else {
-                    s.q[k].get_or_insert(0.0);
+                match self.joints[k].measure {
+                    Measure::Spherical(_) => {
+                        s.turn[k].get_or_insert_with(UnitQuaternion::identity);
+                    }
+                    Measure::Universal(..) => {
+                        s.q[k].get_or_insert(0.0);
+                        s.q2[k].get_or_insert(0.0);
+                    }
+                    _ => {
+                        s.q[k].get_or_insert(0.0);
+                    }
                 }
             }
         }
@@ -818,6 +910,9 @@ impl Observer {
         }
         for t in &mut trial.turn {
             t.get_or_insert_with(UnitQuaternion::identity);
+        }
+        for q in &mut trial.q2 {
+            q.get_or_insert(0.0);
         }
         let mut best = (f64::INFINITY, 0.0);
         for i in 0..12 {
@@ -908,6 +1003,15 @@ impl Observer {
                             for (i, t) in twist[c..c + 3].iter_mut().enumerate() {
                                 *t = turning(parent.rotation * Vector3::ith(i, 1.0), &centre);
                             }
+                        }
+                        // A turn about the first axis, fixed in the parent, and one about
+                        // the second where the first angle has carried it (the child's own).
+                        Measure::Universal(first, second, centre) => {
+                            twist[c] = turning(parent.rotation * first, &centre);
+                            let in_child = j.reference.rotation.inverse() * second;
+                            let now = poses[j.child]
+                                .map_or(parent.rotation * second, |p| p.rotation * in_child);
+                            twist[c + 1] = turning(now, &centre);
                         }
                         Measure::None => twist[c] = Vector6::zeros(),
                     }
@@ -1001,7 +1105,7 @@ impl Observer {
             for i in 0..measure.width() {
                 let v = step[c + i].abs();
                 size = size.max(match measure {
-                    Measure::Revolute(..) | Measure::Spherical(..) => v,
+                    Measure::Revolute(..) | Measure::Spherical(..) | Measure::Universal(..) => v,
                     _ => v / unit,
                 });
             }
@@ -1014,6 +1118,7 @@ impl Observer {
         out.free.clone_from(&s.free);
         out.q.clone_from(&s.q);
         out.turn.clone_from(&s.turn);
+        out.q2.clone_from(&s.q2);
         for (b, free) in out.free.iter_mut().enumerate() {
             let (Some(c), Some(pose)) = (self.free_col[b], free.as_mut()) else {
                 continue;
@@ -1028,6 +1133,11 @@ impl Observer {
         for (k, q) in out.q.iter_mut().enumerate() {
             if let (Some(c), Some(v)) = (self.joint_col[k], q.as_mut()) {
                 *v += step[c];
+            }
+        }
+        for (k, q) in out.q2.iter_mut().enumerate() {
+            if let (Some(c), Some(v)) = (self.joint_col[k], q.as_mut()) {
+                *v += step[c + 1];
             }
         }
         // A spherical joint's step turns the child about the parent's axes (see `linearise`).
@@ -1052,8 +1162,24 @@ impl Observer {
         let mut positions = vec![None; self.joints.len()];
         let mut rotations = vec![None; self.joints.len()];
         let mut rotation_std = vec![None; self.joints.len()];
+        let mut angles = vec![None; self.joints.len()];
+        let mut angle_std = vec![None; self.joints.len()];
         for (k, j) in self.joints.iter().enumerate() {
             let Some(c) = self.joint_col[k] else { continue };
+            if let Measure::Universal(..) = j.measure {
+                let Some(var) = variance.as_ref() else {
+                    continue;
+                };
+                let (Some((v1, _)), Some((v2, _))) = (var[c], var[c + 1]) else {
+                    continue;
+                };
+                let sd = [self.sigma * v1.sqrt(), self.sigma * v2.sqrt()];
+                angle_std[k] = Some(sd);
+                if (c..c + 2).all(determined) && sd.iter().all(|&v| v <= self.limits.max_std_rad) {
+                    angles[k] = d.state.q[k].zip(d.state.q2[k]).map(|(a, b)| [a, b]);
+                }
+                continue;
+            }
             if let Measure::Spherical(_) = j.measure {
                 let Some(var) = variance.as_ref() else {
                     continue;
@@ -1098,6 +1224,7 @@ impl Observer {
             {
                 positions[k] = Self::measure(j, &(a.inverse() * b));
                 rotations[k] = Self::measure_rotation(j, &(a.inverse() * b));
+                angles[k] = Self::measure_angles(j, &(a.inverse() * b));
             }
         }
         let n_points = d
@@ -1112,6 +1239,8 @@ impl Observer {
             std,
             rotations,
             rotation_std,
+            angles,
+            angle_std,
             poses,
             n_points,
             sum_sq_m2: d.cost,
@@ -1305,8 +1434,23 @@ pub(crate) fn best_position(
                 .sum();
             Some(sum / visible.len() as f64)
         }
-        Measure::Spherical(_) | Measure::None => None,
+        Measure::Spherical(_) | Measure::Universal(..) | Measure::None => None,
     }
+}
+
+/// The two angles `(q1, q2)` of the rotation `turn = R(first, q1) R(second, q2)` (axes in one
+/// frame): `q1` turns `second` about `first` to where `turn` takes it, and `q2` is what is
+/// left, the twist about `second`. A rotation outside that family gives the nearest pair.
+pub(crate) fn universal_angles(
+    turn: &UnitQuaternion<f64>,
+    first: &Vector3<f64>,
+    second: &Vector3<f64>,
+) -> [f64; 2] {
+    let across = |v: Vector3<f64>| v - first * first.dot(&v);
+    let (from, to) = (across(*second), across(turn * second));
+    let q1 = first.dot(&from.cross(&to)).atan2(from.dot(&to));
+    let rest = UnitQuaternion::from_axis_angle(&Unit::new_unchecked(*first), -q1) * turn;
+    [q1, angle_about(&rest, second)]
 }
 
 /// A spherical joint's rotation from `previous`, when it has one.

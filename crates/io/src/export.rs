@@ -76,7 +76,9 @@ fn joint_frame(j: &Joint) -> Result<JointFrame> {
     // Revolute: the joint frame sits on the axis, so the rotation is about its origin;
     // spherical: at the centre.
     let origin = match (j.joint_type, j.point_in_parent) {
-        (JointType::Revolute | JointType::Spherical, Some(p)) => Vector3::from(p),
+        (JointType::Revolute | JointType::Spherical | JointType::Universal, Some(p)) => {
+            Vector3::from(p)
+        }
         _ => t,
     };
     Ok(JointFrame {
@@ -201,6 +203,10 @@ pub fn to_urdf(model: &Model) -> Result<String> {
                 write_spherical(&mut s, j, &xyz, (roll, pitch, yaw));
                 continue;
             }
+            JointType::Universal => {
+                write_universal(&mut s, j, &f.rotation, &xyz, (roll, pitch, yaw));
+                continue;
+            }
             JointType::Rigid | JointType::MultiDof => "floating",
         };
         let _ = writeln!(
@@ -254,6 +260,49 @@ pub fn to_urdf(model: &Model) -> Result<String> {
     }
     let _ = writeln!(s, "</robot>");
     Ok(s)
+}
+
+/// A universal joint as URDF, which has none: two `continuous` joints through the centre,
+/// about the first axis and then the second, chained through a massless link named after the
+/// joint; their angles are the model's coordinates.
+fn write_universal(
+    s: &mut String,
+    j: &Joint,
+    rotation: &Rotation3<f64>,
+    xyz: &Vector3<f64>,
+    rpy: (f64, f64, f64),
+) {
+    let name = joint_name(j.parent, j.child);
+    let _ = writeln!(
+        s,
+        "  <!-- {name}: a universal joint, as two revolute joints through a massless link -->"
+    );
+    let links = [
+        link_name(j.parent),
+        format!("{name}_cross"),
+        link_name(j.child),
+    ];
+    let _ = writeln!(s, r#"  <link name="{}"/>"#, links[1]);
+    // Axes in the joint frame, which carries the child's reference orientation.
+    let axes = [j.axis_in_parent, j.second_axis_in_parent]
+        .map(|a| rotation.inverse() * a.map_or_else(Vector3::z, Vector3::from).normalize());
+    for (i, axis) in axes.iter().enumerate() {
+        let _ = writeln!(s, r#"  <joint name="{name}_{}" type="continuous">"#, i + 1);
+        if i == 0 {
+            let (roll, pitch, yaw) = rpy;
+            let _ = writeln!(
+                s,
+                r#"    <origin xyz="{}" rpy="{roll} {pitch} {yaw}"/>"#,
+                v3(xyz)
+            );
+        } else {
+            let _ = writeln!(s, r#"    <origin xyz="0 0 0" rpy="0 0 0"/>"#);
+        }
+        let _ = writeln!(s, r#"    <parent link="{}"/>"#, links[i]);
+        let _ = writeln!(s, r#"    <child link="{}"/>"#, links[i + 1]);
+        let _ = writeln!(s, r#"    <axis xyz="{}"/>"#, v3(axis));
+        let _ = writeln!(s, "  </joint>");
+    }
 }
 
 /// A spherical joint as URDF, which has no ball joint: three `continuous` joints about the
@@ -467,7 +516,7 @@ pub fn to_mjcf(model: &Model) -> Result<String> {
         let pad = "  ".repeat(depth);
         let reference = reference_pose(j, "MJCF")?;
         let at = match j.joint_type {
-            JointType::Revolute | JointType::Spherical => {
+            JointType::Revolute | JointType::Spherical | JointType::Universal => {
                 j.point_in_parent.map_or_else(Vector3::zeros, Vector3::from)
             }
             _ => Vector3::zeros(),
@@ -501,6 +550,21 @@ pub fn to_mjcf(model: &Model) -> Result<String> {
             }
             (JointType::Spherical, _) => {
                 let _ = writeln!(s, r#"{pad}  <joint name="{name}" type="ball"/>"#);
+            }
+            // Two hinges in one body turn in order, the second about its axis as the first
+            // has carried it: the model's two angles.
+            (JointType::Universal, Some(a)) => {
+                let second = j
+                    .second_axis_in_parent
+                    .map_or_else(Vector3::z, Vector3::from);
+                for (i, axis) in [a, second].iter().enumerate() {
+                    let _ = writeln!(
+                        s,
+                        r#"{pad}  <joint name="{name}_{}" type="hinge" axis="{}"/>"#,
+                        i + 1,
+                        v3(axis)
+                    );
+                }
             }
             (JointType::Rigid, _) => {
                 let _ = writeln!(s, "{pad}  <!-- {name}: rigid, no joint -->");

@@ -79,7 +79,16 @@ pub(crate) fn assemble(
             JointKind::Revolute { axis, pivot } => (Some(*axis), Some(*pivot)),
             JointKind::Prismatic { axis } => (Some(*axis), None),
             JointKind::Spherical { centre } => (None, Some(*centre)),
+            JointKind::Universal { axis, centre, .. } => (Some(*axis), Some(*centre)),
             _ => (None, None),
+        };
+        // A universal joint's second axis, fixed in the child, where the reference pose
+        // (the relative pose at the reference frame, where its angles are zero) holds it.
+        let second_p = match (&pair.joint, reference_pose.and_then(|r| r.to_isometry())) {
+            (JointKind::Universal { child_axis, .. }, Some(zero)) => {
+                Some(zero.rotation * child_axis)
+            }
+            _ => None,
         };
         // A spherical joint's rotation vectors from the two bodies' own poses, until the
         // whole-tree fit writes its own.
@@ -98,7 +107,12 @@ pub(crate) fn assemble(
             _ => Vec::new(),
         };
         let arr = |v: kinetree_core::nalgebra::Vector3<f64>| [v.x, v.y, v.z];
-        if !pair.joint.is_single_dof() && !matches!(pair.joint, JointKind::Spherical { .. }) {
+        if !pair.joint.is_single_dof()
+            && !matches!(
+                pair.joint,
+                JointKind::Spherical { .. } | JointKind::Universal { .. }
+            )
+        {
             warnings.push(Warning::MultiDofJoint {
                 parent: new_id[parent],
                 child: new_id[child],
@@ -119,6 +133,11 @@ pub(crate) fn assemble(
             },
             axis_in_parent: axis_p.map(arr),
             point_in_parent: point_p.map(|p| arr(p.coords)),
+            second_axis: match (second_p, cam_parent) {
+                (Some(a), Some(c)) => Some(arr(c.rotation * a)),
+                _ => None,
+            },
+            second_axis_in_parent: second_p.map(arr),
             reference_frame,
             reference_pose,
             positions,

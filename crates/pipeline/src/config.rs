@@ -331,7 +331,8 @@ pub enum DataConfig {
 /// mechanism by name and the options of both kinds.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimulationRequest {
-    /// `paper-arm`, `random` or `skeleton`.
+    /// `paper-arm`, `random`, `skeleton` or `skeleton-universal` (its wrists and ankles
+    /// universal joints).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -379,18 +380,22 @@ impl SimulationRequest {
                 seed: self.seed,
                 ..RandomParams::default()
             }),
-            "skeleton" => DataConfig::Skeleton(kinetree_synth::SkeletonParams {
-                n_frames: self
-                    .n_frames
-                    .unwrap_or(kinetree_synth::SkeletonParams::default().n_frames),
-                noise_sigma_m: self.noise_sigma_m,
-                dropout: self.dropout,
-                seed: self.seed,
-                ..kinetree_synth::SkeletonParams::default()
-            }),
+            "skeleton" | "skeleton-universal" => {
+                DataConfig::Skeleton(kinetree_synth::SkeletonParams {
+                    n_frames: self
+                        .n_frames
+                        .unwrap_or(kinetree_synth::SkeletonParams::default().n_frames),
+                    noise_sigma_m: self.noise_sigma_m,
+                    dropout: self.dropout,
+                    seed: self.seed,
+                    universal_wrists_and_ankles: self.mechanism == "skeleton-universal",
+                    ..kinetree_synth::SkeletonParams::default()
+                })
+            }
             other => {
                 return Err(Error::Config(format!(
-                    "unknown mechanism `{other}`; use paper-arm, random or skeleton"
+                    "unknown mechanism `{other}`; use paper-arm, random, skeleton or \
+                     skeleton-universal"
                 )));
             }
         })

@@ -92,11 +92,14 @@ pub struct Tree {
 /// those with as many, the one whose motion beyond its largest translation and rotation is
 /// smallest (the nearest to a joint). Without that last term, equal costs left the choice to
 /// the order of the edges, which follows the numbering of the points. A spherical joint (a
-/// centre fixed in both bodies) costs 3.5-4, by its fit and missed share as a single-DoF
-/// joint: below any other pair of three DoF, which no joint type explains.
+/// centre fixed in both bodies) costs 4-5, by its fit and missed share as a single-DoF
+/// joint: below any other pair of three DoF, which no joint type explains; a universal joint
+/// (two intersecting axes) 2-3, below any pair of two DoF.
 fn edge_cost(p: &PairDof, missed: f64) -> f64 {
     if p.joint.is_single_dof() {
         1.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
+    } else if let JointKind::Universal { .. } = p.joint {
+        2.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
     } else if let JointKind::Spherical { .. } = p.joint {
         4.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
     } else {
@@ -462,6 +465,7 @@ mod tests {
             centre: RankTest::empty(),
             sliding: RankTest::empty(),
             centre_uncentred: RankTest::empty(),
+            axes: RankTest::empty(),
             dof,
             joint,
             fit_ratio,

@@ -85,6 +85,10 @@ pub enum JointType {
     /// Rotation about the anchor, any axis: three coordinates, the rotation vector (radians,
     /// world axes at the zero configuration); the spec's axis is not used.
     Spherical,
+    /// Rotation about the axis and then the second axis, both through the anchor: two
+    /// coordinates, the angle about the axis (fixed in the parent) and about the second axis
+    /// (fixed in the child; world coordinates at the zero configuration).
+    Universal,
 }
 
 impl JointType {
@@ -92,6 +96,7 @@ impl JointType {
     pub fn n_coordinates(self) -> usize {
         match self {
             Self::Revolute | Self::Prismatic => 1,
+            Self::Universal => 2,
             Self::Spherical => 3,
         }
     }
@@ -112,6 +117,10 @@ pub struct JointSpec {
     pub axis: [f64; 3],
     /// A point on the axis (revolute), metres.
     pub anchor: [f64; 3],
+    /// A universal joint's second axis, fixed in the child (normalised on use); absent for
+    /// other joints.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_axis: Option<[f64; 3]>,
 }
 
 /// A mechanism: body 0 is the base; joints form a tree over the bodies.
@@ -151,6 +160,14 @@ impl Mechanism {
             }
             if Vector3::from(j.axis).norm() < 1e-12 {
                 return Err(Error::Config(format!("joint {k} has a zero axis")));
+            }
+            if j.joint_type == JointType::Universal
+                && j.second_axis
+                    .is_none_or(|a| Vector3::from(a).norm() < 1e-12)
+            {
+                return Err(Error::Config(format!(
+                    "joint {k} is universal and needs a second axis"
+                )));
             }
             placed[j.child] = true;
         }
@@ -202,6 +219,18 @@ impl Mechanism {
                 JointType::Spherical => about_anchor(UnitQuaternion::from_scaled_axis(
                     Vector3::new(coordinate(0), coordinate(1), coordinate(2)),
                 )),
+                JointType::Universal => {
+                    let second = j.second_axis.map_or_else(Vector3::z, Vector3::from);
+                    about_anchor(
+                        UnitQuaternion::from_axis_angle(
+                            &Unit::new_normalize(Vector3::from(j.axis)),
+                            coordinate(0),
+                        ) * UnitQuaternion::from_axis_angle(
+                            &Unit::new_normalize(second),
+                            coordinate(1),
+                        ),
+                    )
+                }
             };
             next += n;
             pose[j.child] = pose[j.parent] * local;

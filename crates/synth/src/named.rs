@@ -40,6 +40,7 @@ pub fn paper_arm(seed: u64) -> Scenario {
                     joint_type: JointType::Revolute,
                     axis: [0.0, 0.0, 1.0],
                     anchor: [0.0, 0.0, 0.0],
+                    second_axis: None,
                 },
                 JointSpec {
                     parent: 1,
@@ -47,6 +48,7 @@ pub fn paper_arm(seed: u64) -> Scenario {
                     joint_type: JointType::Revolute,
                     axis: [0.0, 0.0, 1.0],
                     anchor: [0.4, 0.0, 0.0],
+                    second_axis: None,
                 },
             ],
         },
@@ -188,6 +190,7 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
             },
             axis: [axis.x, axis.y, axis.z],
             anchor,
+            second_axis: None,
         });
         if spherical {
             for i in 0..3 {

@@ -28,6 +28,10 @@ pub struct SkeletonParams {
     pub dropout: f64,
     /// Seed.
     pub seed: u64,
+    /// Wrists and ankles as universal joints instead of ball joints: flexion about the
+    /// medio-lateral axis (fixed in the forearm or shank), then deviation about the
+    /// antero-posterior axis (fixed in the hand or foot).
+    pub universal_wrists_and_ankles: bool,
 }
 
 impl Default for SkeletonParams {
@@ -40,6 +44,7 @@ impl Default for SkeletonParams {
             noise_sigma_m: 0.001,
             dropout: 0.2,
             seed: 0,
+            universal_wrists_and_ankles: false,
         }
     }
 }
@@ -225,13 +230,15 @@ const SEGMENTS: [Segment; 14] = [
     ),
 ];
 
-/// A skeleton of 15 segments (the pelvis static, 10 ball joints and 4 hinges) with
+/// A skeleton of 15 segments (the pelvis static, 10 ball joints and 4 hinges, or 6 ball
+/// joints, 4 universal joints and 4 hinges) with
 /// `markers_per_segment` markers at random places on each segment's box surface, seen by a
 /// camera 4 m in front.
 ///
 /// Motion: every coordinate follows its own sine with a frequency of 0.1-0.4 Hz and a random
 /// phase. A hinge swings through a range drawn from `motion_deg` (flexion from near straight);
-/// a ball joint's rotation vector has each component swing through such a range about zero.
+/// a ball joint's rotation vector, and each of a universal joint's angles, has each component
+/// swing through such a range about zero.
 pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
     let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
     let markers = |centre: [f64; 3], half: [f64; 3]| BodySpec {
@@ -256,14 +263,21 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
             name: s.name.into(),
             ..markers(s.box_centre, s.half)
         });
+        let distal = s.name.starts_with("hand") || s.name.starts_with("foot");
+        let joint_type = if distal && p.universal_wrists_and_ankles {
+            JointType::Universal
+        } else {
+            s.joint
+        };
         joints.push(JointSpec {
             parent: s.parent,
             child: k + 1,
-            joint_type: s.joint,
+            joint_type,
             axis: s.axis,
             anchor: s.centre,
+            second_axis: (joint_type == JointType::Universal).then_some([0.0, 1.0, 0.0]),
         });
-        for _ in 0..s.joint.n_coordinates() {
+        for _ in 0..joint_type.n_coordinates() {
             let range = rng.random_range(least..=most);
             let offset = if s.joint == HINGE {
                 // Flexion: from near straight to bent (elbows forward, knees backward).

@@ -153,6 +153,7 @@ impl MechanismSpec {
                 },
                 axis: [axis.x, axis.y, axis.z],
                 anchor,
+                second_axis: None,
             });
             let a = d.amplitude.clamp(0.0, 1.0);
             trajectories.push(Trajectory::Sine {

@@ -171,7 +171,8 @@ pub fn to_html(model: &Model, tracks: &Tracks, options: &ViewOptions) -> Result<
             };
             let (pivots, axes): (Vec<_>, Vec<_>) = (0..frames.len()).map(in_camera).unzip();
             let single = matches!(j.joint_type, JointType::Revolute | JointType::Prismatic);
-            // A ball joint's plot is its rotation angle, the length of its rotation vector.
+            // A ball joint's plot is its rotation angle, the length of its rotation vector; a
+            // universal joint's its first angle.
             let position: Vec<f64> = if j.joint_type == JointType::Spherical {
                 (0..frames.len())
                     .map(|f| {
@@ -192,7 +193,9 @@ pub fn to_html(model: &Model, tracks: &Tracks, options: &ViewOptions) -> Result<
                 parent: j.parent,
                 child: j.child,
                 unit: match j.joint_type {
-                    JointType::Revolute | JointType::Spherical => Some("rad"),
+                    JointType::Revolute | JointType::Spherical | JointType::Universal => {
+                        Some("rad")
+                    }
                     JointType::Prismatic => Some("m"),
                     _ => None,
                 },

@@ -356,7 +356,12 @@ impl Model {
                     format!("body {} has a second joint", j.child),
                 ));
             }
-            for (name, axis) in [("axis", &j.axis), ("axis_in_parent", &j.axis_in_parent)] {
+            for (name, axis) in [
+                ("axis", &j.axis),
+                ("axis_in_parent", &j.axis_in_parent),
+                ("second_axis", &j.second_axis),
+                ("second_axis_in_parent", &j.second_axis_in_parent),
+            ] {
                 if let Some(a) = axis {
                     unit_axis(&field(name), a)?;
                 }
@@ -411,11 +416,23 @@ impl Model {
             ] {
                 per_frame_vectors(&field(name), values, nf, width, min)?;
             }
-            if j.joint_type == JointType::Spherical && j.point_in_parent.is_none() {
+            if matches!(j.joint_type, JointType::Spherical | JointType::Universal)
+                && j.point_in_parent.is_none()
+            {
                 return Err(bad(
                     field("point_in_parent"),
-                    "is null on a spherical joint",
+                    format!("is null on a {} joint", j.joint_type),
                 ));
+            }
+            if j.joint_type == JointType::Universal {
+                for (name, axis) in [
+                    ("axis_in_parent", j.axis_in_parent),
+                    ("second_axis_in_parent", j.second_axis_in_parent),
+                ] {
+                    if axis.is_none() {
+                        return Err(bad(field(name), "is null on a universal joint"));
+                    }
+                }
             }
             if let Some([lo, hi]) = j.range
                 && !(lo.is_finite() && hi.is_finite() && lo <= hi)

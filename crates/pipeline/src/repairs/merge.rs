@@ -232,6 +232,7 @@ mod tests {
             centre: RankTest::empty(),
             sliding: RankTest::empty(),
             centre_uncentred: RankTest::empty(),
+            axes: RankTest::empty(),
             dof: usize::from(!matches!(joint, JointKind::Rigid)),
             joint,
             fit_ratio,

@@ -398,13 +398,19 @@ fn fit_proposal(
     kinetree_core::Proposal::new(kinetree_core::Edit::Fit(Box::new(draft)), summary)
 }
 
-/// Joints of `m` typed multi-DoF or spherical: a small body's noisy poses can fake a second
-/// rotation, and every hinge has a fixed centre, so a hinge seen so comes out spherical.
+/// Joints of `m` typed multi-DoF, spherical or universal: a small body's noisy poses can fake
+/// a second rotation, and every hinge has a fixed centre and fits two intersecting axes, so
+/// a hinge seen so comes out spherical or universal.
 pub(crate) fn multi_dof_joints(m: &Model) -> usize {
     use kinetree_core::model::JointType;
     m.joints
         .iter()
-        .filter(|j| matches!(j.joint_type, JointType::MultiDof | JointType::Spherical))
+        .filter(|j| {
+            matches!(
+                j.joint_type,
+                JointType::MultiDof | JointType::Spherical | JointType::Universal
+            )
+        })
         .count()
 }
 

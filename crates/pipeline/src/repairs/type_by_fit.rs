@@ -22,11 +22,11 @@ pub struct TypeByFitParams {
     /// Only joints whose pair test found at most this many rotation directions are tried
     /// (default 1).
     pub max_rotation_rank: usize,
-    /// ... and at most this many translation directions (default 2). Spherical joints are
-    /// tried as hinges whatever their ranks...
+    /// ... and at most this many translation directions (default 2). Spherical and
+    /// universal joints are tried as hinges whatever their ranks...
     pub max_translation_rank: usize,
-    /// ... when their fitted rotations stray from one axis by at most this many standard
-    /// deviations, RMS (default 20).
+    /// ... when their fitted rotations stray from one axis (a universal joint: one of its
+    /// angles spreads) by at most this many standard deviations, RMS (default 20).
     pub max_ball_off_axis_in_std: f64,
     /// Most bundle-adjustment steps on each candidate type (default 20, as
     /// `bundle_adjust.max_steps`).
