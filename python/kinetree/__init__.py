@@ -113,14 +113,18 @@ class Joint:
     """A joint between a parent and a child body.
 
     Attributes:
-        type: ``"revolute"``, ``"prismatic"``, ``"spherical"``, ``"rigid"`` or
-            ``"multi_dof"``.
+        type: ``"revolute"``, ``"prismatic"``, ``"spherical"``, ``"universal"``, ``"rigid"``
+            or ``"multi_dof"``.
         parent, child: Body ids.
-        axis: Unit axis ``(3,)`` in the camera frame at ``reference_frame``; None for
-            spherical and multi-DoF joints.
-        point: A point ``(3,)`` on a revolute axis, or a spherical joint's centre, in the
-            camera frame; None otherwise.
+        axis: Unit axis ``(3,)`` in the camera frame at ``reference_frame`` (a universal
+            joint's first axis, fixed in the parent); None for spherical and multi-DoF
+            joints.
+        point: A point ``(3,)`` on a revolute axis, or a spherical or universal joint's
+            centre, in the camera frame; None otherwise.
         axis_in_parent, point_in_parent: The same in the parent's body frame.
+        second_axis, second_axis_in_parent: A universal joint's second axis, fixed in the
+            child, at joint position zero, in the camera frame and the parent's body frame;
+            None for other joints.
         reference_frame: The frame at which the position is zero.
         positions: ``(T,)`` joint position per frame, radians or metres, NaN where the frame
             does not determine it.
@@ -128,7 +132,8 @@ class Joint:
         smoothed_positions, smoothed_std: ``(T,)`` the positions smoothed over time and
             their standard deviations (NaN where not given).
         coordinates: ``(T, k)`` coordinates of a joint of more than one (a spherical
-            joint's rotation vector, radians), NaN where unknown; ``(T, 0)`` otherwise.
+            joint's rotation vector, a universal joint's two angles, radians), NaN where
+            unknown; ``(T, 0)`` otherwise.
         coordinate_std: ``(T, k)`` their standard deviations.
         range: ``(min, max)`` of the positions, or None.
         dof: The estimated relative degrees of freedom.
@@ -153,6 +158,8 @@ class Joint:
     fit: Optional[str]
     coordinates: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     coordinate_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    second_axis: Optional[np.ndarray] = None
+    second_axis_in_parent: Optional[np.ndarray] = None
 
 
 class Model:
@@ -227,6 +234,8 @@ class Model:
                 fit=j.get("fit"),
                 coordinates=_vectors(j.get("coordinates"), t),
                 coordinate_std=_vectors(j.get("coordinate_std"), t),
+                second_axis=_vector(j.get("second_axis")),
+                second_axis_in_parent=_vector(j.get("second_axis_in_parent")),
             )
             for j in data["joints"]
         ]
@@ -484,7 +493,9 @@ def simulate(
     """Simulates tracks of a mechanism, as ``kinetree simulate`` does.
 
     Args:
-        mechanism: ``"paper-arm"`` (the paper's 2-DoF arm) or ``"random"``.
+        mechanism: ``"paper-arm"`` (the paper's 2-DoF arm), ``"random"``, ``"skeleton"`` (a
+            human-like skeleton of ball joints and hinges) or ``"skeleton-universal"`` (the
+            same with universal wrists and ankles).
         seed: Seed of every random choice.
         joints, tree, prismatic_fraction, spherical_fraction: For random mechanisms: the
             number of joints, whether bodies attach as a tree rather than a chain, the chance

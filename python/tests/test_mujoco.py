@@ -25,23 +25,34 @@ def check_forward_kinematics(model, tracks, every=7):
     data = mujoco.MjData(mj)
     observed = kinetree.observe(model, tracks)
     root = model.bodies[model.root_body]
+
+    def address(joint):
+        """The first qpos entry of the MJCF joint named `joint`."""
+        return mj.jnt_qposadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+
     compared, worst_angle, worst_shift = 0, 0.0, 0.0
     for t in range(0, model.n_frames, every):
         qpos = np.zeros(mj.nq)
         known = True
         for j in model.joints:
             name = f"body{j.parent}_to_body{j.child}"
-            address = mj.jnt_qposadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, name)]
             column = f"{j.type}_{j.parent}_{j.child}"
             if j.type in ("revolute", "prismatic"):
                 value = observed.positions[t, observed.joint_names.index(column)]
                 known &= bool(np.isfinite(value))
-                qpos[address] = value
+                qpos[address(name)] = value
             elif j.type == "spherical":
                 first = observed.joint_names.index(column + "_rx")
                 vector = observed.positions[t, first : first + 3]
                 known &= bool(np.isfinite(vector).all())
-                qpos[address : address + 4] = quaternion_wxyz(vector)
+                qpos[address(name) : address(name) + 4] = quaternion_wxyz(vector)
+            elif j.type == "universal":
+                # Two hinges, `<name>_1` and `<name>_2`, one per angle.
+                first = observed.joint_names.index(column + "_q1")
+                for i in range(2):
+                    value = observed.positions[t, first + i]
+                    known &= bool(np.isfinite(value))
+                    qpos[address(f"{name}_{i + 1}")] = value
             else:
                 known = False
         poses = observed.poses[t]
@@ -56,10 +67,9 @@ def check_forward_kinematics(model, tracks, every=7):
             first = observed.joint_names.index(f"root_{root.id}_x")
             origin = observed.positions[t, first : first + 3]
             turn = observed.positions[t, first + 3 : first + 6]
-            name = f"body{root.id}_free"
-            address = mj.jnt_qposadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, name)]
-            qpos[address : address + 3] = origin
-            qpos[address + 3 : address + 7] = quaternion_wxyz(turn)
+            free = address(f"body{root.id}_free")
+            qpos[free : free + 3] = origin
+            qpos[free + 3 : free + 7] = quaternion_wxyz(turn)
         data.qpos[:] = qpos
         mujoco.mj_kinematics(mj, data)
         for body in model.bodies:
@@ -84,6 +94,18 @@ def test_mjcf_of_a_skeleton_moves_as_the_fitted_poses():
     compared, angle, shift = check_forward_kinematics(model, tracks)
     # The same fit gives the coordinates and the poses, so they agree to rounding; a wrong
     # frame, sign or centre gives tens of degrees and centimetres.
+    assert compared >= 20, compared
+    assert angle < 1e-6 and shift < 1e-6, (angle, shift)
+
+
+def test_mjcf_of_a_skeleton_with_universal_joints():
+    tracks, _ = kinetree.simulate("skeleton-universal", seed=1)
+    model = kinetree.discover(tracks)
+    types = [j.type for j in model.joints]
+    assert types.count("universal") == 4 and types.count("spherical") >= 5, types
+    text = model.to_mjcf()
+    assert text.count('type="hinge"') == types.count("revolute") + 2 * types.count("universal")
+    compared, angle, shift = check_forward_kinematics(model, tracks)
     assert compared >= 20, compared
     assert angle < 1e-6 and shift < 1e-6, (angle, shift)
 

@@ -306,6 +306,80 @@ fn urdf_ball_joints_turn_about_their_centre() {
     assert!(checked >= 27, "{checked} checks");
 }
 
+/// URDF's two revolute joints of a universal joint, turned by the model's two angles, move
+/// the child as the model says: `T(c) R(axis, q1) R(second_axis, q2) T(-c) reference_pose`.
+#[test]
+fn urdf_universal_joints_turn_by_the_models_angles() {
+    let data = simulate(&skeleton_scenario(&SkeletonParams {
+        seed: 1,
+        universal_wrists_and_ankles: true,
+        ..SkeletonParams::default()
+    }))
+    .expect("simulate");
+    let model = discover(&data);
+    let text = kinetree_io::export::to_urdf(&model).expect("urdf");
+    let robot = urdf_rs::read_from_string(&text).expect("urdf-rs parses it");
+    let offsets = kinetree_io::export::link_offsets(&model).expect("offsets");
+    let pose = |p: &urdf_rs::Pose| {
+        let [r, pi, y] = p.rpy.0;
+        Isometry3::from_parts(
+            Translation3::from(Vector3::from(p.xyz.0)),
+            UnitQuaternion::from_euler_angles(r, pi, y),
+        )
+    };
+    let turn = |axis: [f64; 3], q: f64| {
+        UnitQuaternion::from_scaled_axis(Vector3::from(axis).normalize() * q)
+    };
+    let mut checked = 0;
+    for j in model
+        .joints
+        .iter()
+        .filter(|j| j.joint_type == JointType::Universal)
+    {
+        let name = kinetree_io::export::joint_name(j.parent, j.child);
+        let chain: Vec<&urdf_rs::Joint> = (1..=2)
+            .map(|i| {
+                robot
+                    .joints
+                    .iter()
+                    .find(|u| u.name == format!("{name}_{i}"))
+                    .expect("two joints")
+            })
+            .collect();
+        let centre = Translation3::from(Vector3::from(j.point_in_parent.expect("centre")));
+        let reference = j
+            .reference_pose
+            .and_then(|r| r.to_isometry())
+            .expect("pose");
+        let (first, second) = (
+            j.axis_in_parent.expect("axis"),
+            j.second_axis_in_parent.expect("second axis"),
+        );
+        let off_p = Translation3::from(Vector3::from(offsets[j.parent]));
+        let off_c = Translation3::from(Vector3::from(offsets[j.child]));
+        for angles in [[0.0, 0.0], [0.4, -0.7], [-1.2, 0.9]] {
+            let mut link = Isometry3::identity();
+            for (u, a) in chain.iter().zip(angles) {
+                let axis = Vector3::from(u.axis.xyz.0);
+                link = link * pose(&u.origin) * UnitQuaternion::from_scaled_axis(axis * a);
+            }
+            let urdf = off_p.inverse() * link * off_c;
+            let expected = centre
+                * turn(first, angles[0])
+                * turn(second, angles[1])
+                * centre.inverse()
+                * reference;
+            let gap = urdf.inverse() * expected;
+            assert!(
+                gap.translation.vector.norm() < 1e-9 && gap.rotation.angle() < 1e-9,
+                "{name} at {angles:?}: {gap}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 12, "{checked} checks");
+}
+
 #[test]
 fn with_no_static_body_the_configuration_starts_with_the_root_pose() {
     let mut scenario = random_scenario(&RandomParams {

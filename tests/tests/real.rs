@@ -76,7 +76,7 @@ fn run(folder: &'static str) -> Outcome {
 fn real_recordings_segment_into_their_labelled_segments() {
     let outcomes: Vec<Outcome> = kinetree_tests::RECORDINGS.iter().map(|f| run(f)).collect();
     let mut table = String::from(
-        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / spherical / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
+        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / spherical / universal / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
     );
     for o in &outcomes {
         let count = |t: &str| {
@@ -88,7 +88,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
         };
         let _ = writeln!(
             table,
-            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} / {} | {} |",
+            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} / {} / {} | {} |",
             o.folder,
             o.frames,
             o.markers,
@@ -100,6 +100,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
             count("revolute"),
             count("prismatic"),
             count("spherical"),
+            count("universal"),
             count("multi_dof"),
             count("rigid"),
             o.model

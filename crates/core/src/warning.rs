@@ -170,7 +170,8 @@ pub enum Warning {
         parent: usize,
         /// Child body (model numbering).
         child: usize,
-        /// `revolute` or `prismatic`.
+        /// `revolute` or `prismatic` (or `spherical`, for a universal joint the fit follows
+        /// better as a ball).
         joint_type: crate::model::JointType,
         /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
         excess_in_sigma2: f64,

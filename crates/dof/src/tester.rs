@@ -549,6 +549,9 @@ const AXES_STARTS: usize = 12;
 /// ... at least this far apart (radians, 10 deg).
 const AXES_SEPARATION_RAD: f64 = 0.175;
 
+/// Default of [`Chi2RankParams::universal_slack`] (`docs/decisions.md`).
+pub const UNIVERSAL_SLACK: f64 = 1.25;
+
 /// Most damped Gauss-Newton steps of each descent of [`axes_test`].
 const AXES_ITERATIONS: usize = 100;
 
@@ -711,6 +714,7 @@ struct CentreSettings {
     min_angle_in_std: f64,
     spherical: bool,
     universal: bool,
+    universal_slack: f64,
 }
 
 /// Types the joint between `a` and `b` from the rank decisions of `rule`.
@@ -896,7 +900,8 @@ fn classify_ranks(
                     multi = (3, multi.1.max(test.next_rank_ratio()));
                     // Fewer DoF when the data allow: two intersecting axes, one in each body.
                     if centre_settings.universal
-                        && let Some((two, n, m)) = axes_rank_test(c, zq, slack)
+                        && let Some((two, n, m)) =
+                            axes_rank_test(c, zq, centre_settings.universal_slack)
                     {
                         if two.rank == 0 {
                             let axis = canonical_sign(n);
@@ -1030,6 +1035,7 @@ impl DofTester for SvdRank {
                 min_angle_in_std: self.params.min_centre_angle_in_std,
                 spherical: false,
                 universal: false,
+                universal_slack: UNIVERSAL_SLACK,
             },
         )
     }
@@ -1067,6 +1073,10 @@ pub struct Chi2RankParams {
     /// Whether such a pair is a universal joint when two intersecting axes, one fixed in each
     /// body, explain its rotations (`spherical` must be on; default true).
     pub universal: bool,
+    /// Tolerance factor on the two-axis test's `chi^2 / dof`, as `slack` on the others
+    /// (default 1.25: its noise model leaves out no reference frame or linearisation; see
+    /// `docs/decisions.md`).
+    pub universal_slack: f64,
 }
 
 impl Default for Chi2RankParams {
@@ -1081,6 +1091,7 @@ impl Default for Chi2RankParams {
             min_excess: crate::MIN_EXCESS,
             spherical: true,
             universal: true,
+            universal_slack: UNIVERSAL_SLACK,
         }
     }
 }
@@ -1094,6 +1105,7 @@ impl Chi2RankParams {
     pub fn validate(&self) -> Result<()> {
         check_positive("z", self.z)?;
         check_positive("slack", self.slack)?;
+        check_positive("universal_slack", self.universal_slack)?;
         check_positive("min_centre_angle_rad", self.min_centre_angle_rad)?;
         check_positive("min_centre_angle_in_std", self.min_centre_angle_in_std)?;
         for (name, v) in [
@@ -1159,6 +1171,7 @@ impl DofTester for Chi2Rank {
                 min_angle_in_std: self.params.min_centre_angle_in_std,
                 spherical: self.params.spherical,
                 universal: self.params.universal,
+                universal_slack: self.params.universal_slack,
             },
         )
     }

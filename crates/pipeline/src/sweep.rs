@@ -684,7 +684,7 @@ const RUN_COLUMNS: [&str; 13] = [
     "max_centre_error_m",
 ];
 
-/// The columns of `runs.csv` after [`RUN_COLUMNS`] with `[sweep] functional = true`.
+/// The columns of `runs.csv` after the standard ones with `[sweep] functional = true`.
 pub const FUNCTIONAL_COLUMNS: [&str; 3] = [
     "max_axis_error_in_parent_deg",
     "functional_max_centre_error_m",

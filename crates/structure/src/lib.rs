@@ -93,14 +93,13 @@ pub struct Tree {
 /// smallest (the nearest to a joint). Without that last term, equal costs left the choice to
 /// the order of the edges, which follows the numbering of the points. A spherical joint (a
 /// centre fixed in both bodies) costs 4-5, by its fit and missed share as a single-DoF
-/// joint: below any other pair of three DoF, which no joint type explains; a universal joint
-/// (two intersecting axes) 2-3, below any pair of two DoF.
+/// joint, as does a universal joint (two intersecting axes): two hinged siblings about one
+/// anchor are a universal pair, and below the multi-DoF edges of two DoF such a pair would
+/// take a hidden link from its parent.
 fn edge_cost(p: &PairDof, missed: f64) -> f64 {
     if p.joint.is_single_dof() {
         1.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
-    } else if let JointKind::Universal { .. } = p.joint {
-        2.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
-    } else if let JointKind::Spherical { .. } = p.joint {
+    } else if let JointKind::Spherical { .. } | JointKind::Universal { .. } = p.joint {
         4.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
     } else {
         let extra: f64 = [&p.translation.whitened, &p.rotation.whitened]
@@ -226,12 +225,13 @@ pub fn spanning_tree_without(
     })
 }
 
-/// Hangs a body on its grandparent instead of its parent, repeatedly, where both joints are
-/// spherical: two bodies turning on balls about one centre (siblings on a common parent)
-/// each have a ball joint with the other too, and the data fit both trees exactly, so the
-/// shallower tree, the one with independent joint coordinates, is taken. Bodies in `order`
-/// (parents first), so each is hoisted above ancestors already settled. Returns whether a
-/// parent changed.
+/// Hangs a body on its grandparent instead of its parent, repeatedly, where both joints turn
+/// about a fixed centre (spherical or universal): two bodies turning on balls about one
+/// centre (siblings on a common parent) each have a ball joint with the other too, and the
+/// data fit both trees exactly, so the shallower tree, the one with independent joint
+/// coordinates, is taken. A ball whose motion is too small to tell it from a universal joint
+/// is typed universal, so the two count alike. Bodies in `order` (parents first), so each is
+/// hoisted above ancestors already settled. Returns whether a parent changed.
 fn hoist_spherical_ties(
     parent: &mut [Option<usize>],
     order: &[usize],
@@ -241,8 +241,12 @@ fn hoist_spherical_ties(
     let ball = |a: usize, b: usize| {
         !excluded.contains(&(a, b))
             && !excluded.contains(&(b, a))
-            && find_pair(pairs, Some(a), b)
-                .is_some_and(|p| matches!(p.joint, JointKind::Spherical { .. }))
+            && find_pair(pairs, Some(a), b).is_some_and(|p| {
+                matches!(
+                    p.joint,
+                    JointKind::Spherical { .. } | JointKind::Universal { .. }
+                )
+            })
     };
     let mut changed = false;
     for &v in order {

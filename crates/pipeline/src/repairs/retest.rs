@@ -82,13 +82,17 @@ impl Repair for Retest {
         if before == 0 {
             return Ok(None);
         }
-        // Joints typed by the fit are left free for these poses: posed through such a joint,
-        // a child would test as exactly that joint.
+        // Joints typed by the fit, and universal joints, are left free for these poses: posed
+        // through such a joint, a child would test as exactly that joint (a hinge taken for a
+        // universal joint would stay one).
         let typed: Vec<(usize, usize)> = found
             .model
             .joints
             .iter()
-            .filter(|j| j.fit == kinetree_core::model::JointFit::TypedByFit)
+            .filter(|j| {
+                j.fit == kinetree_core::model::JointFit::TypedByFit
+                    || j.joint_type == kinetree_core::model::JointType::Universal
+            })
             .map(|j| (j.parent, j.child))
             .collect();
         let motions = if typed.is_empty() {

@@ -28,6 +28,10 @@ pub struct TypeByFitParams {
     /// ... when their fitted rotations stray from one axis (a universal joint: one of its
     /// angles spreads) by at most this many standard deviations, RMS (default 20).
     pub max_ball_off_axis_in_std: f64,
+    /// A universal joint is typed spherical first when the ball lowers the fit's squared
+    /// residual by more than this many noise variances per frame, or, freed, when the fit
+    /// follows the ball (default 5).
+    pub min_ball_gain_per_frame: f64,
     /// Most bundle-adjustment steps on each candidate type (default 20, as
     /// `bundle_adjust.max_steps`).
     pub bundle_max_steps: usize,
@@ -46,6 +50,7 @@ impl Default for TypeByFitParams {
             max_rotation_rank: l.max_rotation_rank,
             max_translation_rank: l.max_translation_rank,
             max_ball_off_axis_in_std: l.max_ball_off_axis_in_std,
+            min_ball_gain_per_frame: l.min_ball_gain_per_frame,
             bundle_max_steps: l.bundle.max_steps,
             bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
         }
@@ -75,6 +80,13 @@ impl TypeByFitParams {
             self.max_ball_off_axis_in_std,
             0.0,
             1e12,
+        )?;
+        in_range(
+            NAME,
+            "min_ball_gain_per_frame",
+            self.min_ball_gain_per_frame,
+            0.0,
+            1e6,
         )?;
         count_in_range(NAME, "bundle_max_steps", self.bundle_max_steps, 1, 1000)?;
         in_range(
@@ -121,6 +133,7 @@ impl Repair for TypeByFit {
             max_rotation_rank: p.max_rotation_rank,
             max_translation_rank: p.max_translation_rank,
             max_ball_off_axis_in_std: p.max_ball_off_axis_in_std,
+            min_ball_gain_per_frame: p.min_ball_gain_per_frame,
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
                 min_gain_in_variances: p.bundle_min_gain_in_variances,
