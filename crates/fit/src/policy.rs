@@ -293,7 +293,7 @@ pub struct TypeByFitLimits {
     /// A universal joint the fit follows is typed spherical when the ball lowers the fit's
     /// squared residual by more than this many noise variances per frame (default 5: true
     /// universal joints of simulated skeletons gained 1.0-2.6, a ball typed universal 237;
-    /// see [`ball_by_fit`]).
+    /// see [`type_joints_by_fit`]).
     pub min_ball_gain_per_frame: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
@@ -318,8 +318,9 @@ impl Default for TypeByFitLimits {
 /// then a hinge, is fitted from the two bodies' fitted poses, refined like a freed joint, and
 /// the first the fit then follows closely is kept (see `type_by_fit`). A freed single-DoF
 /// joint gets the other single-DoF type tried the same way: a link turning a little on the
-/// base can show no rotation in its pair test and a straight path. Returns the new fit and
-/// the joints typed.
+/// base can show no rotation in its pair test and a straight path. A universal joint is tried
+/// as a ball and then as a hinge (see `universal_by_fit`). Returns the new fit and the joints
+/// typed.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
