@@ -238,6 +238,42 @@ fn the_observer_follows_ball_joints_in_new_frames() {
     }
 }
 
+/// The `continuous` joints `<name>_<suffix>` of a URDF, in the order of `suffixes`.
+fn urdf_joints<'a>(
+    robot: &'a urdf_rs::Robot,
+    name: &str,
+    suffixes: &[&str],
+) -> Vec<&'a urdf_rs::Joint> {
+    suffixes
+        .iter()
+        .map(|s| {
+            let u = robot
+                .joints
+                .iter()
+                .find(|u| u.name == format!("{name}_{s}"))
+                .unwrap_or_else(|| panic!("joint {name}_{s}"));
+            assert!(matches!(u.joint_type, urdf_rs::JointType::Continuous));
+            u
+        })
+        .collect()
+}
+
+/// The first joint's parent link from the last one's child link, each joint turned by its
+/// angle.
+fn urdf_turned(chain: &[&urdf_rs::Joint], angles: &[f64]) -> Isometry3<f64> {
+    let mut link = Isometry3::identity();
+    for (u, a) in chain.iter().zip(angles) {
+        let [r, p, y] = u.origin.rpy.0;
+        let origin = Isometry3::from_parts(
+            Translation3::from(Vector3::from(u.origin.xyz.0)),
+            UnitQuaternion::from_euler_angles(r, p, y),
+        );
+        let axis = Vector3::from(u.axis.xyz.0);
+        link = link * origin * UnitQuaternion::from_scaled_axis(axis * *a);
+    }
+    link
+}
+
 #[test]
 fn urdf_ball_joints_turn_about_their_centre() {
     let data = skeleton(1, 0.001);
@@ -245,13 +281,6 @@ fn urdf_ball_joints_turn_about_their_centre() {
     let text = kinetree_io::export::to_urdf(&model).expect("urdf");
     let robot = urdf_rs::read_from_string(&text).expect("urdf-rs parses it");
     let offsets = kinetree_io::export::link_offsets(&model).expect("offsets");
-    let pose = |p: &urdf_rs::Pose| {
-        let [r, pi, y] = p.rpy.0;
-        Isometry3::from_parts(
-            Translation3::from(Vector3::from(p.xyz.0)),
-            UnitQuaternion::from_euler_angles(r, pi, y),
-        )
-    };
     let mut checked = 0;
     for j in model
         .joints
@@ -259,21 +288,7 @@ fn urdf_ball_joints_turn_about_their_centre() {
         .filter(|j| j.joint_type == JointType::Spherical)
     {
         let name = kinetree_io::export::joint_name(j.parent, j.child);
-        let chain: Vec<&urdf_rs::Joint> = ["rx", "ry", "rz"]
-            .iter()
-            .map(|s| {
-                robot
-                    .joints
-                    .iter()
-                    .find(|u| u.name == format!("{name}_{s}"))
-                    .expect("three joints")
-            })
-            .collect();
-        assert!(
-            chain
-                .iter()
-                .all(|u| matches!(u.joint_type, urdf_rs::JointType::Continuous))
-        );
+        let chain = urdf_joints(&robot, &name, &["rx", "ry", "rz"]);
         let centre_p = Point3::from(Vector3::from(j.point_in_parent.expect("centre")));
         let reference = j
             .reference_pose
@@ -283,11 +298,7 @@ fn urdf_ball_joints_turn_about_their_centre() {
         let off_p = Translation3::from(Vector3::from(offsets[j.parent]));
         let off_c = Translation3::from(Vector3::from(offsets[j.child]));
         for angles in [[0.0, 0.0, 0.0], [0.4, -0.7, 1.1], [-1.2, 0.3, -0.5]] {
-            let mut link = Isometry3::identity();
-            for (u, a) in chain.iter().zip(angles) {
-                let axis = Vector3::from(u.axis.xyz.0);
-                link = link * pose(&u.origin) * UnitQuaternion::from_scaled_axis(axis * a);
-            }
+            let link = urdf_turned(&chain, &angles);
             // Child body frame -> child link -> parent link -> parent body frame.
             let moved = off_p.inverse() * link * off_c * centre_c;
             assert!(
@@ -320,13 +331,6 @@ fn urdf_universal_joints_turn_by_the_models_angles() {
     let text = kinetree_io::export::to_urdf(&model).expect("urdf");
     let robot = urdf_rs::read_from_string(&text).expect("urdf-rs parses it");
     let offsets = kinetree_io::export::link_offsets(&model).expect("offsets");
-    let pose = |p: &urdf_rs::Pose| {
-        let [r, pi, y] = p.rpy.0;
-        Isometry3::from_parts(
-            Translation3::from(Vector3::from(p.xyz.0)),
-            UnitQuaternion::from_euler_angles(r, pi, y),
-        )
-    };
     let turn = |axis: [f64; 3], q: f64| {
         UnitQuaternion::from_scaled_axis(Vector3::from(axis).normalize() * q)
     };
@@ -337,15 +341,7 @@ fn urdf_universal_joints_turn_by_the_models_angles() {
         .filter(|j| j.joint_type == JointType::Universal)
     {
         let name = kinetree_io::export::joint_name(j.parent, j.child);
-        let chain: Vec<&urdf_rs::Joint> = (1..=2)
-            .map(|i| {
-                robot
-                    .joints
-                    .iter()
-                    .find(|u| u.name == format!("{name}_{i}"))
-                    .expect("two joints")
-            })
-            .collect();
+        let chain = urdf_joints(&robot, &name, &["1", "2"]);
         let centre = Translation3::from(Vector3::from(j.point_in_parent.expect("centre")));
         let reference = j
             .reference_pose
@@ -358,12 +354,7 @@ fn urdf_universal_joints_turn_by_the_models_angles() {
         let off_p = Translation3::from(Vector3::from(offsets[j.parent]));
         let off_c = Translation3::from(Vector3::from(offsets[j.child]));
         for angles in [[0.0, 0.0], [0.4, -0.7], [-1.2, 0.9]] {
-            let mut link = Isometry3::identity();
-            for (u, a) in chain.iter().zip(angles) {
-                let axis = Vector3::from(u.axis.xyz.0);
-                link = link * pose(&u.origin) * UnitQuaternion::from_scaled_axis(axis * a);
-            }
-            let urdf = off_p.inverse() * link * off_c;
+            let urdf = off_p.inverse() * urdf_turned(&chain, &angles) * off_c;
             let expected = centre
                 * turn(first, angles[0])
                 * turn(second, angles[1])

@@ -149,10 +149,24 @@ fn simulate_then_discover_npy_and_csv() {
             "{file}"
         );
     }
-    // The archive holds the same samples as the .npy, so the same model comes out.
+    // The archive holds the same samples as the .npy, so the same model comes out (each
+    // naming its own poses file) with the same poses.
+    let without_poses_file = |file: &str| {
+        let mut model = read_json(&dir.join(file));
+        model
+            .as_object_mut()
+            .expect("object")
+            .remove("body_poses_file")
+            .expect("a poses file");
+        model
+    };
     assert_eq!(
-        std::fs::read(dir.join("tracks.npy.model.json")).expect("npy model"),
-        std::fs::read(dir.join("tracks.npz.model.json")).expect("npz model")
+        without_poses_file("tracks.npy.model.json"),
+        without_poses_file("tracks.npz.model.json")
+    );
+    assert_eq!(
+        std::fs::read(dir.join("tracks.npy.model.poses.npy")).expect("npy poses"),
+        std::fs::read(dir.join("tracks.npz.model.poses.npy")).expect("npz poses")
     );
     let out = kinetree()
         .arg("discover")

@@ -419,8 +419,14 @@ fn pivot_test(c: &PairColumns) -> Option<(f64, f64, Point3<f64>)> {
 /// times its `z`-quantile (a fixed centre), 1 otherwise; with the centre in `a`'s frame.
 fn pivot_rank_test(c: &PairColumns, z: f64, slack: f64) -> Option<(RankTest, Point3<f64>)> {
     let (per_dof, dof, centre) = pivot_test(c)?;
+    Some((chi2_rank_test(c, per_dof, dof, z, slack), centre))
+}
+
+/// A reference-free test's `chi^2 / dof` (over the frames of `c`) as a rank test: rank 0 when
+/// it is within `slack` times its `z`-quantile, 1 otherwise.
+fn chi2_rank_test(c: &PairColumns, per_dof: f64, dof: f64, z: f64, slack: f64) -> RankTest {
     let bound = slack * crate::rank::chi2_per_dof_quantile(dof, z);
-    let test = RankTest {
+    RankTest {
         singular_values: Vec::new(),
         whitened: Vec::new(),
         threshold: None,
@@ -428,8 +434,7 @@ fn pivot_rank_test(c: &PairColumns, z: f64, slack: f64) -> Option<(RankTest, Poi
         n_columns: c.x_abs.len(),
         chi2_per_dof: vec![per_dof],
         chi2_bound: vec![bound],
-    };
-    Some((test, centre))
+    }
 }
 
 /// Reference-free test for a universal joint: are there unit axes `n` fixed in `a` and `m`
@@ -540,7 +545,8 @@ fn hemisphere(count: usize) -> Vec<Vector3<f64>> {
         .collect()
 }
 
-/// Directions of [`axes_test`]'s coarse search over the first axis: about 4.5 deg apart.
+/// Directions of [`axes_test`]'s coarse search over the first axis: about 4.5 deg apart (the
+/// search's measurements are in `docs/decisions.md`, universal joints).
 const AXES_GRID: usize = 1000;
 
 /// Descents of [`axes_test`], from the best directions of its search...
@@ -678,17 +684,7 @@ fn axes_rank_test(
     slack: f64,
 ) -> Option<(RankTest, Vector3<f64>, Vector3<f64>)> {
     let (per_dof, dof, n, m) = axes_test(c)?;
-    let bound = slack * crate::rank::chi2_per_dof_quantile(dof, z);
-    let test = RankTest {
-        singular_values: Vec::new(),
-        whitened: Vec::new(),
-        threshold: None,
-        rank: usize::from(per_dof > bound),
-        n_columns: c.x_abs.len(),
-        chi2_per_dof: vec![per_dof],
-        chi2_bound: vec![bound],
-    };
-    Some((test, n, m))
+    Some((chi2_rank_test(c, per_dof, dof, z, slack), n, m))
 }
 
 /// Inverse left Jacobian of SO(3) at `phi = theta a`:

@@ -410,15 +410,7 @@ fn universal_by_fit(
     joint.dof = 3;
     joint.fit = JointFit::TypedByFit;
     (joint.axis, joint.axis_in_parent) = (None, None);
-    (joint.second_axis, joint.second_axis_in_parent) = (None, None);
-    for coordinates in [
-        &mut joint.coordinates,
-        &mut joint.coordinate_std,
-        &mut joint.smoothed_coordinates,
-        &mut joint.smoothed_coordinate_std,
-    ] {
-        coordinates.clear();
-    }
+    clear_coordinates(joint);
     model.warnings.retain(
         |w| !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if this(p, c)),
     );
@@ -451,6 +443,20 @@ fn universal_by_fit(
     }
     (model.joints, model.warnings) = original;
     Ok(None)
+}
+
+/// Drops what a joint typed anew no longer has: a universal joint's second axis and every
+/// coordinate of more than one (the fit writes the new type's).
+fn clear_coordinates(joint: &mut kinetree_core::model::Joint) {
+    (joint.second_axis, joint.second_axis_in_parent) = (None, None);
+    for coordinates in [
+        &mut joint.coordinates,
+        &mut joint.coordinate_std,
+        &mut joint.smoothed_coordinates,
+        &mut joint.smoothed_coordinate_std,
+    ] {
+        coordinates.clear();
+    }
 }
 
 /// How far spherical joint `k`'s fitted rotation vectors (`fits`) stray from the line through
@@ -797,16 +803,7 @@ fn type_by_fit(
             JointType::Prismatic
         };
         model.joints[k].dof = 1;
-        let joint = &mut model.joints[k];
-        (joint.second_axis, joint.second_axis_in_parent) = (None, None);
-        for coordinates in [
-            &mut joint.coordinates,
-            &mut joint.coordinate_std,
-            &mut joint.smoothed_coordinates,
-            &mut joint.smoothed_coordinate_std,
-        ] {
-            coordinates.clear();
-        }
+        clear_coordinates(&mut model.joints[k]);
         store_joint(&mut model.joints[k], &start, &cam_parent);
         let mut freed = Observer::new(model)?;
         freed.free_joint(k);

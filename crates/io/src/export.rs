@@ -277,17 +277,54 @@ fn write_universal(
         s,
         "  <!-- {name}: a universal joint, as two revolute joints through a massless link -->"
     );
-    let links = [
-        link_name(j.parent),
-        format!("{name}_cross"),
-        link_name(j.child),
-    ];
-    let _ = writeln!(s, r#"  <link name="{}"/>"#, links[1]);
     // Axes in the joint frame, which carries the child's reference orientation.
     let axes = [j.axis_in_parent, j.second_axis_in_parent]
         .map(|a| rotation.inverse() * a.map_or_else(Vector3::z, Vector3::from).normalize());
-    for (i, axis) in axes.iter().enumerate() {
-        let _ = writeln!(s, r#"  <joint name="{name}_{}" type="continuous">"#, i + 1);
+    let chain = [("1", axes[0]), ("2", axes[1])];
+    write_revolute_chain(s, j, &name, &chain, xyz, rpy);
+}
+
+/// A spherical joint as URDF, which has no ball joint: three `continuous` joints about the
+/// joint frame's x, y and z axes through the centre, chained through two massless links named
+/// after the joint. Their angles are XYZ Euler angles, not the model's rotation vector.
+fn write_spherical(s: &mut String, j: &Joint, xyz: &Vector3<f64>, rpy: (f64, f64, f64)) {
+    let name = joint_name(j.parent, j.child);
+    let _ = writeln!(
+        s,
+        "  <!-- {name}: a spherical joint about the centre, as three revolute joints through \
+         massless links (their angles are XYZ Euler angles, not the model's rotation vector) -->"
+    );
+    let chain = [
+        ("rx", Vector3::x()),
+        ("ry", Vector3::y()),
+        ("rz", Vector3::z()),
+    ];
+    write_revolute_chain(s, j, &name, &chain, xyz, rpy);
+}
+
+/// `continuous` joints `<name>_<suffix>` about each axis of `chain` (in the joint frame)
+/// from `j`'s parent link to its child's, through a massless link between each two (named
+/// after the next joint's suffix); the first joint sits at `xyz`, `rpy` in the parent link.
+fn write_revolute_chain(
+    s: &mut String,
+    j: &Joint,
+    name: &str,
+    chain: &[(&str, Vector3<f64>)],
+    xyz: &Vector3<f64>,
+    rpy: (f64, f64, f64),
+) {
+    let mut links = vec![link_name(j.parent)];
+    links.extend(
+        chain[1..]
+            .iter()
+            .map(|(suffix, _)| format!("{name}_{suffix}_link")),
+    );
+    links.push(link_name(j.child));
+    for link in &links[1..links.len() - 1] {
+        let _ = writeln!(s, r#"  <link name="{link}"/>"#);
+    }
+    for (i, (suffix, axis)) in chain.iter().enumerate() {
+        let _ = writeln!(s, r#"  <joint name="{name}_{suffix}" type="continuous">"#);
         if i == 0 {
             let (roll, pitch, yaw) = rpy;
             let _ = writeln!(
@@ -301,48 +338,6 @@ fn write_universal(
         let _ = writeln!(s, r#"    <parent link="{}"/>"#, links[i]);
         let _ = writeln!(s, r#"    <child link="{}"/>"#, links[i + 1]);
         let _ = writeln!(s, r#"    <axis xyz="{}"/>"#, v3(axis));
-        let _ = writeln!(s, "  </joint>");
-    }
-}
-
-/// A spherical joint as URDF, which has no ball joint: three `continuous` joints about the
-/// joint frame's x, y and z axes through the centre, chained through two massless links named
-/// after the joint. Their angles are XYZ Euler angles, not the model's rotation vector.
-fn write_spherical(s: &mut String, j: &Joint, xyz: &Vector3<f64>, rpy: (f64, f64, f64)) {
-    let name = joint_name(j.parent, j.child);
-    let _ = writeln!(
-        s,
-        "  <!-- {name}: a spherical joint about the centre, as three revolute joints through \
-         massless links (their angles are XYZ Euler angles, not the model's rotation vector) -->"
-    );
-    let links = [
-        link_name(j.parent),
-        format!("{name}_x"),
-        format!("{name}_y"),
-        link_name(j.child),
-    ];
-    for link in &links[1..3] {
-        let _ = writeln!(s, r#"  <link name="{link}"/>"#);
-    }
-    for (i, axis) in ["1 0 0", "0 1 0", "0 0 1"].iter().enumerate() {
-        let _ = writeln!(
-            s,
-            r#"  <joint name="{name}_{}" type="continuous">"#,
-            ["rx", "ry", "rz"][i]
-        );
-        if i == 0 {
-            let (roll, pitch, yaw) = rpy;
-            let _ = writeln!(
-                s,
-                r#"    <origin xyz="{}" rpy="{roll} {pitch} {yaw}"/>"#,
-                v3(xyz)
-            );
-        } else {
-            let _ = writeln!(s, r#"    <origin xyz="0 0 0" rpy="0 0 0"/>"#);
-        }
-        let _ = writeln!(s, r#"    <parent link="{}"/>"#, links[i]);
-        let _ = writeln!(s, r#"    <child link="{}"/>"#, links[i + 1]);
-        let _ = writeln!(s, r#"    <axis xyz="{axis}"/>"#);
         let _ = writeln!(s, "  </joint>");
     }
 }
