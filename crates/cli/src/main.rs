@@ -64,7 +64,6 @@ fn configure_threads() -> Result<()> {
         .context("starting the worker threads")
 }
 
-/// Refuses an output path that names one of the inputs: writing it would destroy the input.
 /// The companion poses file of the model file `model`: `<stem>.poses.npy` beside it.
 fn poses_beside(model: &Path) -> PathBuf {
     let stem = model
@@ -73,6 +72,7 @@ fn poses_beside(model: &Path) -> PathBuf {
     model.with_file_name(format!("{stem}.poses.npy"))
 }
 
+/// Refuses an output path that names one of the inputs: writing it would destroy the input.
 fn refuse_overwriting(output: &Path, inputs: &[&Path]) -> Result<()> {
     let Ok(out) = std::fs::canonicalize(output) else {
         // No file there yet, so it is none of the inputs.
@@ -273,9 +273,9 @@ enum Command {
         no_poses: bool,
     },
     /// Estimate joint positions of (new) frames from a discovered model: one CSV column per
-    /// joint (three per spherical joint, `_rx`, `_ry`, `_rz`: its rotation vector), after the
-    /// root's pose (six columns) when the root is not static; revolute angles unwrapped over
-    /// the frames, empty where unknown.
+    /// joint (three per spherical joint, `_rx`, `_ry`, `_rz`: its rotation vector; two per
+    /// universal joint, `_q1`, `_q2`: its angles), after the root's pose (six columns) when
+    /// the root is not static; angles unwrapped over the frames, empty where unknown.
     Observe {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,

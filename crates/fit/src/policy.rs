@@ -347,22 +347,19 @@ pub fn type_joints_by_fit(
             continue;
         }
         let ranks = &model.joints[k].ranks;
-        // A spherical or universal joint is tried as a hinge whatever its ranks: a hinge has
-        // a fixed centre and fits a universal joint too, and the rank test can take a noisy
-        // hinge's rotations for more than one.
-        let joint_type = model.joints[k].joint_type;
-        let turning = joint_type == JointType::Spherical;
-        if !turning
+        // A spherical joint is tried as a hinge whatever its ranks: a hinge has a fixed centre
+        // too, and the rank test can take a noisy hinge's rotations for more than one.
+        let ball = model.joints[k].joint_type == JointType::Spherical;
+        if !ball
             && (ranks.rotation > limits.max_rotation_rank
                 || ranks.translation > limits.max_translation_rank)
         {
             continue;
         }
-        if turning && off_axis_in_std(&fits, k).is_none_or(|r| r > limits.max_ball_off_axis_in_std)
-        {
+        if ball && off_axis_in_std(&fits, k).is_none_or(|r| r > limits.max_ball_off_axis_in_std) {
             continue;
         }
-        let types: &[bool] = match joint_type {
+        let types: &[bool] = match model.joints[k].joint_type {
             JointType::Spherical => &[true],
             JointType::MultiDof => &[false, true],
             JointType::Prismatic if observer.freed[k] => &[true],
@@ -628,19 +625,21 @@ fn write_angles(
     let Measure::Universal(first, second, _) = j.measure else {
         return Ok(());
     };
+    let turn = |axis: Vector3<f64>, q: f64| {
+        UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_normalize(axis), q)
+    };
+    // The second axis where the (re-zeroed) reference pose holds it.
+    let mut second_now = second;
     let mut angles: Vec<Option<[f64; 2]>> = fits.iter().map(|f| f.angles[k]).collect();
     if let Some([q1, q2]) = angles.get(joint.reference_frame).copied().flatten() {
         let turned = Observer::universal_transform(j, q1, q2);
         joint.reference_pose = Some(RigidTransform::from_isometry(&turned));
         // The second axis, fixed in the child, turns with the first angle; in the camera
         // frame about the first axis there.
-        let about = |axis: Vector3<f64>| {
-            UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_normalize(axis), q1)
-        };
-        let moved = about(first) * second;
-        joint.second_axis_in_parent = Some([moved.x, moved.y, moved.z]);
+        second_now = turn(first, q1) * second;
+        joint.second_axis_in_parent = Some([second_now.x, second_now.y, second_now.z]);
         if let (Some(a), Some(b)) = (joint.axis, joint.second_axis) {
-            let moved = about(Vector3::from(a)) * Vector3::from(b);
+            let moved = turn(Vector3::from(a), q1) * Vector3::from(b);
             joint.second_axis = Some([moved.x, moved.y, moved.z]);
         }
         for v in angles.iter_mut().flatten() {
@@ -655,13 +654,12 @@ fn write_angles(
         .collect();
     smooth_coordinates(joint, 2, limits)?;
     // The angle of the whole rotation from the reference pose, as for a ball joint.
-    let second_now = joint.second_axis_in_parent.map_or(second, Vector3::from);
-    joint.range = span(angles.iter().flatten().map(|&[q1, q2]| {
-        let turn = |axis: Vector3<f64>, q: f64| {
-            UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_normalize(axis), q)
-        };
-        (turn(first, q1) * turn(second_now, q2)).angle()
-    }));
+    joint.range = span(
+        angles
+            .iter()
+            .flatten()
+            .map(|&[q1, q2]| (turn(first, q1) * turn(second_now, q2)).angle()),
+    );
     Ok(())
 }
 

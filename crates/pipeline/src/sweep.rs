@@ -799,6 +799,8 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
         point_of.insert(p.iter().map(ToString::to_string).collect(), k);
     }
     let seeds: std::collections::BTreeSet<u64> = sweep.seeds().into_iter().collect();
+    // The functional methods' columns, when the sweep has them, follow the standard ones.
+    let functional = sweep.spec.functional.then_some(RUN_COLUMNS.len());
     let mut runs = Vec::new();
     for (k, record) in records.enumerate() {
         let line = k + 2;
@@ -816,8 +818,6 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             .get(&values)
             .ok_or_else(|| bad(line, format!("grid values {values:?} are not this sweep's")))?;
         let rest = &f[nk..];
-        // The functional methods' columns, when the sweep has them, follow the standard ones.
-        let functional = sweep.spec.functional.then_some(RUN_COLUMNS.len());
         let num = |i: usize| -> Result<Option<f64>> {
             let v = rest[i];
             if v.is_empty() {
