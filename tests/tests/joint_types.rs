@@ -513,3 +513,80 @@ fn universal_wrists_and_ankles_are_typed_centred_and_followed() {
         "angle RMS against the truth: {angle_rms:?}"
     );
 }
+
+/// Skeletons whose pelvis moves freely: nothing is static, the root's joint is free and the
+/// root is the pelvis, every joint is found with its type, and the root's six coordinates,
+/// first in the configuration, follow the pelvis' true motion within their stated precision.
+#[test]
+fn a_floating_pelvis_is_the_free_root_and_its_pose_follows_the_truth() {
+    use kinetree_core::model::RootJoint;
+    let (mut joints, mut typed, mut frames, mut within) = (0, 0, 0, 0);
+    let mut turns = Vec::new();
+    for seed in 0..2 {
+        let data = simulate(&skeleton_scenario(&SkeletonParams {
+            seed,
+            floating_pelvis: true,
+            ..SkeletonParams::default()
+        }))
+        .expect("simulate");
+        assert_eq!(
+            data.truth.mechanism.joints[0].joint_type,
+            kinetree_synth::JointType::Free
+        );
+        let model = discover(&data);
+        assert!(model.static_body.is_none());
+        assert_eq!(model.root_joint, Some(RootJoint::Free));
+        let map = body_map(&model, &data.truth);
+        assert_eq!(map[model.root_body], 1, "the pelvis is the root");
+        let e = evaluate(&model, &data.truth);
+        for j in &e.joints {
+            joints += 1;
+            typed += usize::from(j.found && j.type_ok);
+        }
+        let seen =
+            kinetree_fit::observe(&model, &data.tracks, Default::default()).expect("observe");
+        assert!(seen.joint_names[0].starts_with("root_"));
+        let reference = model.joints[0].reference_frame;
+        let truth_pose = |t: usize| {
+            let q: Vec<f64> = data.truth.joint_positions.iter().map(|p| p[t]).collect();
+            data.truth.cam_from_world * data.truth.mechanism.forward(&q)[1]
+        };
+        let (Some(model_reference), Some([reference_std, _])) = (
+            seen.poses[reference][model.root_body],
+            seen.pose_std[reference][model.root_body],
+        ) else {
+            panic!("the root is posed at the reference frame");
+        };
+        let true_reference = truth_pose(reference);
+        // The pelvis' centre at the reference frame, in the camera frame.
+        let centre = true_reference * Point3::new(0.0, 0.0, 1.0);
+        for (t, poses) in seen.poses.iter().enumerate() {
+            let (Some(pose), Some([turn_std, shift_std])) =
+                (poses[model.root_body], seen.pose_std[t][model.root_body])
+            else {
+                continue;
+            };
+            // Both motions from the reference frame, in the camera frame, and the precision
+            // stated for them.
+            let found = pose * model_reference.inverse();
+            let truth = truth_pose(t) * true_reference.inverse();
+            let turn = (found.rotation.inverse() * truth.rotation).angle();
+            let shift = (found * centre - truth * centre).norm();
+            let turn_bound = 4.0 * turn_std.hypot(reference_std);
+            within += usize::from(turn <= turn_bound && shift <= 4.0 * shift_std + turn_bound);
+            turns.push(turn);
+            frames += 1;
+        }
+    }
+    assert!(
+        typed * 100 >= joints * 95,
+        "{typed} of {joints} joints (the free root included) typed right"
+    );
+    assert!(frames > 500, "{frames} frames with a root pose");
+    turns.sort_by(f64::total_cmp);
+    assert!(
+        within * 100 >= frames * 98 && turns[frames / 2] < 0.015,
+        "{within} of {frames} root poses within 4 stated std; median turn error {} rad",
+        turns[frames / 2]
+    );
+}

@@ -239,6 +239,10 @@ fn consistent(m: &kinetree_core::Model) -> Result<(), TestCaseError> {
         m.point_body.iter().filter(|&&b| b >= 0).count()
     );
     prop_assert!(m.bodies[m.root_body].parent.is_none());
+    prop_assert_eq!(
+        m.root_joint,
+        Some(kinetree_core::model::RootJoint::of(m.static_body))
+    );
     for j in &m.joints {
         prop_assert_eq!(j.positions.len(), m.n_frames);
         prop_assert_eq!(m.bodies[j.child].parent, Some(j.parent));
@@ -261,7 +265,8 @@ fn consistent(m: &kinetree_core::Model) -> Result<(), TestCaseError> {
 }
 
 /// Human-like skeletons drawn over their seed, noise (0-3 mm), occlusion (0-30 %), markers
-/// per segment (4-8), frames (150-400) and wrists and ankles (ball or universal joints).
+/// per segment (4-8), frames (150-400), wrists and ankles (ball or universal joints) and
+/// pelvis (static or floating).
 fn any_skeleton() -> impl Strategy<Value = kinetree_synth::SkeletonParams> {
     (
         any::<u64>(),
@@ -270,9 +275,10 @@ fn any_skeleton() -> impl Strategy<Value = kinetree_synth::SkeletonParams> {
         4usize..=8,
         150usize..=400,
         any::<bool>(),
+        any::<bool>(),
     )
         .prop_map(
-            |(seed, noise_sigma_m, dropout, markers_per_segment, n_frames, universal)| {
+            |(seed, noise_sigma_m, dropout, markers_per_segment, n_frames, universal, floating)| {
                 kinetree_synth::SkeletonParams {
                     seed,
                     noise_sigma_m,
@@ -280,6 +286,7 @@ fn any_skeleton() -> impl Strategy<Value = kinetree_synth::SkeletonParams> {
                     markers_per_segment,
                     n_frames,
                     universal_wrists_and_ankles: universal,
+                    floating_pelvis: floating,
                     ..kinetree_synth::SkeletonParams::default()
                 }
             },
@@ -293,7 +300,7 @@ proptest! {
     /// On any skeleton the pipeline gives a consistent model whose joints are of the types a
     /// body of segments on balls, universal joints and hinges can show (never prismatic), and
     /// at 1 mm or less of noise with 20 % or less occlusion, every one of the 15 segments is a
-    /// body.
+    /// body, and the root's joint is free exactly when the pelvis floats.
     #[test]
     fn any_skeleton_gives_a_consistent_model(params in any_skeleton()) {
         let data = simulate(&kinetree_synth::skeleton_scenario(&params)).expect("simulate");
@@ -310,6 +317,10 @@ proptest! {
         }
         if params.noise_sigma_m <= 0.001 && params.dropout <= 0.2 {
             prop_assert_eq!(d.model.bodies.len(), 15);
+            prop_assert_eq!(
+                d.model.root_joint() == kinetree_core::model::RootJoint::Free,
+                params.floating_pelvis
+            );
         }
     }
 }

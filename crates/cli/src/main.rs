@@ -370,7 +370,8 @@ enum Command {
         #[arg(short, long, default_value = "sim")]
         output: PathBuf,
         /// Mechanism: `paper-arm`, `skeleton` (a human-like skeleton of ball joints and
-        /// hinges), `skeleton-universal` (the same with universal wrists and ankles), or
+        /// hinges), `skeleton-universal` (the same with universal wrists and ankles),
+        /// `skeleton-floating` (the same with a freely moving pelvis and nothing static), or
         /// `random` with the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,

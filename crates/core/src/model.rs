@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 /// Version of the model JSON schema.
-pub const SCHEMA_VERSION: u32 = 4;
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// Where the noise level came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -341,6 +341,37 @@ pub struct Joint {
     pub fit: JointFit,
 }
 
+/// How the root body moves against the camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RootJoint {
+    /// The root is the static body: no coordinates.
+    Fixed,
+    /// Nothing is static and the root moves freely: six coordinates, its position and
+    /// rotation vector in the camera frame (`kinetree_fit::Observation`'s `root_<b>_x` to
+    /// `root_<b>_rz`), first in the configuration vector.
+    Free,
+}
+
+impl RootJoint {
+    /// The root joint of a model with this static body: fixed to it, or free without one.
+    pub fn of(static_body: Option<usize>) -> Self {
+        if static_body.is_some() {
+            Self::Fixed
+        } else {
+            Self::Free
+        }
+    }
+
+    /// Number of configuration coordinates: 0 or 6.
+    pub fn n_coordinates(self) -> usize {
+        match self {
+            Self::Fixed => 0,
+            Self::Free => 6,
+        }
+    }
+}
+
 /// The whole discovered model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Model {
@@ -372,6 +403,11 @@ pub struct Model {
     pub static_body: Option<usize>,
     /// Root of the kinematic tree (body 0).
     pub root_body: usize,
+    /// The root's joint to the camera: `fixed` to the static body, or `free` when nothing is
+    /// static; absent in files before schema 5, where [`RootJoint::of`] the static body
+    /// gives it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub root_joint: Option<RootJoint>,
     /// Bodies, by id.
     pub bodies: Vec<Body>,
     /// Joints, one per non-root body, in body order of the child.
@@ -405,6 +441,12 @@ impl Model {
         self.pairs
             .iter()
             .find(|p| (p.a == a && p.b == b) || (a.is_some() && p.a == Some(b) && Some(p.b) == a))
+    }
+
+    /// The root's joint to the camera, as written or as the static body implies.
+    pub fn root_joint(&self) -> RootJoint {
+        self.root_joint
+            .unwrap_or_else(|| RootJoint::of(self.static_body))
     }
 
     /// The joint whose child is `child`.

@@ -200,7 +200,7 @@ fn errors_on(of_true: &[Option<&BodyTrack>], truth: &GroundTruth) -> Vec<Functio
                             Some(crate::point_line_distance(&anchor, &(align * point), &axis));
                     }
                 }
-                JointType::Prismatic => {}
+                JointType::Prismatic | JointType::Free => {}
             }
             e
         })

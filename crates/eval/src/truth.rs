@@ -3,6 +3,7 @@
 use crate::{
     adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance, precision_check,
 };
+use kinetree_core::model::RootJoint;
 use kinetree_core::{Model, Tracks};
 use kinetree_synth::{GroundTruth, JointType};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -149,19 +150,41 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
     let ari = adjusted_rand_index(&pred, &true_labels);
     let map = body_map(model, truth);
     let mut joints = Vec::new();
-    let mut all_ok = model.bodies.len() == truth.n_bodies()
-        && model.static_body.is_some_and(|s| map[s] == 0)
-        && {
-            let mut m = map.clone();
-            m.sort_unstable();
-            m.dedup();
-            m.len() == model.bodies.len()
-        };
+    // A base without keypoints is the world a floating mechanism moves in: no body is
+    // static, the root's joint is free, and the tree may hang from any body, so joints are
+    // matched in either direction.
+    let mut has_points = vec![false; truth.n_bodies()];
+    for &b in &truth.point_body {
+        has_points[b] = true;
+    }
+    let floating = !has_points[0];
+    let n_seen = has_points.iter().filter(|&&h| h).count();
+    let root_ok = if floating {
+        model.static_body.is_none() && model.root_joint() == RootJoint::Free
+    } else {
+        model.static_body.is_some_and(|s| map[s] == 0)
+    };
+    let mut all_ok = model.bodies.len() == n_seen && root_ok && {
+        let mut m = map.clone();
+        m.sort_unstable();
+        m.dedup();
+        m.len() == model.bodies.len()
+    };
     for (k, spec) in truth.mechanism.joints.iter().enumerate() {
-        let found = model
+        let mut found = model
             .joints
             .iter()
             .find(|j| map[j.parent] == spec.parent && map[j.child] == spec.child);
+        let mut reversed = false;
+        if floating && found.is_none() {
+            found = model
+                .joints
+                .iter()
+                .find(|j| map[j.parent] == spec.child && map[j.child] == spec.parent);
+            reversed = found.is_some();
+        }
+        // The true body that the model joint's parent stands for.
+        let parent_body = if reversed { spec.child } else { spec.parent };
         let mut e = JointEval {
             joint: k,
             found: found.is_some(),
@@ -179,14 +202,20 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             centre_error_in_parent_m: None,
             second_axis_error_in_parent_deg: None,
         };
-        if let Some(j) = found {
+        if spec.joint_type == JointType::Free {
+            // A free joint from the unseen world is the model's free root; from a seen body
+            // no joint type of the model has its six coordinates.
+            e.found = floating && spec.parent == 0 && root_ok;
+            e.type_ok = e.found;
+        } else if let Some(j) = found {
             let expected = match spec.joint_type {
-                JointType::Revolute => kinetree_core::model::JointType::Revolute,
-                JointType::Prismatic => kinetree_core::model::JointType::Prismatic,
-                JointType::Spherical => kinetree_core::model::JointType::Spherical,
-                JointType::Universal => kinetree_core::model::JointType::Universal,
+                JointType::Revolute => Some(kinetree_core::model::JointType::Revolute),
+                JointType::Prismatic => Some(kinetree_core::model::JointType::Prismatic),
+                JointType::Spherical => Some(kinetree_core::model::JointType::Spherical),
+                JointType::Universal => Some(kinetree_core::model::JointType::Universal),
+                JointType::Free => None,
             };
-            e.type_ok = j.joint_type == expected;
+            e.type_ok = expected == Some(j.joint_type);
             let true_axis = truth.axis_in_camera(k, j.reference_frame);
             if let Some(a) = j.axis {
                 e.axis_error_deg = Some(axis_error_deg(&Vector3::from(a), &true_axis));
@@ -202,7 +231,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             let true_axis = Vector3::from(spec.axis).normalize();
             if let (Some(a), Some(align)) = (
                 j.axis_in_parent,
-                parent_alignment(model, truth, j.parent, spec.parent),
+                parent_alignment(model, truth, j.parent, parent_body),
             ) {
                 let a = align.rotation * Vector3::from(a);
                 e.axis_error_in_parent_deg = Some(axis_error_deg(&a, &true_axis));
@@ -222,19 +251,21 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             if centred
                 && let (Some(p), Some(align)) = (
                     j.point_in_parent,
-                    parent_alignment(model, truth, j.parent, spec.parent),
+                    parent_alignment(model, truth, j.parent, parent_body),
                 )
             {
                 let centre = align * Point3::from(p);
                 e.centre_error_in_parent_m = Some((centre - Point3::from(spec.anchor)).norm());
             }
             // A universal joint's second axis where the model's reference frame holds it: the
-            // true one turned by the true first angle there.
-            if let (JointType::Universal, Some(a), Some(second), Some(align)) = (
+            // true one turned by the true first angle there (not compared on a reversed joint,
+            // whose first axis is the true second one).
+            if let (JointType::Universal, false, Some(a), Some(second), Some(align)) = (
                 spec.joint_type,
+                reversed,
                 j.second_axis_in_parent,
                 spec.second_axis,
-                parent_alignment(model, truth, j.parent, spec.parent),
+                parent_alignment(model, truth, j.parent, parent_body),
             ) {
                 let at = truth.mechanism.coordinate_offsets()[k];
                 let q1 = truth.joint_positions[at][j.reference_frame];

@@ -331,8 +331,8 @@ pub enum DataConfig {
 /// mechanism by name and the options of both kinds.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimulationRequest {
-    /// `paper-arm`, `random`, `skeleton` or `skeleton-universal` (its wrists and ankles
-    /// universal joints).
+    /// `paper-arm`, `random`, `skeleton`, `skeleton-universal` (its wrists and ankles
+    /// universal joints) or `skeleton-floating` (its pelvis moving freely, nothing static).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -380,7 +380,7 @@ impl SimulationRequest {
                 seed: self.seed,
                 ..RandomParams::default()
             }),
-            "skeleton" | "skeleton-universal" => {
+            "skeleton" | "skeleton-universal" | "skeleton-floating" => {
                 DataConfig::Skeleton(kinetree_synth::SkeletonParams {
                     n_frames: self
                         .n_frames
@@ -389,13 +389,14 @@ impl SimulationRequest {
                     dropout: self.dropout,
                     seed: self.seed,
                     universal_wrists_and_ankles: self.mechanism == "skeleton-universal",
+                    floating_pelvis: self.mechanism == "skeleton-floating",
                     ..kinetree_synth::SkeletonParams::default()
                 })
             }
             other => {
                 return Err(Error::Config(format!(
-                    "unknown mechanism `{other}`; use paper-arm, random, skeleton or \
-                     skeleton-universal"
+                    "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
+                     skeleton-universal or skeleton-floating"
                 )));
             }
         })

@@ -5,7 +5,7 @@ use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{
     Isometry3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3, Vector4,
 };
-use kinetree_core::{BodyPoses, JointKind, PairDof};
+use kinetree_core::{BodyPoses, JointKind, PairDof, RankTest};
 use petgraph::graph::{NodeIndex, UnGraph};
 
 /// A node of the DoF graph.
@@ -129,7 +129,8 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 
 /// Spanning tree over bodies rooted at the static body (the one posed in the most frames if
 /// several, then the lowest-numbered);
-/// without a static body, at the body whose motion relative to the camera is smallest.
+/// without a static body, at the body that turns least relative to the camera (RMS over the
+/// frames it was posed in), then whose centroid moves least.
 /// Prefers single-DoF edges with the best fit (minimum spanning tree on `edge_cost`-style
 /// costs, computed by petgraph's Kruskal).
 pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
@@ -157,16 +158,33 @@ pub fn spanning_tree_without(
     let (root, root_is_static) = match most_posed {
         Some(s) => (s, true),
         None => {
-            let motion = |b: usize| {
-                find_pair(pairs, None, b).map_or(f64::INFINITY, |p| {
-                    p.translation
-                        .whitened
-                        .iter()
-                        .chain(&p.rotation.whitened)
-                        .sum::<f64>()
-                })
+            // A floating tree's root is the body that moves least: rotations, and mostly
+            // translations, accumulate down the tree, so the pelvis of a walking person, the
+            // palm of a hand or the first link of an arm whose base is unseen turns least.
+            // Compared by RMS rotation over the frames the body was posed in (zero when the
+            // rank test found none), then RMS displacement of its centroid. A sum of whitened
+            // singular values instead favours large bodies and bodies seen in few frames.
+            let rms = |t: &RankTest| {
+                let sum: f64 = t.singular_values.iter().map(|v| v * v).sum();
+                (sum / t.n_columns.max(1) as f64).sqrt()
             };
-            let r = (0..n_bodies).min_by(|&x, &y| motion(x).total_cmp(&motion(y)))?;
+            let motion = |b: usize| {
+                find_pair(pairs, None, b)
+                    .filter(|p| p.translation.n_columns > 0)
+                    .map_or((f64::INFINITY, f64::INFINITY), |p| {
+                        let turn = if p.rotation.rank > 0 {
+                            rms(&p.rotation)
+                        } else {
+                            0.0
+                        };
+                        (turn, rms(&p.translation))
+                    })
+            };
+            let least = |x: &usize, y: &usize| {
+                let ((tx, dx), (ty, dy)) = (motion(*x), motion(*y));
+                tx.total_cmp(&ty).then(dx.total_cmp(&dy))
+            };
+            let r = (0..n_bodies).min_by(least)?;
             (r, false)
         }
     };

@@ -89,6 +89,11 @@ pub enum JointType {
     /// coordinates, the angle about the axis (fixed in the parent) and about the second axis
     /// (fixed in the child; world coordinates at the zero configuration).
     Universal,
+    /// Any motion: six coordinates, the translation (metres, world axes) and then the rotation
+    /// vector about the anchor (radians, world axes at the zero configuration); a floating
+    /// body's motion against the base, which then carries no keypoints. The spec's axis is not
+    /// used.
+    Free,
 }
 
 impl JointType {
@@ -98,6 +103,7 @@ impl JointType {
             Self::Revolute | Self::Prismatic => 1,
             Self::Universal => 2,
             Self::Spherical => 3,
+            Self::Free => 6,
         }
     }
 }
@@ -174,8 +180,7 @@ impl Mechanism {
         Ok(())
     }
 
-    /// Number of joint coordinates: one per revolute or prismatic joint, three per spherical
-    /// one.
+    /// Number of joint coordinates: [`JointType::n_coordinates`] summed over the joints.
     pub fn n_coordinates(&self) -> usize {
         self.joints
             .iter()
@@ -219,6 +224,14 @@ impl Mechanism {
                 JointType::Spherical => about_anchor(UnitQuaternion::from_scaled_axis(
                     Vector3::new(coordinate(0), coordinate(1), coordinate(2)),
                 )),
+                JointType::Free => {
+                    Translation3::new(coordinate(0), coordinate(1), coordinate(2))
+                        * about_anchor(UnitQuaternion::from_scaled_axis(Vector3::new(
+                            coordinate(3),
+                            coordinate(4),
+                            coordinate(5),
+                        )))
+                }
                 JointType::Universal => {
                     let second = j.second_axis.map_or_else(Vector3::z, Vector3::from);
                     about_anchor(

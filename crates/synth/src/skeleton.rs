@@ -1,4 +1,4 @@
-//! A human-like skeleton: a static pelvis with a spine and head, arms and legs, ball joints at
+//! A human-like skeleton: a static or floating pelvis with a spine and head, arms and legs, ball joints at
 //! the spine, neck, shoulders, wrists, hips and ankles, hinges at the elbows and knees, and
 //! markers on the segments' surfaces.
 
@@ -32,6 +32,9 @@ pub struct SkeletonParams {
     /// medio-lateral axis (fixed in the forearm or shank), then deviation about the
     /// antero-posterior axis (fixed in the hand or foot).
     pub universal_wrists_and_ankles: bool,
+    /// The pelvis floats: it moves freely (a `Free` joint from an unseen world body, body 0),
+    /// so no body is static, as in a recording of a walking person.
+    pub floating_pelvis: bool,
 }
 
 impl Default for SkeletonParams {
@@ -45,6 +48,7 @@ impl Default for SkeletonParams {
             dropout: 0.2,
             seed: 0,
             universal_wrists_and_ankles: false,
+            floating_pelvis: false,
         }
     }
 }
@@ -230,7 +234,7 @@ const SEGMENTS: [Segment; 14] = [
     ),
 ];
 
-/// A skeleton of 15 segments (the pelvis static, 10 ball joints and 4 hinges, or 6 ball
+/// A skeleton of 15 segments (the pelvis static or floating, 10 ball joints and 4 hinges, or 6 ball
 /// joints, 4 universal joints and 4 hinges) with
 /// `markers_per_segment` markers at random places on each segment's box surface, seen by a
 /// camera 4 m in front.
@@ -238,7 +242,9 @@ const SEGMENTS: [Segment; 14] = [
 /// Motion: every coordinate follows its own sine with a frequency of 0.1-0.4 Hz and a random
 /// phase. A hinge swings through a range drawn from `motion_deg` (flexion from near straight);
 /// a ball joint's rotation vector, and each of a universal joint's angles, has each component
-/// swing through such a range about zero.
+/// swing through such a range about zero. A floating pelvis turns about the vertical through
+/// such a range and tilts through a third of one, and it moves 0.2-1 m forward and sideways
+/// and 2-10 cm up and down; the world it moves in (body 0) has no markers.
 pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
     let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
     let markers = |centre: [f64; 3], half: [f64; 3]| BodySpec {
@@ -251,13 +257,51 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         extra_points: p.markers_per_segment,
         interior_points: 0,
     };
+    let pelvis_centre = [0.0, 0.0, 1.0];
     let mut bodies = vec![BodySpec {
         name: "pelvis".into(),
-        ..markers([0.0, 0.0, 1.0], [0.15, 0.1, 0.08])
+        ..markers(pelvis_centre, [0.15, 0.1, 0.08])
     }];
     let mut joints = Vec::new();
     let mut trajectories = Vec::new();
     let [least, most] = p.motion_deg.map(f64::to_radians);
+    // The first segment's body id: 1, or 2 below a floating pelvis.
+    let first = usize::from(p.floating_pelvis) + 1;
+    if p.floating_pelvis {
+        bodies.insert(
+            0,
+            BodySpec {
+                name: "world".into(),
+                extra_points: 0,
+                ..markers([0.0; 3], [0.01; 3])
+            },
+        );
+        joints.push(JointSpec {
+            parent: 0,
+            child: 1,
+            joint_type: JointType::Free,
+            axis: [0.0, 0.0, 1.0],
+            anchor: pelvis_centre,
+            second_axis: None,
+        });
+        // Translation x, y, z, then the rotation vector's x, y, z.
+        let ranges = [
+            rng.random_range(0.2..=1.0),
+            rng.random_range(0.2..=1.0),
+            rng.random_range(0.02..=0.1),
+            rng.random_range(least..=most) / 3.0,
+            rng.random_range(least..=most) / 3.0,
+            rng.random_range(least..=most),
+        ];
+        for range in ranges {
+            trajectories.push(Trajectory::Sine {
+                offset: 0.0,
+                amplitude: range / 2.0,
+                frequency_hz: rng.random_range(0.1..0.4),
+                phase_rad: rng.random_range(0.0..std::f64::consts::TAU),
+            });
+        }
+    }
     for (k, s) in SEGMENTS.iter().enumerate() {
         bodies.push(BodySpec {
             name: s.name.into(),
@@ -270,8 +314,8 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
             s.joint
         };
         joints.push(JointSpec {
-            parent: s.parent,
-            child: k + 1,
+            parent: s.parent + first - 1,
+            child: k + first,
             joint_type,
             axis: s.axis,
             anchor: s.centre,

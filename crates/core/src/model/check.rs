@@ -188,6 +188,18 @@ impl Model {
                 return Err(bad(field, format!("is {b}; the model has {nb} bodies")));
             }
         }
+        if let Some(root_joint) = self.root_joint
+            && root_joint != super::RootJoint::of(self.static_body)
+        {
+            return Err(bad(
+                "root_joint",
+                format!(
+                    "is {root_joint:?} but static_body is {:?}: the root is fixed exactly when \
+                     a body is static",
+                    self.static_body
+                ),
+            ));
+        }
         self.validate_bodies()?;
         self.validate_joints()?;
         if let Some(chain) = &self.chain {
