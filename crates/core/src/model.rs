@@ -49,6 +49,11 @@ pub struct PositionLimits {
     /// Fewest frames with a position and its standard deviation for a joint's positions to be
     /// smoothed (default 3: the smoother's state has two entries).
     pub min_smoothed_frames: usize,
+    /// A joint's type is identifiable when the coordinates that tell it from the other types
+    /// spread over the frames, RMS about their mean, by at least this many of their
+    /// per-frame standard deviations; below, a `joint_not_identifiable` warning names the
+    /// types the data fit as well (default 3; `docs/decisions.md`).
+    pub min_identifiable_spread_in_std: f64,
 }
 
 impl Default for PositionLimits {
@@ -57,6 +62,7 @@ impl Default for PositionLimits {
             max_std_rad: 0.5,
             max_std_m: 0.1,
             min_smoothed_frames: 3,
+            min_identifiable_spread_in_std: 3.0,
         }
     }
 }
@@ -74,6 +80,10 @@ impl PositionLimits {
         for (field, v) in [
             ("max_std_rad", self.max_std_rad),
             ("max_std_m", self.max_std_m),
+            (
+                "min_identifiable_spread_in_std",
+                self.min_identifiable_spread_in_std,
+            ),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(bad(field, format!("must be finite and positive, got {v}")));

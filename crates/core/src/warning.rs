@@ -176,6 +176,25 @@ pub enum Warning {
         /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
         excess_in_sigma2: f64,
     },
+    /// A joint's motion is too small to tell its type from others: its least-moving
+    /// coordinate (for a ball joint, its rotations' least principal direction that the type
+    /// needs) spread over the frames by less than `bound_in_std` of its per-frame standard
+    /// deviations (`[pipeline.positions] min_identifiable_spread_in_std`). The type is the
+    /// one the tests chose; the alternatives fit the data as well.
+    JointNotIdentifiable {
+        /// Parent body (model numbering).
+        parent: usize,
+        /// Child body (model numbering).
+        child: usize,
+        /// The type given.
+        joint_type: crate::model::JointType,
+        /// The types the motion cannot rule out.
+        alternatives: Vec<crate::model::JointType>,
+        /// The spread, RMS about the mean over the frames, in per-frame standard deviations.
+        spread_in_std: f64,
+        /// The least spread that tells the types apart.
+        bound_in_std: f64,
+    },
     /// The model had multi-DoF joints or joints its whole-tree fit did not follow, so every
     /// pair was tested again on the poses of its whole-tree fit and the model rebuilt on
     /// them; the rebuilt model, with fewer such joints, was kept. Pair tests, joints and
@@ -314,6 +333,21 @@ impl std::fmt::Display for Warning {
                 f,
                 "joint {parent} -> {child}: typed otherwise by its pair test, but the whole-tree fit follows it as {joint_type} (its child misses by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose)"
             ),
+            Warning::JointNotIdentifiable {
+                parent,
+                child,
+                joint_type,
+                alternatives,
+                spread_in_std,
+                bound_in_std,
+            } => {
+                let others: Vec<String> = alternatives.iter().map(|t| t.to_string()).collect();
+                write!(
+                    f,
+                    "joint {parent} -> {child}: not identifiable; typed {joint_type}, but its motion spread only {spread_in_std:.2} std (below {bound_in_std}) where a {} joint differs, so the data fit that as well",
+                    others.join(" or ")
+                )
+            }
             Warning::PairsRetested {
                 multi_dof_before,
                 multi_dof_after,

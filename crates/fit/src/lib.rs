@@ -5,12 +5,14 @@
 //! the fit ([`fit_model_positions`], `policy.rs`), the positions smoothed over time
 //! (`smooth.rs`), and the fitted motions that judge points against every body
 //! ([`FittedMotions`], `motions.rs`), and the joint positions of new frames with each
-//! frame's fit ([`observe`], `observation.rs`).
+//! frame's fit ([`observe`], `observation.rs`), and whether the motion can tell each joint's
+//! type from the others ([`identifiability_warnings`], `identify.rs`).
 //!
 //! Module dependencies run one way: `tree_cholesky` <- `solver` <- `refine` <- `bundle` <-
 //! `policy`; `smooth` and `motions` use `solver` only.
 
 mod bundle;
+mod identify;
 mod motions;
 mod observation;
 mod policy;
@@ -20,6 +22,7 @@ mod solver;
 mod tree_cholesky;
 
 pub use bundle::BundleLimits;
+pub use identify::identifiability_warnings;
 pub use motions::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,
     MotionLimits, OUTLIER_RATIO,

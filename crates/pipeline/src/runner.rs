@@ -707,6 +707,11 @@ impl<'a> Runner<'a> {
         m.cache = None;
         m.body_order = order;
         m.model.reprediction_rms_in_sigma = kinetree_fit::write_positions(&mut m.model, &state)?;
+        m.model
+            .warnings
+            .retain(|w| !matches!(w, Warning::JointNotIdentifiable { .. }));
+        let verdicts = kinetree_fit::identifiability_warnings(&m.model, &m.model.position_limits);
+        m.model.warnings.extend(verdicts);
         m.model.trace = entries;
         Ok(m)
     }
