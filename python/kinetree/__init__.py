@@ -177,6 +177,9 @@ class Model:
         noise_source: ``"given"`` or ``"estimated"``.
         static_body: The static body's id, or None.
         root_body: The root of the tree.
+        root_joint: ``"fixed"`` when the root is the static body, ``"free"`` when nothing is
+            static and the root moves with six coordinates (first in :func:`observe`'s
+            configuration).
         chain: Bodies in chain order when the structure is a chain, else None.
         bodies: One :class:`Body` per body, by id.
         joints: One :class:`Joint` per body with a parent.
@@ -197,6 +200,9 @@ class Model:
         self.noise_source: str = data["noise"]["source"]
         self.static_body: Optional[int] = data.get("static_body")
         self.root_body: int = data["root_body"]
+        self.root_joint: str = data.get(
+            "root_joint", "fixed" if self.static_body is not None else "free"
+        )
         self.chain: Optional[List[int]] = data.get("chain")
         self.warnings: List[Dict[str, Any]] = data.get("warnings", [])
         self.bodies: List[Body] = [
@@ -532,8 +538,8 @@ def read_tracks(
     max_memory_gib: float = 8.0,
     labels: bool = False,
 ) -> Union[np.ndarray, Tuple[np.ndarray, Optional[List[str]]]]:
-    """Reads a tracks file: ``.npy``, ``.npz`` (a point tracker's archive), ``.csv`` or
-    ``.c3d`` (motion capture).
+    """Reads a tracks file: ``.npy``, ``.npz`` (a point tracker's archive), ``.csv``,
+    ``.c3d`` or ``.trc`` (motion capture).
 
     Args:
         path: The file; the extension picks the format.

@@ -135,3 +135,18 @@ def test_mjcf_of_a_mechanism_with_no_static_body_has_a_free_root():
     compared, angle, shift = check_forward_kinematics(model, moving)
     assert compared >= 10, compared
     assert angle < 1e-6 and shift < 1e-6, (angle, shift)
+
+
+def test_mjcf_of_a_skeleton_with_a_floating_pelvis_has_a_free_root():
+    tracks, truth = kinetree.simulate("skeleton-floating", seed=2)
+    assert truth["mechanism"]["joints"][0]["type"] == "free"
+    model = kinetree.discover(tracks)
+    assert model.static_body is None and model.root_joint == "free"
+    root_points = model.bodies[model.root_body].points
+    # The root is the pelvis (true body 1; body 0 is the unseen world).
+    assert set(np.asarray(truth["point_body"])[root_points]) == {1}
+    text = model.to_mjcf()
+    assert text.count("<freejoint") == 1
+    compared, angle, shift = check_forward_kinematics(model, tracks)
+    assert compared >= 20, compared
+    assert angle < 1e-6 and shift < 1e-6, (angle, shift)

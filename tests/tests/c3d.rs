@@ -76,11 +76,11 @@ fn write_c3d(
     labels: &[&str],
     frames: &[Vec<Option<[f64; 3]>>],
 ) -> Vec<u8> {
-    write_c3d_counting(proc, float, labels, frames, labels.len(), labels.len())
+    write_c3d_counting(proc, float, labels, frames, labels.len(), labels.len(), &[])
 }
 
 /// [`write_c3d`] with the header's point count and `POINT:USED` given (the data keep a stride
-/// of every label).
+/// of every label), and `POINT` string parameters `groups` (name, strings) such as `ANGLES`.
 fn write_c3d_counting(
     proc: Proc,
     float: bool,
@@ -88,6 +88,7 @@ fn write_c3d_counting(
     frames: &[Vec<Option<[f64; 3]>>],
     header_points: usize,
     used: usize,
+    groups: &[(&str, &[&str])],
 ) -> Vec<u8> {
     let i16b = |v: i16| match proc {
         Proc::Mips => v.to_be_bytes(),
@@ -146,6 +147,14 @@ fn write_c3d_counting(
         text.extend(format!("{l:<width$}").as_bytes());
     }
     param("LABELS", -1, &[width as u8, n as u8], &text);
+    for (name, strings) in groups {
+        let width = strings.iter().map(|l| l.len()).max().unwrap_or(1);
+        let mut text = Vec::new();
+        for l in *strings {
+            text.extend(format!("{l:<width$}").as_bytes());
+        }
+        param(name, -1, &[width as u8, strings.len() as u8], &text);
+    }
     params.extend([0, 0]);
     params.resize(512, 0);
     let mut out = header;
@@ -240,12 +249,12 @@ fn point_counts_that_disagree_are_errors_and_unused_labels_warnings() {
     let frames = vec![vec![Some([1.0, 2.0, 3.0]); 4]; 5];
     let labels = ["A", "B", "C", "D"];
     // POINT:USED below the header's count and the labels: the stride would be wrong.
-    let used_low = write_c3d_counting(Proc::Intel, true, &labels, &frames, 4, 3);
+    let used_low = write_c3d_counting(Proc::Intel, true, &labels, &frames, 4, 3, &[]);
     let e = c3d_tracks(&used_low).expect_err("USED below the header");
     assert!(e.to_string().contains("POINT:USED"), "{e}");
     // Both counts edited down: four labels for three points. Writers leave unused label
     // slots, so this reads, and the extra name is reported, not dropped in silence.
-    let both_low = write_c3d_counting(Proc::Intel, true, &labels, &frames, 3, 3);
+    let both_low = write_c3d_counting(Proc::Intel, true, &labels, &frames, 3, 3, &[]);
     let t = c3d_tracks(&both_low).expect("labels beyond USED");
     assert_eq!(t.labels().expect("labels"), ["A", "B", "C"]);
     assert_eq!(
@@ -256,6 +265,54 @@ fn point_counts_that_disagree_are_errors_and_unused_labels_warnings() {
         }]
     );
     assert!(c3d_tracks(&write_c3d(Proc::Intel, true, &labels, &frames)).is_ok());
+}
+
+/// Vicon and Plug-in Gait store joint angles, forces, moments and powers as points and name
+/// them in `POINT:ANGLES`, `POINT:MOMENTS`, ...: they are left out, with a warning naming
+/// them, and a file of nothing else is an error.
+#[test]
+fn modelling_outputs_stored_as_points_are_skipped_with_a_warning() {
+    let labels = ["LASI", "LHipAngles", "RASI", "LHipMoment", "C7"];
+    let frames: Vec<Vec<Option<[f64; 3]>>> = (0..4)
+        .map(|t| {
+            (0..5)
+                .map(|i| Some([100.0 * i as f64 + t as f64, 20.0, 30.0 + i as f64]))
+                .collect()
+        })
+        .collect();
+    let groups: [(&str, &[&str]); 2] = [
+        ("ANGLES", &["LHipAngles", "RHipAngles"]),
+        ("MOMENTS", &["LHipMoment"]),
+    ];
+    for proc in [Proc::Intel, Proc::Mips] {
+        let bytes = write_c3d_counting(proc, true, &labels, &frames, 5, 5, &groups);
+        let t = c3d_tracks(&bytes).expect("c3d");
+        assert_eq!(t.labels().expect("labels"), ["LASI", "RASI", "C7"]);
+        // The markers keep their own samples: RASI is the file's third point.
+        let p = t.get(3, 1).expect("visible");
+        assert!(
+            (p.x - 0.203).abs() < 1e-6 && (p.z - 0.032).abs() < 1e-6,
+            "{p:?}"
+        );
+        assert_eq!(
+            t.warnings(),
+            [kinetree_core::Warning::C3dOutputsSkipped {
+                groups: vec!["ANGLES".into(), "MOMENTS".into()],
+                labels: vec!["LHipAngles".into(), "LHipMoment".into()],
+            }]
+        );
+    }
+    let only = write_c3d_counting(
+        Proc::Intel,
+        true,
+        &["LHipAngles"],
+        &vec![vec![Some([1.0, 2.0, 3.0])]; 3],
+        1,
+        1,
+        &groups,
+    );
+    let e = c3d_tracks(&only).expect_err("no markers");
+    assert!(e.to_string().contains("POINT:ANGLES"), "{e}");
 }
 
 /// The case the fuzz test (tests/tests/fuzz.rs) shrank to when the parameter walk multiplied

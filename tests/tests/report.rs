@@ -158,7 +158,7 @@ the fewer DoF the data allow.
 The same skeleton with a pelvis that moves freely: it turns through 30-90 deg about the
 vertical and a third of that about the other axes, and travels 0.2-1 m forward and sideways.
 Nothing is static, so the model's root joint is free (six coordinates, first in the
-configuration) and the root is the body that turns least, the pelvis. Every joint is found
+configuration) and the root is a centre of the tree that turns least: the pelvis. Every joint is found
 with its type in 20 of 20 skeletons at 1 mm and 16 of 20 at 3 mm; the centres and axes are
 as good as on the static skeleton.
 
@@ -189,7 +189,7 @@ out spherical where a centre fixed in both segments explains their motion within
 error (6 of the wheelchair racer's joints, 3 of the sprinter's, 2 of the tennis player's),
 else multi-DoF. The fit through those centres re-predicts the markers at 2.7-2.8 sigma,
 where posing the segments freely gave 1.2-2.3: skin markers do not keep a centre exactly.
-The triads' root moves on its own; it is the segment that turns least, and its joints are
+Nothing is static on the triads; the tree is rooted at a centre of it, and its joints are
 hinges.
 
 ## Where the method breaks

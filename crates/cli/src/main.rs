@@ -248,7 +248,7 @@ enum Command {
         /// The sweep's result folder, `<results>/<name>`, holding `shard-I-of-N/` folders.
         dir: PathBuf,
     },
-    /// Discover the structure in a tracks file (.npy, .npz, .csv or .c3d) and write the model
+    /// Discover the structure in a tracks file (.npy, .npz, .csv, .c3d or .trc) and write the model
     /// JSON.
     Discover {
         /// Tracks file: float (T, N, 3) .npy with NaN for occluded points, .npz from a point
@@ -279,7 +279,7 @@ enum Command {
     Observe {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
-        /// Tracks (.npy, .npz, .csv or .c3d) with the model's points.
+        /// Tracks (.npy, .npz, .csv, .c3d or .trc) with the model's points.
         tracks: PathBuf,
         #[command(flatten)]
         keys: TrackArgs,
@@ -321,7 +321,7 @@ enum Command {
     View {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
-        /// Tracks (.npy, .npz, .csv or .c3d) of the model's points: the ones it was
+        /// Tracks (.npy, .npz, .csv, .c3d or .trc) of the model's points: the ones it was
         /// discovered on, or new frames.
         tracks: PathBuf,
         #[command(flatten)]
@@ -348,18 +348,26 @@ enum Command {
     /// Fit a joint to one point's track (a door or drawer handle): revolute (axis, centre,
     /// radius) or prismatic (axis), printed and written as JSON.
     FitTrack {
-        /// Text file of `x y z` lines, or a tracks file (.npy, .npz, .csv, .c3d) with
-        /// `--point`.
+        /// Text file of `x y z` lines, a `.npy` of one point (`(T, 3)` or `(T, 1, 3)`), or
+        /// a tracks file (.npy, .npz, .csv, .c3d, .trc) with `--point`.
         track: PathBuf,
         #[command(flatten)]
         keys: TrackArgs,
         /// Point index in a tracks file.
         #[arg(long)]
         point: Option<usize>,
-        /// The circle (revolute) is taken when the line leaves at least this many times its
-        /// residual.
-        #[arg(long, default_value_t = kinetree_dof::CIRCLE_GAIN)]
-        circle_gain: f64,
+        /// The circle (revolute) is taken when the line's extra residual is less probable
+        /// than this under noise alone (an F-test, or a chi-square test with
+        /// `--noise-sigma`).
+        #[arg(long, default_value_t = kinetree_dof::TRACK_SIGNIFICANCE)]
+        significance: f64,
+        /// ... and when it sweeps at least this angle, degrees.
+        #[arg(long, default_value_t = kinetree_dof::TRACK_MIN_ARC_DEG)]
+        min_arc_deg: f64,
+        /// Per-coordinate noise of the samples, metres (default: estimated from the
+        /// circle's residual).
+        #[arg(long)]
+        noise_sigma: Option<f64>,
         /// Output JSON.
         #[arg(short, long, default_value = "track-joint.json")]
         output: PathBuf,
@@ -768,27 +776,27 @@ fn run_command() -> Result<()> {
             track,
             keys,
             point,
-            circle_gain,
+            significance,
+            min_arc_deg,
+            noise_sigma,
             output,
         } => {
             refuse_overwriting(&output, &[&track])?;
-            let samples = match point {
-                Some(i) => {
-                    let t = read_tracks(&track, &keys)?;
-                    if i >= t.n_points() {
-                        bail!("--point {i}: the file has {} points", t.n_points());
-                    }
-                    (0..t.n_frames()).filter_map(|f| t.get(f, i)).collect()
-                }
-                None => kinetree_io::read_point_track(&track)?,
+            let samples = kinetree_io::read_one_track(&track, point, &keys.options(memory))?;
+            let params = kinetree_dof::TrackFitParams {
+                noise_sigma_m: noise_sigma,
+                significance,
+                min_arc_deg,
             };
-            let fit = kinetree_dof::fit_point_track(&samples, circle_gain)
+            let fit = kinetree_dof::fit_point_track(&samples, &params)
                 .with_context(|| format!("fitting {}", track.display()))?;
             emitln!(
-                "{} samples; line RMS {:.2} mm, circle RMS {:.2} mm",
+                "{} samples; line RMS {:.2} mm, circle RMS {:.2} mm, noise {:.2} mm, p = {:.2e}",
                 samples.len(),
                 fit.line_rms_m * 1e3,
-                fit.circle_rms_m * 1e3
+                fit.circle_rms_m * 1e3,
+                fit.noise_sigma_m * 1e3,
+                fit.p_value
             );
             emitln!("{}", serde_json::to_string(&fit.joint)?);
             kinetree_io::write_json(&output, &fit)?;

@@ -601,3 +601,138 @@ fn discover_shows_its_stages_on_a_terminal_unless_quiet() {
     assert!(out.status.success());
     assert!(!String::from_utf8_lossy(&out.stderr).contains("discover ["));
 }
+
+/// `fit-track` takes a `.npy` of one point, `(T, 3)` or `(T, 1, 3)`, and a `(T, N, 3)` one
+/// with `--point`; without it, or with a point beyond the file's, it stops with a message
+/// that names the choice.
+#[test]
+fn fit_track_reads_one_point_arrays() {
+    let d = tmp("one-point");
+    let data = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../experiments/real/data/sturm-door-drawer/right_door_001/001.log");
+    let door = kinetree_io::read_point_track(&data).expect("door");
+    let flat: Vec<f64> = door.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+    let t = door.len();
+    let one = d.join("one.npy");
+    let nested = d.join("nested.npy");
+    kinetree_io::write_array_npy(&one, &[t, 3], &flat).expect("write");
+    kinetree_io::write_array_npy(&nested, &[t, 1, 3], &flat).expect("write");
+    for (file, point) in [(&one, None), (&nested, None), (&nested, Some("0"))] {
+        let mut cmd = kinetree();
+        cmd.arg("fit-track")
+            .arg(file)
+            .arg("-o")
+            .arg(d.join("joint.json"));
+        if let Some(p) = point {
+            cmd.args(["--point", p]);
+        }
+        run_ok(&mut cmd);
+        assert_eq!(
+            read_json(&d.join("joint.json"))["joint"]["type"],
+            "revolute"
+        );
+    }
+    // Three points a frame: the door's, and two others.
+    let many: Vec<f64> = flat
+        .chunks(3)
+        .flat_map(|p| [p[0], p[1], p[2], 0.0, 0.0, 1.0, p[0], p[1], p[2] + 0.1])
+        .collect();
+    let three = d.join("three.npy");
+    kinetree_io::write_array_npy(&three, &[t, 3, 3], &many).expect("write");
+    run_ok(
+        kinetree()
+            .arg("fit-track")
+            .arg(&three)
+            .args(["--point", "2", "-o"])
+            .arg(d.join("joint.json")),
+    );
+    assert_eq!(
+        read_json(&d.join("joint.json"))["joint"]["type"],
+        "revolute"
+    );
+    for (args, says) in [
+        (vec![], "choose one (`--point`)"),
+        (vec!["--point", "3"], "point 3 does not exist"),
+    ] {
+        let out = kinetree()
+            .arg("fit-track")
+            .arg(&three)
+            .args(&args)
+            .arg("-o")
+            .arg(d.join("joint.json"))
+            .output()
+            .expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(says), "{err}");
+    }
+    let wrong = d.join("wrong.npy");
+    kinetree_io::write_array_npy(&wrong, &[t, 2], &flat[..2 * t]).expect("write");
+    let out = kinetree()
+        .arg("fit-track")
+        .arg(&wrong)
+        .arg("-o")
+        .arg(d.join("joint.json"))
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("(T, 3)"), "{err}");
+}
+
+/// A TRC file (OpenSim's marker format, here in millimetres) of a simulated arm discovers
+/// the same bodies as its `.npy`, with the marker names it gives.
+#[test]
+fn discover_reads_trc_files() {
+    let dir = tmp("trc");
+    run_ok(kinetree().args(["simulate", "-o"]).arg(&dir));
+    let tracks = kinetree_io::read_npy(&dir.join("tracks.npy")).expect("npy");
+    let n = tracks.n_points();
+    let mut text = format!(
+        "PathFileType\t4\t(X/Y/Z)\tarm.trc\n\
+         DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n\
+         30\t30\t{t}\t{n}\tmm\t30\t1\t{t}\n\
+         Frame#\tTime",
+        t = tracks.n_frames()
+    );
+    for i in 0..n {
+        text.push_str(&format!("\tM{i}\t\t"));
+    }
+    text.push_str("\n\t");
+    for i in 0..n {
+        text.push_str(&format!("\tX{k}\tY{k}\tZ{k}", k = i + 1));
+    }
+    text.push_str("\n\n");
+    for f in 0..tracks.n_frames() {
+        text.push_str(&format!("{}\t{:.4}", f + 1, f as f64 / 30.0));
+        for i in 0..n {
+            match tracks.get(f, i) {
+                Some(p) => text.push_str(&format!(
+                    "\t{:.6}\t{:.6}\t{:.6}",
+                    p.x * 1e3,
+                    p.y * 1e3,
+                    p.z * 1e3
+                )),
+                None => text.push_str("\t\t\t"),
+            }
+        }
+        text.push('\n');
+    }
+    let trc = dir.join("arm.trc");
+    std::fs::write(&trc, text).expect("write");
+    let (from_npy, from_trc) = (dir.join("npy.json"), dir.join("trc.json"));
+    for (input, model) in [(dir.join("tracks.npy"), &from_npy), (trc, &from_trc)] {
+        run_ok(
+            kinetree()
+                .arg("discover")
+                .arg(input)
+                .args(["-q", "--no-poses", "-o"])
+                .arg(model),
+        );
+    }
+    let (a, b) = (read_json(&from_npy), read_json(&from_trc));
+    assert_eq!(a["point_body"], b["point_body"]);
+    assert_eq!(b["point_labels"][0], "M0");
+    assert_eq!(
+        a["joints"].as_array().map(Vec::len),
+        b["joints"].as_array().map(Vec::len)
+    );
+}

@@ -26,6 +26,15 @@ pub enum Warning {
         /// The names beyond them.
         labels: Vec<String>,
     },
+    /// Points of a C3D file that its `POINT:ANGLES`, `FORCES`, `MOMENTS`, `POWERS`,
+    /// `SCALARS` or `REACTIONS` parameters name: a modelling program's outputs stored as
+    /// points, not markers; they were left out of the tracks.
+    C3dOutputsSkipped {
+        /// The groups that named them (`ANGLES`, ...).
+        groups: Vec<String>,
+        /// Their labels, in the file's order.
+        labels: Vec<String>,
+    },
     /// A point never visible in any frame; it is discarded.
     PointNeverVisible {
         /// The point.
@@ -228,6 +237,13 @@ impl std::fmt::Display for Warning {
                 labels.len(),
                 labels.join(", ")
             ),
+            Warning::C3dOutputsSkipped { groups, labels } => write!(
+                f,
+                "{} C3D point(s) named in POINT:{} are modelling outputs, not markers; left out: {}",
+                labels.len(),
+                groups.join("/"),
+                labels.join(", ")
+            ),
             Warning::PointNeverVisible { point } => {
                 write!(f, "point {point} is never visible; discarded")
             }
@@ -306,7 +322,7 @@ impl std::fmt::Display for Warning {
             }
             Warning::NoStaticBody { root } => write!(
                 f,
-                "no body is static relative to the camera; the tree is rooted at body {root}, the one that moves least"
+                "no body is static relative to the camera; the tree is rooted at body {root}, a centre of the tree that turns least (or a body on a single-DoF joint with the camera)"
             ),
             Warning::BodyDetached { body } => write!(
                 f,

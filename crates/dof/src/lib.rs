@@ -11,4 +11,6 @@ pub use rank::{
     rank_test_uncentred, weighted_direction,
 };
 pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
-pub use track::{CIRCLE_GAIN, TrackFit, TrackJoint, fit_point_track};
+pub use track::{
+    TRACK_MIN_ARC_DEG, TRACK_SIGNIFICANCE, TrackFit, TrackFitParams, TrackJoint, fit_point_track,
+};

@@ -183,6 +183,18 @@ impl Parameter {
     }
 }
 
+/// The `POINT` parameters in which modelling programs (Vicon Nexus, Plug-in Gait) name the
+/// points that hold their outputs (joint angles, forces, moments, powers, other scalars)
+/// rather than markers.
+const OUTPUT_GROUPS: [&str; 6] = [
+    "ANGLES",
+    "FORCES",
+    "MOMENTS",
+    "POWERS",
+    "SCALARS",
+    "REACTIONS",
+];
+
 /// Tracks from the bytes of a C3D file; see [`crate::read_c3d`].
 ///
 /// # Errors
@@ -286,6 +298,44 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
         .filter(|l| !l.is_empty())
         .collect();
     labels.resize(n_points, String::new());
+    // A modelling program's outputs stored as points, named by these groups: not markers.
+    let mut outputs: Vec<(String, Vec<String>)> = Vec::new();
+    for group in OUTPUT_GROUPS {
+        let names: Vec<String> = get(&format!("POINT:{group}"))
+            .map(Parameter::strings)
+            .unwrap_or_default()
+            .into_iter()
+            .map(|n| n.trim().to_string())
+            .filter(|n| !n.is_empty())
+            .collect();
+        if !names.is_empty() {
+            outputs.push((group.to_string(), names));
+        }
+    }
+    let is_output = |label: &str| {
+        let label = label.trim();
+        outputs
+            .iter()
+            .any(|(_, names)| names.iter().any(|n| n == label))
+    };
+    let kept: Vec<usize> = (0..n_points).filter(|&i| !is_output(&labels[i])).collect();
+    let skipped: Vec<String> = (0..n_points)
+        .filter(|&i| is_output(&labels[i]))
+        .map(|i| labels[i].trim().to_string())
+        .collect();
+    if kept.is_empty() {
+        return Err(malformed(
+            "POINT:LABELS",
+            format!(
+                "every one of the {n_points} points is a modelling output named in {}; no markers",
+                outputs
+                    .iter()
+                    .map(|(g, _)| format!("POINT:{g}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        ));
+    }
     let labels: Vec<String> = labels
         .into_iter()
         .enumerate()
@@ -313,12 +363,12 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             ),
         ));
     }
-    crate::check_size(n_frames as u64, n_points as u64, max_memory_gib)?;
+    crate::check_size(n_frames as u64, kept.len() as u64, max_memory_gib)?;
     let point_scale = if is_float { 1.0 } else { scale.abs() };
-    let mut xyz = Vec::with_capacity(n_frames * n_points * 3);
+    let mut xyz = Vec::with_capacity(n_frames * kept.len() * 3);
     for t in 0..n_frames {
         let frame = &bytes[start + t * frame_bytes..start + (t + 1) * frame_bytes];
-        for i in 0..n_points {
+        for &i in &kept {
             let v = |k: usize| -> f64 {
                 let at = (4 * i + k) * value_size;
                 if is_float {
@@ -338,13 +388,24 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             }
         }
     }
-    let tracks = Tracks::new(n_frames, n_points, xyz)?.with_labels(labels)?;
-    Ok(if unused.is_empty() {
-        tracks
-    } else {
-        tracks.with_warnings(vec![kinetree_core::Warning::C3dLabelsUnused {
+    let labels: Vec<String> = kept.iter().map(|&i| labels[i].clone()).collect();
+    let tracks = Tracks::new(n_frames, kept.len(), xyz)?.with_labels(labels)?;
+    let mut warnings = Vec::new();
+    if !unused.is_empty() {
+        warnings.push(kinetree_core::Warning::C3dLabelsUnused {
             points_used: n_points,
             labels: unused,
-        }])
+        });
+    }
+    if !skipped.is_empty() {
+        warnings.push(kinetree_core::Warning::C3dOutputsSkipped {
+            groups: outputs.into_iter().map(|(g, _)| g).collect(),
+            labels: skipped,
+        });
+    }
+    Ok(if warnings.is_empty() {
+        tracks
+    } else {
+        tracks.with_warnings(warnings)
     })
 }

@@ -6,6 +6,7 @@ mod c3d;
 pub mod export;
 mod npy;
 mod npz;
+mod trc;
 
 pub use npz::{DEFAULT_OCCLUDED_KEY, DEFAULT_TRACKS_KEY, DEFAULT_VISIBILITY_KEY};
 
@@ -20,7 +21,7 @@ use std::path::Path;
 /// Largest frame or point index accepted in a CSV file (guards against absurd allocations).
 pub const MAX_CSV_INDEX: u64 = 10_000_000;
 
-/// Reads tracks from a `.npy`, `.npz`, `.csv` or `.c3d` file, chosen by extension, within
+/// Reads tracks from a `.npy`, `.npz`, `.csv`, `.c3d` or `.trc` file, chosen by extension, within
 /// the default memory limit ([`read_tracks_with`]).
 ///
 /// # Errors
@@ -81,7 +82,8 @@ impl Default for ReadOptions {
 ///   an optional visibility or occlusion array `(T, N)` (bool, integer or probability) whose
 ///   hidden samples are set to NaN; the arrays' names come from `options`;
 /// - `.csv`: `frame,point,x,y,z` rows ([`read_csv`]);
-/// - `.c3d`: motion-capture markers ([`read_c3d`]).
+/// - `.c3d`: motion-capture markers ([`read_c3d`]);
+/// - `.trc`: OpenSim's marker text format ([`read_trc`]).
 ///
 /// # Errors
 /// [`Error::File`] wrapping the cause: I/O, an unknown extension, array names given for a
@@ -115,9 +117,10 @@ pub fn read_tracks_with(path: &Path, options: &ReadOptions) -> Result<Tracks> {
                 let bytes = std::fs::read(path)?;
                 c3d::tracks_within(&bytes, max_memory_gib)
             }
+            Some("trc") => trc::tracks_within(&std::fs::read_to_string(path)?, max_memory_gib),
             _ => Err(Error::Malformed {
                 position: "file name".into(),
-                message: "unknown extension; expected .npy, .npz, .csv or .c3d".into(),
+                message: "unknown extension; expected .npy, .npz, .csv, .c3d or .trc".into(),
             }),
         }
     };
@@ -139,6 +142,114 @@ pub fn read_tracks_with(path: &Path, options: &ReadOptions) -> Result<Tracks> {
 pub fn read_c3d(path: &Path) -> Result<Tracks> {
     let bytes = std::fs::read(path).map_err(|e| Error::from(e).in_file(path))?;
     c3d::tracks(&bytes).map_err(|e| e.in_file(path))
+}
+
+/// Reads the markers of a TRC file (OpenSim's tab-separated marker format): one point per
+/// marker, named from the fourth header line, converted to metres from the header's `Units`
+/// (`mm`, `cm` or `m`), at the header's `DataRate`. A sample is not visible where a
+/// coordinate is empty or `NaN`, or where the line ends before it.
+///
+/// # Errors
+/// [`Error::Malformed`] naming the line for a missing header line or column, an unknown unit,
+/// more names than `NumMarkers`, a field that is not a number, values beyond the markers'
+/// columns, or no frames; [`Error::TooLarge`]; the validation errors of [`Tracks::new`]; all
+/// inside [`Error::File`].
+pub fn read_trc(path: &Path) -> Result<Tracks> {
+    let inner = || -> Result<Tracks> {
+        trc::tracks_within(
+            &std::fs::read_to_string(path)?,
+            kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
+        )
+    };
+    inner().map_err(|e| e.in_file(path))
+}
+
+/// Reads the visible samples of one point's track, in metres:
+/// - a float `.npy` array of shape `(T, 3)`, `(T, 1, 3)`, or `(T, N, 3)` with `point` (NaN
+///   rows are hidden samples);
+/// - any other tracks file ([`read_tracks_with`] and `options`: `.npz`, `.csv`, `.c3d`,
+///   `.trc`) with `point`;
+/// - otherwise plain text, one sample `x y z` per line ([`read_point_track`]), `point` then
+///   being `None` or 0.
+///
+/// # Errors
+/// [`Error::Config`] for a missing `point` where the file holds several, or a `point` beyond
+/// them; [`Error::Shape`] or [`Error::DType`] for another array; the readers' errors; all
+/// inside [`Error::File`].
+pub fn read_one_track(
+    path: &Path,
+    point: Option<usize>,
+    options: &ReadOptions,
+) -> Result<Vec<kinetree_core::nalgebra::Point3<f64>>> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let pick = |n_points: usize| -> Result<usize> {
+        match point {
+            Some(i) if i < n_points => Ok(i),
+            Some(i) => Err(Error::Config(format!(
+                "point {i} does not exist: the file holds {n_points} point(s)"
+            ))),
+            None if n_points == 1 => Ok(0),
+            None => Err(Error::Config(format!(
+                "the file holds {n_points} points; choose one (`--point`)"
+            ))),
+        }
+    };
+    match ext.as_deref() {
+        Some("npy") => {
+            let inner = || -> Result<Vec<kinetree_core::nalgebra::Point3<f64>>> {
+                let file_len = std::fs::metadata(path)?.len();
+                let file = BufReader::new(File::open(path)?);
+                let array = npy::read_array(file, file_len, |shape, dtype| {
+                    if dtype != "<f8" && dtype != "<f4" {
+                        return Err(Error::DType {
+                            expected: "float64 ('<f8') or float32 ('<f4')".into(),
+                            found: dtype.into(),
+                        });
+                    }
+                    let one = matches!(shape, [_, 3] | [_, _, 3]);
+                    if !one {
+                        return Err(Error::Shape {
+                            expected: "(T, 3), (T, 1, 3) or (T, N, 3)".into(),
+                            found: format!("{shape:?}"),
+                        });
+                    }
+                    let n_points = if shape.len() == 3 { shape[1] } else { 1 };
+                    check_size(shape[0], n_points, options.max_memory_gib)
+                })?;
+                let n_points = if array.shape.len() == 3 {
+                    array.shape[1] as usize
+                } else {
+                    1
+                };
+                let i = pick(n_points)?;
+                Ok(array
+                    .values
+                    .chunks_exact(3 * n_points)
+                    .map(|frame| &frame[3 * i..3 * i + 3])
+                    .filter(|p| p.iter().all(|v| v.is_finite()))
+                    .map(|p| kinetree_core::nalgebra::Point3::new(p[0], p[1], p[2]))
+                    .collect())
+            };
+            inner().map_err(|e| e.in_file(path))
+        }
+        Some("npz" | "csv" | "c3d" | "trc") => {
+            let tracks = read_tracks_with(path, options)?;
+            let i = pick(tracks.n_points()).map_err(|e| e.in_file(path))?;
+            Ok((0..tracks.n_frames())
+                .filter_map(|f| tracks.get(f, i))
+                .collect())
+        }
+        _ => match point {
+            Some(i) if i > 0 => Err(Error::Config(format!(
+                "point {i} does not exist: a text track holds one point"
+            ))
+            .in_file(path)),
+            _ => read_point_track(path),
+        },
+    }
 }
 
 /// Reads one point's track from plain text, one sample `x y z` (metres) per line separated by

@@ -129,8 +129,7 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 
 /// Spanning tree over bodies rooted at the static body (the one posed in the most frames if
 /// several, then the lowest-numbered);
-/// without a static body, at the body that turns least relative to the camera (RMS over the
-/// frames it was posed in), then whose centroid moves least.
+/// without a static body, at the body [`floating_root`] picks.
 /// Prefers single-DoF edges with the best fit (minimum spanning tree on `edge_cost`-style
 /// costs, computed by petgraph's Kruskal).
 pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
@@ -155,39 +154,6 @@ pub fn spanning_tree_without(
         .iter()
         .copied()
         .max_by_key(|&s| (posed[s], std::cmp::Reverse(s)));
-    let (root, root_is_static) = match most_posed {
-        Some(s) => (s, true),
-        None => {
-            // A floating tree's root is the body that moves least: rotations, and mostly
-            // translations, accumulate down the tree, so the pelvis of a walking person, the
-            // palm of a hand or the first link of an arm whose base is unseen turns least.
-            // Compared by RMS rotation over the frames the body was posed in (zero when the
-            // rank test found none), then RMS displacement of its centroid. A sum of whitened
-            // singular values instead favours large bodies and bodies seen in few frames.
-            let rms = |t: &RankTest| {
-                let sum: f64 = t.singular_values.iter().map(|v| v * v).sum();
-                (sum / t.n_columns.max(1) as f64).sqrt()
-            };
-            let motion = |b: usize| {
-                find_pair(pairs, None, b)
-                    .filter(|p| p.translation.n_columns > 0)
-                    .map_or((f64::INFINITY, f64::INFINITY), |p| {
-                        let turn = if p.rotation.rank > 0 {
-                            rms(&p.rotation)
-                        } else {
-                            0.0
-                        };
-                        (turn, rms(&p.translation))
-                    })
-            };
-            let least = |x: &usize, y: &usize| {
-                let ((tx, dx), (ty, dy)) = (motion(*x), motion(*y));
-                tx.total_cmp(&ty).then(dx.total_cmp(&dy))
-            };
-            let r = (0..n_bodies).min_by(least)?;
-            (r, false)
-        }
-    };
     let costs = edge_costs(n_bodies, pairs);
     let mut g: UnGraph<usize, f64> = UnGraph::with_capacity(n_bodies, pairs.len());
     for b in 0..n_bodies {
@@ -215,6 +181,10 @@ pub fn spanning_tree_without(
     for a in &mut adj {
         a.sort_unstable();
     }
+    let (root, root_is_static) = match most_posed {
+        Some(s) => (s, true),
+        None => (floating_root(pairs, &adj)?, false),
+    };
     let mut parent = vec![None; n_bodies];
     let mut seen = vec![false; n_bodies];
     let mut order = vec![root];
@@ -293,6 +263,76 @@ fn breadth_first(root: usize, parent: &[Option<usize>]) -> Vec<usize> {
 }
 
 /// Frames each body is posed in (its test against the camera's columns).
+/// The root of a tree with no static body, `adj` its undirected edges: a body whose motion
+/// relative to the camera is a single-DoF joint's (an arm's first link on an unseen base),
+/// else a centre of the largest tree (fewest edges to its farthest body: the pelvis or trunk
+/// of a person, the palm of a hand); among several, the one that turns least relative to the
+/// camera (RMS rotation over the frames it was posed in, zero when its rotation test finds
+/// none), then whose centroid moves least, then the lowest id. `None` without bodies.
+///
+/// Rotations accumulate down a tree, but random joint motions can also cancel: on simulated
+/// skeletons a shank turned less than the pelvis, so the least turn alone is only the
+/// tie-break.
+fn floating_root(pairs: &[PairDof], adj: &[Vec<usize>]) -> Option<usize> {
+    let n = adj.len();
+    let rms = |t: &RankTest| {
+        let sum: f64 = t.singular_values.iter().map(|v| v * v).sum();
+        (sum / t.n_columns.max(1) as f64).sqrt()
+    };
+    let motion = |b: usize| {
+        find_pair(pairs, None, b)
+            .filter(|p| p.translation.n_columns > 0)
+            .map_or((f64::INFINITY, f64::INFINITY), |p| {
+                let turn = if p.rotation.rank > 0 {
+                    rms(&p.rotation)
+                } else {
+                    0.0
+                };
+                (turn, rms(&p.translation))
+            })
+    };
+    let least = |x: &usize, y: &usize| {
+        let ((tx, dx), (ty, dy)) = (motion(*x), motion(*y));
+        tx.total_cmp(&ty).then(dx.total_cmp(&dy)).then(x.cmp(y))
+    };
+    let on_the_world: Vec<usize> = (0..n)
+        .filter(|&b| find_pair(pairs, None, b).is_some_and(|p| p.joint.is_single_dof()))
+        .collect();
+    if !on_the_world.is_empty() {
+        return on_the_world.into_iter().min_by(least);
+    }
+    // Hops from `from` to every body of its tree (`usize::MAX` elsewhere).
+    let hops = |from: usize| {
+        let mut d = vec![usize::MAX; n];
+        d[from] = 0;
+        let mut queue = std::collections::VecDeque::from([from]);
+        while let Some(u) = queue.pop_front() {
+            for &v in &adj[u] {
+                if d[v] == usize::MAX {
+                    d[v] = d[u] + 1;
+                    queue.push_back(v);
+                }
+            }
+        }
+        d
+    };
+    let (size, eccentricity): (Vec<usize>, Vec<usize>) = (0..n)
+        .map(|b| {
+            let d = hops(b);
+            let reached = d.iter().filter(|&&h| h != usize::MAX);
+            (reached.clone().count(), reached.copied().max().unwrap_or(0))
+        })
+        .unzip();
+    let largest = size.iter().copied().max()?;
+    let centre = (0..n)
+        .filter(|&b| size[b] == largest)
+        .map(|b| eccentricity[b])
+        .min()?;
+    (0..n)
+        .filter(|&b| size[b] == largest && eccentricity[b] == centre)
+        .min_by(least)
+}
+
 fn posed_frames(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
     (0..n_bodies)
         .map(|b| find_pair(pairs, None, b).map_or(0, |p| p.translation.n_columns))
