@@ -207,7 +207,10 @@ Frame#\tTime\tRASI\t\t\tLASI\t\t\tC7\t\t\n\
             ("inches", &*WALK.replace("\tmm\t", "\tin\t")),
             ("text", &*WALK.replace("\t101\t", "\tabc\t")),
             ("too many names", &*WALK.replace("LASI", "LASI\tRPSI")),
-            ("extra column", &*WALK.replace("302\n", "302\t1\t2\t3\t4\t5\t6\t7\n")),
+            (
+                "extra column",
+                &*WALK.replace("302\n", "302\t1\t2\t3\t4\t5\t6\t7\n"),
+            ),
             ("no frames", &WALK[..WALK.find("1\t0.00").expect("data")]),
         ];
         for (what, text) in cases {

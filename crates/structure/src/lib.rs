@@ -129,7 +129,9 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 
 /// Spanning tree over bodies rooted at the static body (the one posed in the most frames if
 /// several, then the lowest-numbered);
-/// without a static body, at the body [`floating_root`] picks.
+/// without a static body, at a body on a single-DoF joint with the camera (an arm's first link
+/// on an unseen base), else at a centre of the largest tree (fewest edges to its farthest
+/// body), the one that turns least among several.
 /// Prefers single-DoF edges with the best fit (minimum spanning tree on `edge_cost`-style
 /// costs, computed by petgraph's Kruskal).
 pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
