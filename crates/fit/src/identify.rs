@@ -127,7 +127,8 @@ fn hinge_turn_in_std(model: &Model, joint: &kinetree_core::model::Joint) -> Opti
 /// - revolute: its angle's spread (alternative: prismatic, as a short arc is a straight
 ///   path within noise);
 /// - prismatic: how much a hinge near both bodies would have turned its child over the
-///   slide's travel ([`hinge_turn_in_std`]; alternative: revolute);
+///   slide's travel, with its axis as far off as it can pass near both bodies (alternative:
+///   revolute);
 /// - spherical: the rotations' second principal spread (alternatives: revolute and
 ///   universal: a ball that turned about one axis, within noise, moved as a hinge);
 /// - universal: the smaller of its two angles' spreads (revolute).
