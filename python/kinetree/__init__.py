@@ -501,8 +501,10 @@ def simulate(
     Args:
         mechanism: ``"paper-arm"`` (the paper's 2-DoF arm), ``"random"``, ``"skeleton"`` (a
             human-like skeleton of ball joints and hinges), ``"skeleton-universal"`` (the
-            same with universal wrists and ankles) or ``"skeleton-floating"`` (the same with
-            a freely moving pelvis and nothing static).
+            same with universal wrists and ankles), ``"skeleton-floating"`` (the same with
+            a freely moving pelvis and nothing static), ``"gripper-parallel"`` or
+            ``"gripper-angular"`` (an arm with two fingers that slide along, or turn about,
+            one axis).
         seed: Seed of every random choice.
         joints, tree, prismatic_fraction, spherical_fraction: For random mechanisms: the
             number of joints, whether bodies attach as a tree rather than a chain, the chance

@@ -162,6 +162,16 @@ configuration) and the root is a centre of the tree that turns least: the pelvis
 with its type in 20 of 20 skeletons at 1 mm and 16 of 20 at 3 mm; the centres and axes are
 as good as on the static skeleton.
 
+### Grippers (experiments/sweeps/grippers.toml)
+
+{grippers}
+An arm of two revolute links and a revolute wrist whose hand carries two fingers (2 x 3 x
+8 cm, ten keypoints each) that slide along one axis through 1-2 cm (parallel) or turn about
+one pin through 0.2-0.5 rad (angular). The fingers' motion relative to each other is a joint
+of the same type, so the data fit a chain as well as siblings; the tree hangs both fingers on
+the hand. At 3 mm a finger's 1-2 cm travel is within a few noise levels of rigid, and the
+fingers merge with the hand or each other.
+
 ### Universal joints (experiments/sweeps/universal.toml)
 
 {universal}
@@ -210,6 +220,7 @@ hinges.
         balls = body("experiments/sweeps/results/ball-joints/table.md"),
         skeleton = body("experiments/sweeps/results/skeleton/table.md"),
         floating = body("experiments/sweeps/results/skeleton-floating/table.md"),
+        grippers = body("experiments/sweeps/results/grippers/table.md"),
         universal = body("experiments/sweeps/results/universal/table.md"),
         real = body("experiments/real/results.md"),
     )

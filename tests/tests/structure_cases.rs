@@ -425,19 +425,22 @@ fn bundle_adjusted_axes_are_within_a_degree() {
 /// the whole-tree fit's poses, which pose the hidden link through its own joint in most
 /// frames (with their precision), every joint is found. (With the hidden link posed through
 /// its hinge where it lacks poses, seed 5 needs no retest: the retest is checked with the
-/// hinges off, and the default must get every joint too.)
+/// hinges off, and the default must get every joint too.) On seed 7 the siblings' hinges with
+/// the base and the brief hinge between them pass the tree's tie rule (three hinges, the
+/// base's pair fitting about as well), which hangs the link on the base before any retest.
 #[test]
 fn siblings_hidden_by_each_other_get_their_parent_back() {
-    for seed in [5, 7] {
+    for (seed, retested) in [(5, true), (7, false)] {
         let data = kinetree_tests::revolute_tree(7, seed);
         let (model, e) = discover_hinged(&data, false);
         assert!(e.joints_exact, "seed {seed}: joints not exact");
-        assert!(
+        assert_eq!(
             kinetree_tests::warned(&model, |w| matches!(
                 w,
                 kinetree_core::Warning::PairsRetested { .. }
             )),
-            "seed {seed}: no retest"
+            retested,
+            "seed {seed}: retest"
         );
         let (_, e) = discover_hinged(&data, true);
         assert!(

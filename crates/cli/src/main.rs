@@ -379,8 +379,9 @@ enum Command {
         output: PathBuf,
         /// Mechanism: `paper-arm`, `skeleton` (a human-like skeleton of ball joints and
         /// hinges), `skeleton-universal` (the same with universal wrists and ankles),
-        /// `skeleton-floating` (the same with a freely moving pelvis and nothing static), or
-        /// `random` with the options below.
+        /// `skeleton-floating` (the same with a freely moving pelvis and nothing static),
+        /// `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
+        /// or turn about, one axis), or `random` with the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,
         /// Seed.

@@ -323,6 +323,8 @@ pub enum DataConfig {
     Random(RandomParams),
     /// A human-like skeleton of ball joints and hinges ([`kinetree_synth::skeleton_scenario`]).
     Skeleton(kinetree_synth::SkeletonParams),
+    /// An arm with a parallel or angular gripper ([`kinetree_synth::gripper_scenario`]).
+    Gripper(kinetree_synth::GripperParams),
     /// A tracks file (`.npy`, `.npz`, `.csv` or `.c3d`), relative to the config file.
     File(FileData),
 }
@@ -332,7 +334,9 @@ pub enum DataConfig {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimulationRequest {
     /// `paper-arm`, `random`, `skeleton`, `skeleton-universal` (its wrists and ankles
-    /// universal joints) or `skeleton-floating` (its pelvis moving freely, nothing static).
+    /// universal joints), `skeleton-floating` (its pelvis moving freely, nothing static),
+    /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
+    /// about, one axis).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -393,10 +397,26 @@ impl SimulationRequest {
                     ..kinetree_synth::SkeletonParams::default()
                 })
             }
+            "gripper-parallel" | "gripper-angular" => {
+                DataConfig::Gripper(kinetree_synth::GripperParams {
+                    gripper: if self.mechanism == "gripper-parallel" {
+                        kinetree_synth::GripperKind::Parallel
+                    } else {
+                        kinetree_synth::GripperKind::Angular
+                    },
+                    n_frames: self
+                        .n_frames
+                        .unwrap_or(kinetree_synth::GripperParams::default().n_frames),
+                    noise_sigma_m: self.noise_sigma_m,
+                    dropout: self.dropout,
+                    seed: self.seed,
+                    ..kinetree_synth::GripperParams::default()
+                })
+            }
             other => {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
-                     skeleton-universal or skeleton-floating"
+                     skeleton-universal, skeleton-floating, gripper-parallel or gripper-angular"
                 )));
             }
         })

@@ -47,6 +47,10 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
             p.validate()?;
             Some(kinetree_synth::skeleton_scenario(p))
         }
+        DataConfig::Gripper(p) => {
+            p.validate()?;
+            Some(kinetree_synth::gripper_scenario(p))
+        }
         DataConfig::File(_) => None,
     })
 }

@@ -203,7 +203,7 @@ pub fn spanning_tree_without(
         }
         i += 1;
     }
-    if hoist_spherical_ties(&mut parent, &order, pairs, excluded) {
+    if hoist_ties(&mut parent, &order, pairs, excluded) {
         order = breadth_first(root, &parent);
     }
     order.extend((0..n_bodies).filter(|&b| !seen[b]));
@@ -215,35 +215,71 @@ pub fn spanning_tree_without(
     })
 }
 
-/// Hangs a body on its grandparent instead of its parent, repeatedly, where both joints turn
-/// about a fixed centre (spherical or universal): two bodies turning on balls about one
-/// centre (siblings on a common parent) each have a ball joint with the other too, and the
-/// data fit both trees exactly, so the shallower tree, the one with independent joint
-/// coordinates, is taken. A ball whose motion is too small to tell it from a universal joint
-/// is typed universal, so the two count alike. Bodies in `order` (parents first), so each is
-/// hoisted above ancestors already settled. Returns whether a parent changed.
-fn hoist_spherical_ties(
+/// How much worse (in fit ratio, the largest rejected singular value over its threshold) a
+/// body's single-DoF pair with its grandparent may fit than its pair with its parent for the
+/// two to count as tied (`docs/decisions.md`).
+pub const TIE_FIT_MARGIN: f64 = 0.3;
+
+/// The kinds of joint between which a tree can tie: about a fixed centre (spherical or
+/// universal), a hinge, a slide.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum TieKind {
+    Centred,
+    Hinge,
+    Slide,
+}
+
+/// Hangs a body on its grandparent instead of its parent, repeatedly, where the data fit both
+/// trees exactly:
+/// - both joints turn about a fixed centre (spherical or universal): two bodies turning on
+///   balls about one centre each have a ball joint with the other too. A ball whose motion
+///   is too small to tell it from a universal joint is typed universal, so the two count
+///   alike;
+/// - the parent's own joint, the child's joint with it and the child's pair with the
+///   grandparent are all hinges, or all slides: two fingers sliding along one axis, or two
+///   jaws turning on one pin, move relative to each other by a joint of the same type. The
+///   child carries no other body and its pair with the grandparent fits within
+///   [`TIE_FIT_MARGIN`] of its pair with the parent: two serial joints whose axes are a few
+///   degrees apart pass a single-DoF test across both marginally, and a link that carries
+///   others is no gripper's finger.
+///
+/// The shallower tree, the one with independent joint coordinates (as a roboticist draws a
+/// gripper's fingers, both on the hand), is taken. Bodies in `order` (parents first), so each
+/// is hoisted above ancestors already settled. Returns whether a parent changed.
+fn hoist_ties(
     parent: &mut [Option<usize>],
     order: &[usize],
     pairs: &[PairDof],
     excluded: &[(usize, usize)],
 ) -> bool {
-    let ball = |a: usize, b: usize| {
-        !excluded.contains(&(a, b))
-            && !excluded.contains(&(b, a))
-            && find_pair(pairs, Some(a), b).is_some_and(|p| {
-                matches!(
-                    p.joint,
-                    JointKind::Spherical { .. } | JointKind::Universal { .. }
-                )
-            })
+    let kind = |a: usize, b: usize| {
+        if excluded.contains(&(a, b)) || excluded.contains(&(b, a)) {
+            return None;
+        }
+        match find_pair(pairs, Some(a), b)?.joint {
+            JointKind::Spherical { .. } | JointKind::Universal { .. } => Some(TieKind::Centred),
+            JointKind::Revolute { .. } => Some(TieKind::Hinge),
+            JointKind::Prismatic { .. } => Some(TieKind::Slide),
+            _ => None,
+        }
+    };
+    let fit =
+        |a: usize, b: usize| find_pair(pairs, Some(a), b).map_or(f64::INFINITY, |p| p.fit_ratio);
+    let tied = |w: usize, u: usize, v: usize, carries_others: bool| match kind(u, v) {
+        Some(TieKind::Centred) => kind(w, v) == Some(TieKind::Centred),
+        Some(k) => {
+            kind(w, v) == Some(k)
+                && kind(w, u) == Some(k)
+                && fit(w, v) <= fit(u, v) + TIE_FIT_MARGIN
+                && !carries_others
+        }
+        None => false,
     };
     let mut changed = false;
     for &v in order {
         while let Some(u) = parent[v]
             && let Some(w) = parent[u]
-            && ball(u, v)
-            && ball(w, v)
+            && tied(w, u, v, parent.contains(&Some(v)))
         {
             parent[v] = Some(w);
             changed = true;
@@ -264,7 +300,6 @@ fn breadth_first(root: usize, parent: &[Option<usize>]) -> Vec<usize> {
     order
 }
 
-/// Frames each body is posed in (its test against the camera's columns).
 /// The root of a tree with no static body, `adj` its undirected edges: a body whose motion
 /// relative to the camera is a single-DoF joint's (an arm's first link on an unseen base),
 /// else a centre of the largest tree (fewest edges to its farthest body: the pelvis or trunk
@@ -335,6 +370,7 @@ fn floating_root(pairs: &[PairDof], adj: &[Vec<usize>]) -> Option<usize> {
         .min_by(least)
 }
 
+/// Frames each body is posed in (its test against the camera's columns).
 fn posed_frames(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
     (0..n_bodies)
         .map(|b| find_pair(pairs, None, b).map_or(0, |p| p.translation.n_columns))
