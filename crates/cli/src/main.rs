@@ -381,7 +381,8 @@ enum Command {
         /// hinges), `skeleton-universal` (the same with universal wrists and ankles),
         /// `skeleton-floating` (the same with a freely moving pelvis and nothing static),
         /// `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
-        /// or turn about, one axis), or `random` with the options below.
+        /// or turn about, one axis), `hand` (a palm with four fingers and a thumb), or
+        /// `random` with the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,
         /// Seed.

@@ -325,6 +325,8 @@ pub enum DataConfig {
     Skeleton(kinetree_synth::SkeletonParams),
     /// An arm with a parallel or angular gripper ([`kinetree_synth::gripper_scenario`]).
     Gripper(kinetree_synth::GripperParams),
+    /// A human-like hand of 16 links ([`kinetree_synth::hand_scenario`]).
+    Hand(kinetree_synth::HandParams),
     /// A tracks file (`.npy`, `.npz`, `.csv` or `.c3d`), relative to the config file.
     File(FileData),
 }
@@ -336,7 +338,7 @@ pub struct SimulationRequest {
     /// `paper-arm`, `random`, `skeleton`, `skeleton-universal` (its wrists and ankles
     /// universal joints), `skeleton-floating` (its pelvis moving freely, nothing static),
     /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
-    /// about, one axis).
+    /// about, one axis), or `hand` (a palm with four fingers and a thumb).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -413,10 +415,20 @@ impl SimulationRequest {
                     ..kinetree_synth::GripperParams::default()
                 })
             }
+            "hand" => DataConfig::Hand(kinetree_synth::HandParams {
+                n_frames: self
+                    .n_frames
+                    .unwrap_or(kinetree_synth::HandParams::default().n_frames),
+                noise_sigma_m: self.noise_sigma_m,
+                dropout: self.dropout,
+                seed: self.seed,
+                ..kinetree_synth::HandParams::default()
+            }),
             other => {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
-                     skeleton-universal, skeleton-floating, gripper-parallel or gripper-angular"
+                     skeleton-universal, skeleton-floating, gripper-parallel, gripper-angular \
+                     or hand"
                 )));
             }
         })

@@ -51,6 +51,10 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
             p.validate()?;
             Some(kinetree_synth::gripper_scenario(p))
         }
+        DataConfig::Hand(p) => {
+            p.validate()?;
+            Some(kinetree_synth::hand_scenario(p))
+        }
         DataConfig::File(_) => None,
     })
 }

@@ -1,9 +1,11 @@
 //! Synthetic articulated mechanisms: boxes joined by revolute, prismatic and spherical joints
-//! (random mechanisms, the paper's arm, a human-like skeleton, an arm with a gripper), joint
+//! (random mechanisms, the paper's arm, a human-like skeleton, an arm with a gripper, a
+//! hand), joint
 //! trajectories, a camera with a field of view, self-occlusion by ray casting, extra burst
 //! dropout and Gaussian noise, all from a seed.
 
 mod gripper;
+mod hand;
 mod mechanism;
 mod named;
 mod scenario;
@@ -13,6 +15,7 @@ mod spec;
 pub mod strategies;
 
 pub use gripper::{GripperKind, GripperParams, gripper_scenario};
+pub use hand::{HandParams, hand_scenario};
 pub use mechanism::{BodySpec, BoxShape, JointSpec, JointType, Mechanism};
 pub use named::{RandomParams, paper_arm, random_scenario};
 pub use scenario::{Camera, GroundTruth, Scenario, SynthData, Trajectory, simulate};
