@@ -372,14 +372,6 @@ impl RootJoint {
             Self::Free
         }
     }
-
-    /// Number of configuration coordinates: 0 or 6.
-    pub fn n_coordinates(self) -> usize {
-        match self {
-            Self::Fixed => 0,
-            Self::Free => 6,
-        }
-    }
 }
 
 /// The whole discovered model.

@@ -327,7 +327,7 @@ pub enum DataConfig {
     Gripper(kinetree_synth::GripperParams),
     /// A human-like hand of 16 links ([`kinetree_synth::hand_scenario`]).
     Hand(kinetree_synth::HandParams),
-    /// A tracks file (`.npy`, `.npz`, `.csv` or `.c3d`), relative to the config file.
+    /// A tracks file (`.npy`, `.npz`, `.csv`, `.c3d` or `.trc`), relative to the config file.
     File(FileData),
 }
 

@@ -114,14 +114,26 @@ pub fn hand_scenario(p: &HandParams) -> Scenario {
         }
     };
     let (half_w, half_t) = (0.008, 0.007);
-    for (f, (x, lengths)) in FINGERS.iter().enumerate() {
-        let mut z = 0.045;
+    // A finger or the thumb: links from `start` along the x or z axis (`along`), each turning
+    // about `flexion`, the first on a universal joint whose second axis is y.
+    let mut chain = |rng: &mut ChaCha8Rng,
+                     bodies: &mut Vec<BodySpec>,
+                     name: &str,
+                     start: [f64; 3],
+                     along: usize,
+                     lengths: &[f64],
+                     flexion: [f64; 3]| {
+        let mut at = start;
         let mut parent = 0;
         for (k, len) in lengths.iter().enumerate() {
+            let mut centre = at;
+            centre[along] += 0.001 + len / 2.0;
+            let mut half = [half_w, half_t, half_w];
+            half[along] = len / 2.0;
             bodies.push(link(
-                format!("finger{}_{}", f + 1, k + 1),
-                [*x, 0.0, z + 0.001 + len / 2.0],
-                [half_w, half_t, len / 2.0],
+                format!("{name}_{}", k + 1),
+                centre,
+                half,
                 p.keypoints_per_link,
             ));
             let child = bodies.len() - 1;
@@ -134,48 +146,38 @@ pub fn hand_scenario(p: &HandParams) -> Scenario {
                 } else {
                     JointType::Revolute
                 },
-                axis: [1.0, 0.0, 0.0],
-                anchor: [*x, 0.0, z],
+                axis: flexion,
+                anchor: at,
                 second_axis: universal.then_some([0.0, 1.0, 0.0]),
             });
-            trajectories.push(swing(&mut rng, true));
+            trajectories.push(swing(rng, true));
             if universal {
-                trajectories.push(swing(&mut rng, false));
+                trajectories.push(swing(rng, false));
             }
             parent = child;
-            z += 0.001 + len;
+            at[along] += 0.001 + len;
         }
+    };
+    for (f, (x, lengths)) in FINGERS.iter().enumerate() {
+        chain(
+            &mut rng,
+            &mut bodies,
+            &format!("finger{}", f + 1),
+            [*x, 0.0, 0.045],
+            2,
+            lengths,
+            [1.0, 0.0, 0.0],
+        );
     }
-    let mut x = 0.04;
-    let mut parent = 0;
-    for (k, len) in THUMB.iter().enumerate() {
-        bodies.push(link(
-            format!("thumb_{}", k + 1),
-            [x + 0.001 + len / 2.0, 0.0, -0.015],
-            [len / 2.0, half_t, half_w],
-            p.keypoints_per_link,
-        ));
-        let child = bodies.len() - 1;
-        let universal = k == 0;
-        joints.push(JointSpec {
-            parent,
-            child,
-            joint_type: if universal {
-                JointType::Universal
-            } else {
-                JointType::Revolute
-            },
-            axis: [0.0, 0.0, 1.0],
-            anchor: [x, 0.0, -0.015],
-            second_axis: universal.then_some([0.0, 1.0, 0.0]),
-        });
-        trajectories.push(swing(&mut rng, true));
-        if universal {
-            trajectories.push(swing(&mut rng, false));
-        }
-        parent = child;
-        x += 0.001 + len;
-    }
+    chain(
+        &mut rng,
+        &mut bodies,
+        "thumb",
+        [0.04, 0.0, -0.015],
+        0,
+        &THUMB,
+        [0.0, 0.0, 1.0],
+    );
     Scenario {
         mechanism: Mechanism { bodies, joints },
         trajectories,
