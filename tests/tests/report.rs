@@ -208,8 +208,8 @@ out spherical where a centre fixed in both segments explains their motion within
 error (6 of the wheelchair racer's joints, 3 of the sprinter's, 2 of the tennis player's),
 else multi-DoF. The fit through those centres re-predicts the markers at 2.7-2.8 sigma,
 where posing the segments freely gave 1.2-2.3: skin markers do not keep a centre exactly.
-Nothing is static on the triads; the tree is rooted at a centre of it, and its joints are
-hinges.
+Nothing is static on the triads; the tree is rooted as a floating tree is (docs/method.md),
+and its joints are hinges.
 
 ## Where the method breaks
 
