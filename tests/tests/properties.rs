@@ -334,6 +334,57 @@ proptest! {
     }
 }
 
+/// Arms with a gripper drawn over their seed, kind (parallel or angular), noise (0-1 mm),
+/// occlusion (0-20 %) and arm joints (1-3).
+fn any_gripper() -> impl Strategy<Value = kinetree_synth::GripperParams> {
+    (
+        any::<u64>(),
+        any::<bool>(),
+        0.0..0.001f64,
+        0.0..0.2f64,
+        1usize..=3,
+    )
+        .prop_map(|(seed, parallel, noise_sigma_m, dropout, arm_joints)| {
+            kinetree_synth::GripperParams {
+                gripper: if parallel {
+                    kinetree_synth::GripperKind::Parallel
+                } else {
+                    kinetree_synth::GripperKind::Angular
+                },
+                seed,
+                noise_sigma_m,
+                dropout,
+                arm_joints,
+                ..kinetree_synth::GripperParams::default()
+            }
+        })
+}
+
+proptest! {
+    // A gripper's discovery costs about as much as two random mechanisms'.
+    #![proptest_config(ProptestConfig { cases: (cases() / 2).max(4), ..ProptestConfig::default() })]
+
+    /// On any gripper the model is consistent, and a finger that has a joint hangs on the
+    /// hand: the tie between the fingers goes to the siblings.
+    #[test]
+    fn any_gripper_hangs_its_fingers_on_the_hand(params in any_gripper()) {
+        let data = simulate(&kinetree_synth::gripper_scenario(&params)).expect("simulate");
+        let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+        let d = pipeline.run(&data.tracks).expect("a gripper is discovered");
+        consistent(&d.model)?;
+        let map = kinetree_eval::body_map(&d.model, &data.truth);
+        let name = |b: usize| data.truth.mechanism.bodies[map[b]].name.as_str();
+        for j in &d.model.joints {
+            prop_assert!(
+                !(name(j.child).starts_with("finger") && name(j.parent).starts_with("finger")),
+                "a finger hangs on the other: {} -> {}",
+                j.parent,
+                j.child
+            );
+        }
+    }
+}
+
 /// Why a mechanism was not recovered, or `None` when it was. The tolerances follow the noise
 /// and the geometry. `r`, the single-frame rotation noise of the smallest body,
 /// `sigma / (size / 2 * sqrt(points))`, scales them:
