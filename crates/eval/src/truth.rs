@@ -229,10 +229,10 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                 }
             }
             let true_axis = Vector3::from(spec.axis).normalize();
-            if let (Some(a), Some(align)) = (
-                j.axis_in_parent,
-                parent_alignment(model, truth, j.parent, parent_body),
-            ) {
+            // The model parent's reference shape on its true body, once for every in-parent
+            // error below.
+            let align = parent_alignment(model, truth, j.parent, parent_body);
+            if let (Some(a), Some(align)) = (j.axis_in_parent, align) {
                 let a = align.rotation * Vector3::from(a);
                 e.axis_error_in_parent_deg = Some(axis_error_deg(&a, &true_axis));
                 if let (Some(p), JointType::Revolute) = (j.point_in_parent, spec.joint_type) {
@@ -248,12 +248,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                 let centre = truth.anchor_in_camera(k, j.reference_frame);
                 e.centre_error_m = Some((Point3::from(p) - centre).norm());
             }
-            if centred
-                && let (Some(p), Some(align)) = (
-                    j.point_in_parent,
-                    parent_alignment(model, truth, j.parent, parent_body),
-                )
-            {
+            if centred && let (Some(p), Some(align)) = (j.point_in_parent, align) {
                 let centre = align * Point3::from(p);
                 e.centre_error_in_parent_m = Some((centre - Point3::from(spec.anchor)).norm());
             }
@@ -265,7 +260,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                 reversed,
                 j.second_axis_in_parent,
                 spec.second_axis,
-                parent_alignment(model, truth, j.parent, parent_body),
+                align,
             ) {
                 let at = truth.mechanism.coordinate_offsets()[k];
                 let q1 = truth.joint_positions[at][j.reference_frame];

@@ -318,10 +318,11 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             .iter()
             .any(|(_, names)| names.iter().any(|n| n == label))
     };
-    let kept: Vec<usize> = (0..n_points).filter(|&i| !is_output(&labels[i])).collect();
-    let skipped: Vec<String> = (0..n_points)
-        .filter(|&i| is_output(&labels[i]))
-        .map(|i| labels[i].trim().to_string())
+    let (kept, outputs_at): (Vec<usize>, Vec<usize>) =
+        (0..n_points).partition(|&i| !is_output(&labels[i]));
+    let skipped: Vec<String> = outputs_at
+        .iter()
+        .map(|&i| labels[i].trim().to_string())
         .collect();
     if kept.is_empty() {
         return Err(malformed(

@@ -203,12 +203,7 @@ pub fn read_one_track(
                 let file_len = std::fs::metadata(path)?.len();
                 let file = BufReader::new(File::open(path)?);
                 let array = npy::read_array(file, file_len, |shape, dtype| {
-                    if dtype != "<f8" && dtype != "<f4" {
-                        return Err(Error::DType {
-                            expected: "float64 ('<f8') or float32 ('<f4')".into(),
-                            found: dtype.into(),
-                        });
-                    }
+                    check_float_dtype(dtype)?;
                     let one = matches!(shape, [_, 3] | [_, _, 3]);
                     if !one {
                         return Err(Error::Shape {
@@ -304,14 +299,20 @@ pub(crate) fn check_size(n_frames: u64, n_points: u64, max_memory_gib: f64) -> R
     )
 }
 
-/// Refuses a tracks array that is not float `(T, N, 3)` or does not fit the memory limit.
-pub(crate) fn check_tracks_array(shape: &[u64], dtype: &str, max_memory_gib: f64) -> Result<()> {
+/// Refuses an array whose elements are not float64 or float32 (little-endian).
+fn check_float_dtype(dtype: &str) -> Result<()> {
     if dtype != "<f8" && dtype != "<f4" {
         return Err(Error::DType {
             expected: "float64 ('<f8') or float32 ('<f4')".into(),
             found: dtype.into(),
         });
     }
+    Ok(())
+}
+
+/// Refuses a tracks array that is not float `(T, N, 3)` or does not fit the memory limit.
+pub(crate) fn check_tracks_array(shape: &[u64], dtype: &str, max_memory_gib: f64) -> Result<()> {
+    check_float_dtype(dtype)?;
     if shape.len() != 3 || shape[2] != 3 {
         return Err(Error::Shape {
             expected: "(T, N, 3)".into(),

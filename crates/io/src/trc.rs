@@ -23,8 +23,9 @@ fn malformed(position: impl Into<String>, message: impl Into<String>) -> Error {
     }
 }
 
-/// The fields of a line: tab-separated, or whitespace-separated for a line without tabs (some
-/// writers pad the header with spaces); surrounding blanks trimmed.
+/// The fields of a header or data line: tab-separated (empty fields kept: a missing sample),
+/// or whitespace-separated for a line without tabs (some writers pad with spaces);
+/// surrounding blanks trimmed.
 fn fields(line: &str) -> Vec<&str> {
     if line.contains('\t') {
         line.split('\t').map(str::trim).collect()
@@ -128,12 +129,7 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
     crate::check_size(data.len() as u64, n_points as u64, max_memory_gib)?;
     let mut xyz = Vec::with_capacity(data.len() * n_points * 3);
     for (k, text) in &data {
-        let row: Vec<&str> = text.split('\t').map(str::trim).collect();
-        let row = if row.len() == 1 {
-            text.split_whitespace().collect()
-        } else {
-            row
-        };
+        let row = fields(text);
         let extra = row.iter().skip(2 + 3 * n_points).find(|f| !f.is_empty());
         if let Some(f) = extra {
             return Err(malformed(

@@ -231,11 +231,9 @@ pub(crate) fn assemble(
         point_confidence: Vec::new(),
         // The root when it is static (the most posed of several), else none is.
         static_body: tree.root_is_static.then(|| new_id[tree.root]),
-        root_joint: Some(if tree.root_is_static {
-            kinetree_core::model::RootJoint::Fixed
-        } else {
-            kinetree_core::model::RootJoint::Free
-        }),
+        root_joint: Some(kinetree_core::model::RootJoint::of(
+            tree.root_is_static.then_some(tree.root),
+        )),
         root_body: new_id[tree.root],
         bodies,
         joints,
