@@ -118,3 +118,48 @@ fn discover_hinge_1_joint_20000_frames(bencher: divan::Bencher) {
     };
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
+
+/// The scale scenario ([`kinetree_synth::scale_scenario`]: a static base and four links
+/// R-R-P-R, `n` keypoints split evenly over the five bodies, 15 % occluded, 1 mm), sigma
+/// given, seed 0.
+fn scale_tracks(n_points: usize, n_frames: usize) -> Tracks {
+    let scenario = kinetree_synth::scale_scenario(&kinetree_synth::ScaleParams {
+        n_points,
+        n_frames,
+        ..Default::default()
+    });
+    kinetree_synth::simulate(&scenario)
+        .expect("simulate")
+        .tracks
+}
+
+fn sigma_given() -> PipelineConfig {
+    PipelineConfig {
+        noise_sigma_m: Some(0.001),
+        ..PipelineConfig::default()
+    }
+}
+
+/// The scale scenario at N = T = 1000, where speed targets are set.
+#[divan::bench(sample_count = 5)]
+fn discover_rrpr_1000_points_1000_frames(bencher: divan::Bencher) {
+    let tracks = scale_tracks(1000, 1000);
+    let config = sigma_given();
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
+
+/// The scale scenario against the number of keypoints, over 1000 frames.
+#[divan::bench(args = [250, 500, 2000], sample_count = 3)]
+fn discover_rrpr_points_1000_frames(bencher: divan::Bencher, n_points: usize) {
+    let tracks = scale_tracks(n_points, 1000);
+    let config = sigma_given();
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
+
+/// The scale scenario against the number of frames, with 1000 keypoints.
+#[divan::bench(args = [250, 500, 2000, 4000], sample_count = 3)]
+fn discover_rrpr_1000_points_frames(bencher: divan::Bencher, n_frames: usize) {
+    let tracks = scale_tracks(1000, n_frames);
+    let config = sigma_given();
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
