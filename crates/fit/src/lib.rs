@@ -32,7 +32,7 @@ pub use observation::{
     TYPICAL_REPREDICTION_IN_SIGMA, observe,
 };
 pub use policy::{
-    FitState, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,
+    FitState, FreeLimits, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,
     free_unfollowed_joints, readmit_freed_joints, type_joints_by_fit, write_positions,
 };
 pub use smooth::{PositionColumn, SmoothedPositions, smooth_fitted_positions, smooth_positions};

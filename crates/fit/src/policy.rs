@@ -113,19 +113,46 @@ impl FitState {
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
 pub fn fit_model_positions(model: &mut Model, tracks: &Tracks) -> Result<Option<f64>> {
     let state = FitState::new(model, tracks)?;
-    let (state, _) = free_unfollowed_joints(model, tracks, state, MAX_JOINT_EXCESS)?;
+    let (state, _) = free_unfollowed_joints(model, tracks, state, &FreeLimits::default())?;
     let (state, _) = bundle_adjust(model, tracks, state, &BundleLimits::default())?;
     let (state, _) = readmit_freed_joints(model, tracks, state, READMIT_EXCESS, MAX_JOINT_EXCESS)?;
     let (state, _) = type_joints_by_fit(model, tracks, state, &TypeByFitLimits::default())?;
     write_positions(model, &state)
 }
 
+/// The limits of [`free_unfollowed_joints`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FreeLimits {
+    /// A joint whose [`Observer::joint_excess`] is above this is over the limit (default
+    /// [`MAX_JOINT_EXCESS`]).
+    pub max_excess: f64,
+    /// With more candidates than `screen_keep`, each is first fitted on every
+    /// `screen_stride`-th frame only (default 4; 1 fits every candidate on every frame).
+    pub screen_stride: usize,
+    /// ... and the `screen_keep` candidates with the least residual there are fitted on every
+    /// frame, the least full residual chosen among them (default 2; `docs/decisions.md`,
+    /// `free_joints.screen_stride`).
+    pub screen_keep: usize,
+}
+
+impl Default for FreeLimits {
+    fn default() -> Self {
+        Self {
+            max_excess: MAX_JOINT_EXCESS,
+            screen_stride: 4,
+            screen_keep: 2,
+        }
+    }
+}
+
 /// Frees, one at a time, the joints of `model` whose [`Observer::joint_excess`] is over
-/// `max_excess` (a `joint_not_followed` warning each), refitting the sequence after each.
-/// A wrong joint also spoils the joints above it, which bend to absorb its miss (their excess
-/// can be the larger), so each round tries every joint over the limit and every joint below
-/// one, and frees the one whose freeing leaves the smallest residual. Returns the new fit and
-/// the joints freed, in order.
+/// `limits.max_excess` (a `joint_not_followed` warning each), refitting the sequence after
+/// each. A wrong joint also spoils the joints above it, which bend to absorb its miss (their
+/// excess can be the larger), so each round tries every joint over the limit and every joint
+/// below one, and frees the one whose freeing leaves the smallest residual. Where there are
+/// many such candidates, a fit of every few frames ranks them and only the best few are fitted
+/// on every frame ([`FreeLimits`]): each round's cost is then about a quarter of a full fit per
+/// candidate. Returns the new fit and the joints freed, in order.
 ///
 /// # Errors
 /// As [`Observer::fit_sequence`].
@@ -133,13 +160,17 @@ pub fn free_unfollowed_joints(
     model: &mut Model,
     tracks: &Tracks,
     state: FitState,
-    max_excess: f64,
+    limits: &FreeLimits,
 ) -> Result<(FitState, Vec<usize>)> {
     let FitState {
         mut observer,
         mut fits,
         ..
     } = state;
+    let max_excess = limits.max_excess;
+    let screen: Vec<usize> = (0..tracks.n_frames())
+        .step_by(limits.screen_stride.max(1))
+        .collect();
     let mut freed_now = Vec::new();
     loop {
         let excess = observer.joint_excess(tracks, &fits)?;
@@ -160,6 +191,11 @@ pub fn free_unfollowed_joints(
                     })
             })
             .collect();
+        let candidates = if limits.screen_stride > 1 && candidates.len() > limits.screen_keep {
+            screened(&observer, tracks, &candidates, &screen, limits.screen_keep)?
+        } else {
+            candidates
+        };
         // Each candidate is freed and the sequence refitted independently, in parallel; the
         // best is then chosen in joint order, as a sequential loop would.
         let trials = candidates
@@ -192,6 +228,31 @@ pub fn free_unfollowed_joints(
         freed_now.push(k);
     }
     Ok((FitState::of(model, observer, fits), freed_now))
+}
+
+/// The `keep` of `candidates` whose freeing leaves the least residual over the `frames`, in
+/// joint order (ties to the earlier joint).
+fn screened(
+    observer: &Observer,
+    tracks: &Tracks,
+    candidates: &[usize],
+    frames: &[usize],
+    keep: usize,
+) -> Result<Vec<usize>> {
+    let misses = candidates
+        .par_iter()
+        .map(|&k| {
+            let mut trial = observer.clone();
+            trial.free_joint(k);
+            let fits = trial.fit_frames(tracks, frames)?;
+            Ok(fits.iter().map(|f| f.sum_sq_m2).sum::<f64>())
+        })
+        .collect::<Result<Vec<f64>>>()?;
+    let mut order: Vec<usize> = (0..candidates.len()).collect();
+    order.sort_by(|&a, &b| misses[a].total_cmp(&misses[b]).then(a.cmp(&b)));
+    let mut kept: Vec<usize> = order.iter().take(keep).map(|&i| candidates[i]).collect();
+    kept.sort_unstable();
+    Ok(kept)
 }
 
 /// Bundle-adjusts the single-DoF joints the fit follows with every frame's configuration (see
@@ -336,43 +397,87 @@ pub fn type_joints_by_fit(
         made_from,
     } = state;
     let mut typed = Vec::new();
-    for k in 0..observer.joints.len() {
-        if model.joints[k].joint_type == JointType::Universal {
-            if let Some((trial, trial_fits)) =
-                universal_by_fit(model, k, tracks, &observer, &fits, limits)?
-            {
-                (observer, fits) = (trial, trial_fits);
-                typed.push(k);
+    // The joints are tried in order, each on the fit the typings before it left. A trial that
+    // types nothing leaves the model as it was, so the trials from one state run in parallel
+    // and the first that types its joint is taken, as a loop in joint order would take it;
+    // the joints after it are then tried again on the new fit.
+    let mut from = 0;
+    loop {
+        let tries: Vec<usize> = (from..observer.joints.len())
+            .filter(|&k| typing_tried(model, k, &observer, &fits, limits))
+            .collect();
+        let trials: Vec<Result<Option<_>>> = tries
+            .par_iter()
+            .map(|&k| {
+                let mut trial_model = model.clone();
+                let found = if model.joints[k].joint_type == JointType::Universal {
+                    universal_by_fit(&mut trial_model, k, tracks, &observer, &fits, limits)?
+                } else {
+                    let types = typing_candidates(model, k, &observer);
+                    type_by_fit(&mut trial_model, k, tracks, &fits, types, limits)?
+                };
+                Ok(found.map(|f| (k, trial_model, f)))
+            })
+            .collect();
+        // In joint order: an error counts only where a loop would have met it.
+        let mut found = None;
+        for trial in trials {
+            if let Some(t) = trial? {
+                found = Some(t);
+                break;
             }
-            continue;
         }
-        let ranks = &model.joints[k].ranks;
-        // A spherical joint is tried as a hinge whatever its ranks: a hinge has a fixed centre
-        // too, and the rank test can take a noisy hinge's rotations for more than one.
-        let ball = model.joints[k].joint_type == JointType::Spherical;
-        if !ball
-            && (ranks.rotation > limits.max_rotation_rank
-                || ranks.translation > limits.max_translation_rank)
-        {
-            continue;
-        }
-        if ball && off_axis_in_std(&fits, k).is_none_or(|r| r > limits.max_ball_off_axis_in_std) {
-            continue;
-        }
-        let types: &[bool] = match model.joints[k].joint_type {
-            JointType::Spherical => &[true],
-            JointType::MultiDof => &[false, true],
-            JointType::Prismatic if observer.freed[k] => &[true],
-            JointType::Revolute if observer.freed[k] => &[false],
-            _ => continue,
+        let Some((k, typed_model, (trial, trial_fits))) = found else {
+            break;
         };
-        if let Some((trial, trial_fits)) = type_by_fit(model, k, tracks, &fits, types, limits)? {
-            (observer, fits) = (trial, trial_fits);
-            typed.push(k);
-        }
+        *model = typed_model;
+        (observer, fits) = (trial, trial_fits);
+        typed.push(k);
+        from = k + 1;
     }
     let state = FitState::kept(model, observer, fits, made_from, !typed.is_empty());
     Ok((state, typed))
+}
+
+/// Whether [`type_joints_by_fit`] tries joint `k`: every universal joint; a spherical joint
+/// whose rotations keep near one axis; a multi-DoF joint of low ranks; a freed single-DoF
+/// joint.
+fn typing_tried(
+    model: &Model,
+    k: usize,
+    observer: &Observer,
+    fits: &[FrameFit],
+    limits: &TypeByFitLimits,
+) -> bool {
+    let joint = &model.joints[k];
+    if joint.joint_type == JointType::Universal {
+        return true;
+    }
+    let ranks = &joint.ranks;
+    // A spherical joint is tried as a hinge whatever its ranks: a hinge has a fixed centre
+    // too, and the rank test can take a noisy hinge's rotations for more than one.
+    let ball = joint.joint_type == JointType::Spherical;
+    if !ball
+        && (ranks.rotation > limits.max_rotation_rank
+            || ranks.translation > limits.max_translation_rank)
+    {
+        return false;
+    }
+    if ball && off_axis_in_std(fits, k).is_none_or(|r| r > limits.max_ball_off_axis_in_std) {
+        return false;
+    }
+    !typing_candidates(model, k, observer).is_empty()
+}
+
+/// The types joint `k` is tried as, in order (`true` revolute, `false` prismatic).
+fn typing_candidates(model: &Model, k: usize, observer: &Observer) -> &'static [bool] {
+    match model.joints[k].joint_type {
+        JointType::Spherical => &[true],
+        JointType::MultiDof => &[false, true],
+        JointType::Prismatic if observer.freed[k] => &[true],
+        JointType::Revolute if observer.freed[k] => &[false],
+        _ => &[],
+    }
 }
 
 /// Universal joint `k` typed by the fit, as a ball or a hinge, when that explains the

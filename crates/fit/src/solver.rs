@@ -450,11 +450,37 @@ impl Observer {
         self.fit_sequence_with(tracks, |_, _| {})
     }
 
+    /// [`Observer::fit_sequence`] over the given frames only, in their order, each fit
+    /// starting from the frames fitted before it: one fit per listed frame.
+    ///
+    /// # Errors
+    /// As [`Observer::fit_sequence`]; [`Error::Shape`] also for a frame beyond the tracks.
+    pub fn fit_frames(&self, tracks: &Tracks, frames: &[usize]) -> Result<Vec<FrameFit>> {
+        if let Some(&t) = frames.iter().find(|&&t| t >= tracks.n_frames()) {
+            return Err(Error::Shape {
+                expected: format!("frames below {}", tracks.n_frames()),
+                found: format!("frame {t}"),
+            });
+        }
+        self.fit_listed_frames(tracks, frames.iter().copied(), |_, _| {})
+    }
+
     /// [`Observer::fit_sequence`], handing each frame's converged descent and visible points
     /// to `each` as well.
     pub(crate) fn fit_sequence_with(
         &self,
         tracks: &Tracks,
+        each: impl FnMut(Descent, Visible),
+    ) -> Result<Vec<FrameFit>> {
+        self.fit_listed_frames(tracks, 0..tracks.n_frames(), each)
+    }
+
+    /// The fits of `frames` (each below the tracks' frame count), in turn, each starting from
+    /// the last known values of the frames fitted before it.
+    fn fit_listed_frames(
+        &self,
+        tracks: &Tracks,
+        frames: impl ExactSizeIterator<Item = usize>,
         mut each: impl FnMut(Descent, Visible),
     ) -> Result<Vec<FrameFit>> {
         if tracks.n_points() != self.n_points {
@@ -464,8 +490,8 @@ impl Observer {
             });
         }
         let mut warm: Option<FrameFit> = None;
-        let mut out = Vec::with_capacity(tracks.n_frames());
-        for t in 0..tracks.n_frames() {
+        let mut out = Vec::with_capacity(frames.len());
+        for t in frames {
             let frame: Vec<Option<Point3<f64>>> =
                 (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
             let (descent, visible) = self.fit_descent(&frame, warm.as_ref());

@@ -5,7 +5,7 @@
 //! 10-30 where a pivot was a few centimetres off; joints the model gets wrong reach 50-200
 //! (`docs/decisions.md`, `free_joints.max_excess`).
 
-use super::{in_range, refit};
+use super::{count_in_range, in_range, refit};
 use kinetree_core::{Draft, Proposal, Repair, RepairContext, RepairPhase, Result};
 use serde::{Deserialize, Serialize};
 
@@ -18,6 +18,11 @@ pub struct FreeJointsParams {
     /// A joint whose child misses the fit by more than this, in `sigma^2` per point beyond
     /// its own pose, is freed (default 30).
     pub max_excess: f64,
+    /// With more candidate joints than `screen_keep`, each is first fitted on every
+    /// `screen_stride`-th frame only (default 4; 1 fits every candidate on every frame) ...
+    pub screen_stride: usize,
+    /// ... and only the `screen_keep` best there are fitted on every frame (default 2).
+    pub screen_keep: usize,
 }
 
 impl Default for FreeJointsParams {
@@ -25,6 +30,8 @@ impl Default for FreeJointsParams {
         Self {
             enabled: true,
             max_excess: kinetree_fit::MAX_JOINT_EXCESS,
+            screen_stride: kinetree_fit::FreeLimits::default().screen_stride,
+            screen_keep: kinetree_fit::FreeLimits::default().screen_keep,
         }
     }
 }
@@ -35,7 +42,24 @@ impl FreeJointsParams {
     /// # Errors
     /// [`kinetree_core::Error::InvalidParameter`] naming the parameter.
     pub fn validate(&self) -> Result<()> {
-        in_range("free_joints", "max_excess", self.max_excess, 0.0, 1e12)
+        in_range("free_joints", "max_excess", self.max_excess, 0.0, 1e12)?;
+        count_in_range(
+            "free_joints",
+            "screen_stride",
+            self.screen_stride,
+            1,
+            1_000_000,
+        )?;
+        count_in_range("free_joints", "screen_keep", self.screen_keep, 1, 1_000_000)
+    }
+
+    /// The limits of [`kinetree_fit::free_unfollowed_joints`].
+    pub fn limits(&self) -> kinetree_fit::FreeLimits {
+        kinetree_fit::FreeLimits {
+            max_excess: self.max_excess,
+            screen_stride: self.screen_stride,
+            screen_keep: self.screen_keep,
+        }
     }
 }
 
@@ -66,14 +90,14 @@ impl Repair for FreeJoints {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let max = self.params.max_excess;
+        let limits = self.params.limits();
         refit(
             self.name(),
             ctx,
             draft,
             |model, state| {
                 let (state, freed) =
-                    kinetree_fit::free_unfollowed_joints(model, ctx.tracks, state, max)?;
+                    kinetree_fit::free_unfollowed_joints(model, ctx.tracks, state, &limits)?;
                 Ok((state, (!freed.is_empty()).then_some(freed)))
             },
             |n| format!("{n} joint(s) the fit cannot follow freed"),
