@@ -35,7 +35,7 @@ impl PoseQuality {
         rot_cov_per_sigma2: Matrix3<f64>,
         origin_cov_per_sigma2: Matrix3<f64>,
     ) -> Self {
-        let worst = |m: &Matrix3<f64>| m.symmetric_eigenvalues().max().max(0.0).sqrt();
+        let worst = |m: &Matrix3<f64>| crate::geom::symmetric_eigenvalues_3x3(m)[0].max(0.0).sqrt();
         Self {
             n_visible,
             rms_residual_m,

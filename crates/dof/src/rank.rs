@@ -129,7 +129,7 @@ fn worst_std(cov: &Matrix3<f64>, dim: usize) -> f64 {
     let v = match dim {
         1 => cov[(0, 0)],
         2 => cov.fixed_view::<2, 2>(0, 0).symmetric_eigenvalues().max(),
-        _ => cov.symmetric_eigenvalues().max(),
+        _ => kinetree_core::geom::symmetric_eigenvalues_3x3(cov)[0],
     };
     v.max(1e-300).sqrt()
 }

@@ -16,13 +16,7 @@ pub fn spread(p: &[Point3<f64>]) -> [f64; 3] {
         let d = q - c;
         s += d * d.transpose();
     }
-    let mut e: Vec<f64> = s
-        .symmetric_eigenvalues()
-        .iter()
-        .map(|x| (x.max(0.0) / p.len() as f64).sqrt())
-        .collect();
-    e.sort_by(|a, b| b.total_cmp(a));
-    [e[0], e[1], e[2]]
+    kinetree_core::geom::symmetric_eigenvalues_3x3(&s).map(|x| (x.max(0.0) / p.len() as f64).sqrt())
 }
 
 /// Rotation-error covariance per unit noise variance for a Kabsch fit on `p`: `J^-1` with
@@ -42,6 +36,8 @@ pub fn rotation_cov_per_sigma2(p: &[Point3<f64>]) -> Option<Matrix3<f64>> {
 /// `sqrt(lambda_max(J^-1))`, infinite for collinear points.
 pub fn rotation_std_per_sigma(p: &[Point3<f64>]) -> f64 {
     rotation_cov_per_sigma2(p).map_or(f64::INFINITY, |c| {
-        c.symmetric_eigenvalues().max().max(0.0).sqrt()
+        kinetree_core::geom::symmetric_eigenvalues_3x3(&c)[0]
+            .max(0.0)
+            .sqrt()
     })
 }
