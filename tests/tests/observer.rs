@@ -515,3 +515,34 @@ fn body_poses_follow_the_truth_within_their_standard_deviations() {
         );
     }
 }
+
+/// The whole-tree fit of a sequence again, given the observer's own earlier fit, is the same
+/// fit bit for bit, though its frames run in parallel chunks (700 frames make three): each
+/// chunk starts from the last known values of the frames before it, as the sequence had
+/// them.
+#[test]
+fn a_refit_from_the_observers_own_fit_is_the_same_fit_bit_for_bit() {
+    // The paper arm's first link turns about once: its angle runs past half a turn, where
+    // a chunk started without the frames before it would wrap.
+    let mut scenario = paper_arm(3);
+    scenario.n_frames = 700;
+    scenario.dropout = 0.2;
+    let data = simulate(&scenario).expect("simulate");
+    let model = Pipeline::from_config(&config())
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("run")
+        .model;
+    let observer = Observer::new(&model).expect("observer");
+    let fits = observer.fit_sequence(&data.tracks).expect("fit");
+    let again = observer.refit_sequence(&data.tracks, &fits).expect("refit");
+    assert_eq!(again.len(), fits.len());
+    for (t, (a, b)) in again.iter().zip(&fits).enumerate() {
+        assert!(a == b, "frame {t} differs");
+    }
+    // Without one earlier fit per frame, the frames are fitted in turn.
+    let fresh = observer
+        .refit_sequence(&data.tracks, &fits[..10])
+        .expect("refit");
+    assert!(fresh == fits);
+}

@@ -90,14 +90,16 @@ struct Frame {
 }
 
 /// Bundle-adjusts the single-DoF joints `observer` follows (freed joints and joints that are
-/// not single-DoF are left alone) against every frame of `tracks`: the observer with the
-/// adjusted joints, or `None` when there is no such joint or no step lowered the residual.
+/// not single-DoF are left alone) against every frame of `tracks`, starting from `known`, the
+/// observer's own fit of them ([`Observer::fit_sequence`]): the observer with the adjusted
+/// joints, or `None` when there is no such joint or no step lowered the residual.
 ///
 /// # Errors
 /// [`kinetree_core::Error::Shape`] when the tracks do not match the observer's model.
 pub(crate) fn adjust(
     observer: &Observer,
     tracks: &Tracks,
+    known: &[crate::FrameFit],
     limits: &BundleLimits,
 ) -> Result<Option<Observer>> {
     let mut blocks = Vec::new();
@@ -118,10 +120,11 @@ pub(crate) fn adjust(
     if blocks.is_empty() {
         return Ok(None);
     }
-    let mut frames = Vec::with_capacity(tracks.n_frames());
-    observer.fit_sequence_with(tracks, |descent, visible| {
-        frames.push(Frame { visible, descent });
-    })?;
+    let mut frames: Vec<Frame> = observer
+        .replay_sequence(tracks, known)?
+        .into_iter()
+        .map(|(descent, visible)| Frame { visible, descent })
+        .collect();
     let total = |frames: &[Frame]| frames.iter().map(|f| f.descent.cost).sum::<f64>();
     let before = total(&frames);
     let mut current = observer.clone();

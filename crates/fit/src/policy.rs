@@ -271,7 +271,7 @@ pub fn bundle_adjust(
     state: FitState,
     limits: &BundleLimits,
 ) -> Result<(FitState, bool)> {
-    match adjust_model(model, &state.observer, tracks, limits)? {
+    match adjust_model(model, &state.observer, tracks, &state.fits, limits)? {
         Some((observer, fits)) => Ok((FitState::of(model, observer, fits), true)),
         None => Ok((state, false)),
     }
@@ -821,16 +821,17 @@ fn span(values: impl Iterator<Item = f64>) -> Option<[f64; 2]> {
     })
 }
 
-/// Bundle-adjusts the joints `observer` (built from `model`) follows ([`crate::bundle`]) and
-/// writes them into `model`; returns the observer rebuilt from the model and its fit, or
-/// `None` (the model unchanged) when the adjustment changed nothing.
+/// Bundle-adjusts the joints `observer` (built from `model`; `known` is its fit of `tracks`)
+/// follows ([`crate::bundle`]) and writes them into `model`; returns the observer rebuilt from
+/// the model and its fit, or `None` (the model unchanged) when the adjustment changed nothing.
 fn adjust_model(
     model: &mut Model,
     observer: &Observer,
     tracks: &Tracks,
+    known: &[FrameFit],
     limits: &BundleLimits,
 ) -> Result<Option<(Observer, Vec<FrameFit>)>> {
-    let Some(adjusted) = crate::bundle::adjust(observer, tracks, limits)? else {
+    let Some(adjusted) = crate::bundle::adjust(observer, tracks, known, limits)? else {
         return Ok(None);
     };
     let adjusted_fits = adjusted.fit_sequence(tracks)?;
@@ -915,7 +916,7 @@ fn type_by_fit(
         }
         let mut trial = Observer::new(model)?;
         let mut trial_fits = trial.fit_sequence(tracks)?;
-        if let Some(adjusted) = adjust_model(model, &trial, tracks, &limits.bundle)? {
+        if let Some(adjusted) = adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
             (trial, trial_fits) = adjusted;
         }
         let excess = trial.joint_excess(tracks, &trial_fits)?;

@@ -9,6 +9,7 @@ use kinetree_core::nalgebra::{
     Vector3, Vector6,
 };
 use kinetree_core::{Error, Model, PoseQuality, Result, Tracks, Warning};
+use rayon::prelude::*;
 
 #[derive(Debug, Clone)]
 pub(crate) struct ObservedBody {
@@ -497,32 +498,89 @@ impl Observer {
             let (descent, visible) = self.fit_descent(&frame, warm.as_ref());
             let fit = self.finish(&descent, &visible, warm.as_ref())?;
             each(descent, visible);
-            match &mut warm {
-                None => warm = Some(fit.clone()),
-                Some(w) => {
-                    for (a, b) in w.positions.iter_mut().zip(&fit.positions) {
-                        if b.is_some() {
-                            *a = *b;
-                        }
-                    }
-                    for (a, b) in w.rotations.iter_mut().zip(&fit.rotations) {
-                        if b.is_some() {
-                            *a = *b;
-                        }
-                    }
-                    for (a, b) in w.angles.iter_mut().zip(&fit.angles) {
-                        if b.is_some() {
-                            *a = *b;
-                        }
-                    }
-                    for (a, b) in w.poses.iter_mut().zip(&fit.poses) {
-                        if b.is_some() {
-                            *a = *b;
-                        }
-                    }
-                }
-            }
+            remember(&mut warm, &fit);
             out.push(fit);
+        }
+        Ok(out)
+    }
+
+    /// [`Observer::fit_sequence`] again, given `known`: this observer's own fit of the same
+    /// tracks. The fits are the same, frame for frame and bit for bit: each frame starts from
+    /// the last known values of the frames before it, which `known` holds, so chunks of
+    /// frames run in parallel. Without a fit per frame in `known`, the frames are fitted in
+    /// turn.
+    ///
+    /// # Errors
+    /// As [`Observer::fit_sequence`].
+    pub fn refit_sequence(&self, tracks: &Tracks, known: &[FrameFit]) -> Result<Vec<FrameFit>> {
+        if known.len() != tracks.n_frames() {
+            return self.fit_sequence(tracks);
+        }
+        self.replay_with(tracks, known, |descent, visible, warm| {
+            self.finish(&descent, &visible, warm)
+        })
+    }
+
+    /// The descents and visible points [`Observer::fit_sequence_with`] hands on, given
+    /// `known` as [`Observer::refit_sequence`] takes it, the same bit for bit.
+    ///
+    /// # Errors
+    /// As [`Observer::fit_sequence`].
+    pub(crate) fn replay_sequence(
+        &self,
+        tracks: &Tracks,
+        known: &[FrameFit],
+    ) -> Result<Vec<(Descent, Visible)>> {
+        if known.len() != tracks.n_frames() {
+            let mut out = Vec::with_capacity(tracks.n_frames());
+            self.fit_sequence_with(tracks, |d, v| out.push((d, v)))?;
+            return Ok(out);
+        }
+        self.replay_with(tracks, known, |descent, visible, _| Ok((descent, visible)))
+    }
+
+    /// Every frame's descent from the last known values of the frames before it (folded from
+    /// `known`, one fit per frame), in chunks of [`REPLAY_CHUNK`] frames in parallel, each
+    /// handed to `each` with those values.
+    fn replay_with<R: Send>(
+        &self,
+        tracks: &Tracks,
+        known: &[FrameFit],
+        each: impl Fn(Descent, Visible, Option<&FrameFit>) -> Result<R> + Sync,
+    ) -> Result<Vec<R>> {
+        if tracks.n_points() != self.n_points {
+            return Err(Error::Shape {
+                expected: format!("{} points per frame", self.n_points),
+                found: format!("{} points", tracks.n_points()),
+            });
+        }
+        let t_len = tracks.n_frames().min(known.len());
+        let mut starts = Vec::with_capacity(t_len.div_ceil(REPLAY_CHUNK));
+        let mut warm: Option<FrameFit> = None;
+        for (t, fit) in known.iter().enumerate().take(t_len) {
+            if t % REPLAY_CHUNK == 0 {
+                starts.push((t, warm.clone()));
+            }
+            remember(&mut warm, fit);
+        }
+        let chunks: Vec<Result<Vec<R>>> = starts
+            .into_par_iter()
+            .map(|(start, mut warm)| {
+                let end = (start + REPLAY_CHUNK).min(t_len);
+                let mut out = Vec::with_capacity(end - start);
+                for (t, fit) in known.iter().enumerate().take(end).skip(start) {
+                    let frame: Vec<Option<Point3<f64>>> =
+                        (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+                    let (descent, visible) = self.fit_descent(&frame, warm.as_ref());
+                    out.push(each(descent, visible, warm.as_ref())?);
+                    remember(&mut warm, fit);
+                }
+                Ok(out)
+            })
+            .collect();
+        let mut out = Vec::with_capacity(t_len);
+        for chunk in chunks {
+            out.extend(chunk?);
         }
         Ok(out)
     }
@@ -1731,6 +1789,30 @@ pub(crate) fn rms_in_sigma(fits: &[FrameFit], sigma: f64) -> Option<f64> {
     let count: usize = fits.iter().map(|f| f.n_points).sum();
     let sum: f64 = fits.iter().map(|f| f.sum_sq_m2).sum();
     (count > 0 && sigma > 0.0).then(|| (sum / count as f64).sqrt() / sigma)
+}
+
+/// Frames per parallel chunk of [`Observer::replay_sequence`]: enough to outweigh the copy of
+/// the last known values each chunk starts from.
+const REPLAY_CHUNK: usize = 256;
+
+/// Folds a frame's fit into the last known values of the frames before it: every entry the
+/// fit has replaces the one before (the first fit is taken whole).
+fn remember(warm: &mut Option<FrameFit>, fit: &FrameFit) {
+    let Some(w) = warm else {
+        *warm = Some(fit.clone());
+        return;
+    };
+    fn keep<T: Copy>(into: &mut [Option<T>], from: &[Option<T>]) {
+        for (a, b) in into.iter_mut().zip(from) {
+            if b.is_some() {
+                *a = *b;
+            }
+        }
+    }
+    keep(&mut w.positions, &fit.positions);
+    keep(&mut w.rotations, &fit.rotations);
+    keep(&mut w.angles, &fit.angles);
+    keep(&mut w.poses, &fit.poses);
 }
 
 #[cfg(test)]
