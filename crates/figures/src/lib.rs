@@ -401,3 +401,108 @@ where
     }
     Ok(())
 }
+
+/// One panel of [`write_scaling_plot`]: a measured time against a size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScalingPanel {
+    /// The panel's title.
+    pub title: String,
+    /// What the size is (the x axis' label).
+    pub size: String,
+    /// `(size, seconds)`, each positive.
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Draws time against size on log-log axes, one panel per [`ScalingPanel`] side by side,
+/// with a dashed line of slope one (linear cost) and one of slope two through each panel's
+/// first point, into `path` (SVG).
+///
+/// # Errors
+/// [`Error::InvalidParameter`] for a panel without points or with a size or time that is not
+/// positive and finite; I/O and drawing errors.
+pub fn write_scaling_plot(path: &Path, panels: &[ScalingPanel]) -> Result<()> {
+    for p in panels {
+        let bad = p
+            .points
+            .iter()
+            .any(|&(x, y)| !(x.is_finite() && y.is_finite() && x > 0.0 && y > 0.0));
+        if p.points.is_empty() || bad {
+            return Err(Error::InvalidParameter {
+                name: format!("scaling panel `{}`", p.title),
+                message: "needs points of positive, finite size and time".into(),
+            });
+        }
+    }
+    fonts()?;
+    let width = 520 * panels.len().max(1) as u32;
+    let area = SVGBackend::new(path, (width, 440)).into_drawing_area();
+    area.fill(&WHITE).map_err(fig_err)?;
+    for (panel, p) in area
+        .split_evenly((1, panels.len().max(1)))
+        .iter()
+        .zip(panels)
+    {
+        let (x0, x1) = p.points.iter().fold((f64::INFINITY, 0.0f64), |(l, h), q| {
+            (l.min(q.0), h.max(q.0))
+        });
+        let (y0, y1) = p.points.iter().fold((f64::INFINITY, 0.0f64), |(l, h), q| {
+            (l.min(q.1), h.max(q.1))
+        });
+        let (lo, hi) = (x0 / 1.3, x1 * 1.3);
+        let mut chart = ChartBuilder::on(panel)
+            .caption(&p.title, ("sans-serif", 18))
+            .margin(14)
+            .x_label_area_size(36)
+            .y_label_area_size(56)
+            .build_cartesian_2d((lo..hi).log_scale(), (y0 / 2.0..y1 * 2.0).log_scale())
+            .map_err(fig_err)?;
+        chart
+            .configure_mesh()
+            .x_label_formatter(&|x| format!("{x:.0}"))
+            .y_label_formatter(&|y| format!("{y:.2}"))
+            .x_desc(&p.size)
+            .y_desc("seconds")
+            .label_style(("sans-serif", 13))
+            .draw()
+            .map_err(fig_err)?;
+        let (fx, fy) = p.points[0];
+        for (power, label) in [(1.0, "linear"), (2.0, "quadratic")] {
+            // Sampled and cut at the panel's top and bottom: plotters would clamp an end
+            // beyond them and bend the line.
+            let line: Vec<(f64, f64)> = (0..=64)
+                .map(|i| {
+                    let x = lo * (hi / lo).powf(i as f64 / 64.0);
+                    (x, fy * (x / fx).powf(power))
+                })
+                .filter(|&(_, y)| y >= y0 / 2.0 && y <= y1 * 2.0)
+                .collect();
+            let style = BLACK.mix(0.35).stroke_width(1);
+            chart
+                .draw_series(DashedLineSeries::new(line, 6, 4, style))
+                .map_err(fig_err)?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+        }
+        chart
+            .draw_series(LineSeries::new(p.points.clone(), ramp(0.3).stroke_width(2)))
+            .map_err(fig_err)?
+            .label("measured")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], ramp(0.3)));
+        chart
+            .draw_series(
+                p.points
+                    .iter()
+                    .map(|&q| Circle::new(q, 4, ramp(0.3).filled())),
+            )
+            .map_err(fig_err)?;
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .label_font(("sans-serif", 13))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(fig_err)?;
+    }
+    area.present().map_err(fig_err)
+}
