@@ -151,8 +151,8 @@ impl Default for FreeLimits {
 /// excess can be the larger), so each round tries every joint over the limit and every joint
 /// below one, and frees the one whose freeing leaves the smallest residual. Where there are
 /// many such candidates, a fit of every few frames ranks them and only the best few are fitted
-/// on every frame ([`FreeLimits`]): each round's cost is then about a quarter of a full fit per
-/// candidate. Returns the new fit and the joints freed, in order.
+/// on every frame ([`FreeLimits`]): a round then costs about a quarter of a full fit per
+/// candidate and two full fits. Returns the new fit and the joints freed, in order.
 ///
 /// # Errors
 /// As [`Observer::fit_sequence`].
