@@ -15,15 +15,22 @@ fn config() -> PipelineConfig {
     }
 }
 
-/// The paper arm simulated from `seed` and the model discovered from all its frames.
-fn discovered_arm(seed: u64) -> (kinetree_synth::SynthData, kinetree_core::Model) {
-    let data = simulate(&paper_arm(seed)).expect("simulate");
+/// `scenario` simulated and the model discovered from all its frames (sigma given).
+fn discovered(
+    scenario: &kinetree_synth::Scenario,
+) -> (kinetree_synth::SynthData, kinetree_core::Model) {
+    let data = simulate(scenario).expect("simulate");
     let model = Pipeline::from_config(&config())
         .expect("pipeline")
         .run(&data.tracks)
         .expect("run")
         .model;
     (data, model)
+}
+
+/// The paper arm simulated from `seed` and the model discovered from all its frames.
+fn discovered_arm(seed: u64) -> (kinetree_synth::SynthData, kinetree_core::Model) {
+    discovered(&paper_arm(seed))
 }
 
 /// The true trajectory of `model`'s joint `k` on the paper arm (its child's first point's
@@ -445,12 +452,7 @@ fn body_poses_follow_the_truth_within_their_standard_deviations() {
         }),
     ];
     for scenario in scenarios {
-        let data = simulate(&scenario).expect("simulate");
-        let model = Pipeline::from_config(&config())
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("run")
-            .model;
+        let (data, model) = discovered(&scenario);
         let seen =
             kinetree_fit::observe(&model, &data.tracks, Default::default()).expect("observe");
         let (table, shape) = seen.pose_table();
@@ -527,12 +529,7 @@ fn a_refit_from_the_observers_own_fit_is_the_same_fit_bit_for_bit() {
     let mut scenario = paper_arm(3);
     scenario.n_frames = 700;
     scenario.dropout = 0.2;
-    let data = simulate(&scenario).expect("simulate");
-    let model = Pipeline::from_config(&config())
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("run")
-        .model;
+    let (data, model) = discovered(&scenario);
     let observer = Observer::new(&model).expect("observer");
     let fits = observer.fit_sequence(&data.tracks).expect("fit");
     let again = observer.refit_sequence(&data.tracks, &fits).expect("refit");
