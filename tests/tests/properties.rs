@@ -305,13 +305,12 @@ proptest! {
     #[test]
     fn any_skeleton_gives_a_consistent_model(params in any_skeleton()) {
         let data = simulate(&kinetree_synth::skeleton_scenario(&params)).expect("simulate");
-        let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
-        let d = pipeline.run(&data.tracks).expect("a skeleton is discovered");
-        consistent(&d.model)?;
-        for j in &d.model.joints {
+        let model = kinetree_tests::discover_default(&data.tracks);
+        consistent(&model)?;
+        for j in &model.joints {
             // A slide only where the motion is too small to tell it from a hinge, and the
             // model says so.
-            let flagged = d.model.warnings.iter().any(|w| matches!(
+            let flagged = model.warnings.iter().any(|w| matches!(
                 w,
                 kinetree_core::Warning::JointNotIdentifiable { child, alternatives, .. }
                     if *child == j.child
@@ -325,9 +324,9 @@ proptest! {
             );
         }
         if params.noise_sigma_m <= 0.001 && params.dropout <= 0.2 {
-            prop_assert_eq!(d.model.bodies.len(), 15);
+            prop_assert_eq!(model.bodies.len(), 15);
             prop_assert_eq!(
-                d.model.root_joint() == kinetree_core::model::RootJoint::Free,
+                model.root_joint() == kinetree_core::model::RootJoint::Free,
                 params.floating_pelvis
             );
         }
@@ -369,12 +368,11 @@ proptest! {
     #[test]
     fn any_gripper_hangs_its_fingers_on_the_hand(params in any_gripper()) {
         let data = simulate(&kinetree_synth::gripper_scenario(&params)).expect("simulate");
-        let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
-        let d = pipeline.run(&data.tracks).expect("a gripper is discovered");
-        consistent(&d.model)?;
-        let map = kinetree_eval::body_map(&d.model, &data.truth);
+        let model = kinetree_tests::discover_default(&data.tracks);
+        consistent(&model)?;
+        let map = kinetree_eval::body_map(&model, &data.truth);
         let name = |b: usize| data.truth.mechanism.bodies[map[b]].name.as_str();
-        for j in &d.model.joints {
+        for j in &model.joints {
             prop_assert!(
                 !(name(j.child).starts_with("finger") && name(j.parent).starts_with("finger")),
                 "a finger hangs on the other: {} -> {}",

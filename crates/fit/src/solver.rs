@@ -451,6 +451,17 @@ impl Observer {
         self.fit_sequence_with(tracks, |_, _| {})
     }
 
+    /// [`Error::Shape`] unless a frame of `found` points has the model's points.
+    fn check_points(&self, found: usize) -> Result<()> {
+        if found == self.n_points {
+            return Ok(());
+        }
+        Err(Error::Shape {
+            expected: format!("{} points per frame", self.n_points),
+            found: format!("{found} points"),
+        })
+    }
+
     /// [`Observer::fit_sequence`] over the given frames only, in their order, each fit
     /// starting from the frames fitted before it: one fit per listed frame.
     ///
@@ -484,12 +495,7 @@ impl Observer {
         frames: impl ExactSizeIterator<Item = usize>,
         mut each: impl FnMut(Descent, Visible),
     ) -> Result<Vec<FrameFit>> {
-        if tracks.n_points() != self.n_points {
-            return Err(Error::Shape {
-                expected: format!("{} points per frame", self.n_points),
-                found: format!("{} points", tracks.n_points()),
-            });
-        }
+        self.check_points(tracks.n_points())?;
         let mut warm: Option<FrameFit> = None;
         let mut out = Vec::with_capacity(frames.len());
         for t in frames {
@@ -548,12 +554,7 @@ impl Observer {
         known: &[FrameFit],
         each: impl Fn(Descent, Visible, Option<&FrameFit>) -> Result<R> + Sync,
     ) -> Result<Vec<R>> {
-        if tracks.n_points() != self.n_points {
-            return Err(Error::Shape {
-                expected: format!("{} points per frame", self.n_points),
-                found: format!("{} points", tracks.n_points()),
-            });
-        }
+        self.check_points(tracks.n_points())?;
         let t_len = tracks.n_frames().min(known.len());
         let mut starts = Vec::with_capacity(t_len.div_ceil(REPLAY_CHUNK));
         let mut warm: Option<FrameFit> = None;
@@ -597,12 +598,7 @@ impl Observer {
         frame: &[Option<Point3<f64>>],
         previous: Option<&FrameFit>,
     ) -> Result<FrameFit> {
-        if frame.len() != self.n_points {
-            return Err(Error::Shape {
-                expected: format!("{} points per frame", self.n_points),
-                found: format!("{} points", frame.len()),
-            });
-        }
+        self.check_points(frame.len())?;
         if let Some(p) = previous
             && (p.positions.len() != self.joints.len() || p.poses.len() != self.bodies.len())
         {
