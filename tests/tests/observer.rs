@@ -543,3 +543,25 @@ fn a_refit_from_the_observers_own_fit_is_the_same_fit_bit_for_bit() {
         .expect("refit");
     assert!(fresh == fits);
 }
+
+/// The fit of listed frames is the fit of a recording of those frames alone, and a frame
+/// beyond the tracks is refused with a shape error that names it.
+#[test]
+fn a_fit_of_listed_frames_is_the_fit_of_those_frames_alone() {
+    let (data, model) = discovered_arm(2);
+    let observer = Observer::new(&model).expect("observer");
+    let frames: Vec<usize> = (0..data.tracks.n_frames()).step_by(4).collect();
+    let listed = observer
+        .fit_frames(&data.tracks, &frames)
+        .expect("fit frames");
+    let alone = observer
+        .fit_sequence(&data.tracks.select_frames(&frames).expect("select"))
+        .expect("fit");
+    assert_eq!(listed.len(), frames.len());
+    assert!(listed == alone, "the listed frames' fits differ");
+    let beyond = data.tracks.n_frames();
+    match observer.fit_frames(&data.tracks, &[0, beyond]) {
+        Err(Error::Shape { found, .. }) => assert!(found.contains(&beyond.to_string()), "{found}"),
+        other => panic!("frame {beyond} accepted: {other:?}"),
+    }
+}

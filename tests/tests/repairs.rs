@@ -1135,3 +1135,55 @@ fn position_limits_reach_the_positions_and_travel_with_the_model() {
     let e = kinetree_fit::Observer::new(&broken).expect_err("refused");
     assert!(e.to_string().contains("position_limits.max_std_m"), "{e}");
 }
+
+/// The freeing rounds' screen (candidates ranked on every fourth frame, the best two fitted on
+/// every frame) frees the joints that fitting every candidate on every frame frees, on a
+/// 21-body tree where many joints are freed.
+#[test]
+fn the_freeing_screen_frees_what_fitting_every_candidate_frees() {
+    let data = simulate(&kinetree_synth::random_scenario(
+        &kinetree_synth::RandomParams {
+            n_joints: 20,
+            extra_points: 0,
+            tree: true,
+            noise_sigma_m: 0.001,
+            dropout: 0.1,
+            seed: 3,
+            ..Default::default()
+        },
+    ))
+    .expect("simulate");
+    let screened = PipelineConfig::default();
+    let mut unscreened = PipelineConfig::default();
+    unscreened.repairs.free_joints.screen_stride = 1;
+    // Every pass's freeing, as the trace tells it (joints named parent -> child), and the
+    // final model's joints.
+    let freed = |c: &PipelineConfig| {
+        let model = Pipeline::from_config(c)
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover")
+            .model;
+        let passes: Vec<String> = model
+            .trace
+            .iter()
+            .filter(|e| e.repair == "free_joints")
+            .map(|e| e.summary.clone())
+            .collect();
+        let joints: Vec<_> = model
+            .joints
+            .iter()
+            .map(|j| (j.parent, j.child, j.joint_type))
+            .collect();
+        (passes, joints)
+    };
+    let with_screen = freed(&screened);
+    // A pass that freed many joints, one a round, each round choosing among several.
+    let most = with_screen
+        .0
+        .iter()
+        .filter_map(|s| s.split(' ').next()?.parse::<usize>().ok())
+        .max();
+    assert!(most.is_some_and(|n| n >= 3), "{:?}", with_screen.0);
+    assert_eq!(with_screen, freed(&unscreened));
+}
