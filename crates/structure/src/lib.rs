@@ -217,7 +217,8 @@ pub fn spanning_tree_without(
 
 /// How much worse (in fit ratio, the largest rejected singular value over its threshold) a
 /// body's single-DoF pair with its grandparent may fit than its pair with its parent for the
-/// two to count as tied (`docs/decisions.md`).
+/// two to count as tied (`docs/decisions.md`). Ties beyond it ([`fit_margin_ties`]) are left
+/// to a whole-tree fit (the pipeline's `sibling_ties` repair).
 pub const TIE_FIT_MARGIN: f64 = 0.3;
 
 /// The kinds of joint between which a tree can tie: about a fixed centre (spherical or
@@ -252,24 +253,14 @@ fn hoist_ties(
     pairs: &[PairDof],
     excluded: &[(usize, usize)],
 ) -> bool {
-    let kind = |a: usize, b: usize| {
-        if excluded.contains(&(a, b)) || excluded.contains(&(b, a)) {
-            return None;
-        }
-        match find_pair(pairs, Some(a), b)?.joint {
-            JointKind::Spherical { .. } | JointKind::Universal { .. } => Some(TieKind::Centred),
-            JointKind::Revolute { .. } => Some(TieKind::Hinge),
-            JointKind::Prismatic { .. } => Some(TieKind::Slide),
-            _ => None,
-        }
-    };
     let fit =
         |a: usize, b: usize| find_pair(pairs, Some(a), b).map_or(f64::INFINITY, |p| p.fit_ratio);
-    let tied = |w: usize, u: usize, v: usize, carries_others: bool| match kind(u, v) {
-        Some(TieKind::Centred) => kind(w, v) == Some(TieKind::Centred),
-        Some(k) => {
-            kind(w, v) == Some(k)
-                && kind(w, u) == Some(k)
+    let tied = |w: usize, u: usize, v: usize, carries_others: bool| match tie_kind(
+        pairs, excluded, u, v,
+    ) {
+        Some(TieKind::Centred) => tie_kind(pairs, excluded, w, v) == Some(TieKind::Centred),
+        Some(_) => {
+            single_dof_triangle(pairs, excluded, w, u, v)
                 && fit(w, v) <= fit(u, v) + TIE_FIT_MARGIN
                 && !carries_others
         }
@@ -286,6 +277,50 @@ fn hoist_ties(
         }
     }
     changed
+}
+
+/// The kind of tie the pair between `a` and `b` can take part in; `None` for other joints and
+/// for pairs in `excluded` (either order).
+fn tie_kind(pairs: &[PairDof], excluded: &[(usize, usize)], a: usize, b: usize) -> Option<TieKind> {
+    if excluded.contains(&(a, b)) || excluded.contains(&(b, a)) {
+        return None;
+    }
+    match find_pair(pairs, Some(a), b)?.joint {
+        JointKind::Spherical { .. } | JointKind::Universal { .. } => Some(TieKind::Centred),
+        JointKind::Revolute { .. } => Some(TieKind::Hinge),
+        JointKind::Prismatic { .. } => Some(TieKind::Slide),
+        _ => None,
+    }
+}
+
+/// Whether the pairs `w`-`u`, `u`-`v` and `w`-`v` are all hinges or all slides.
+fn single_dof_triangle(
+    pairs: &[PairDof],
+    excluded: &[(usize, usize)],
+    w: usize,
+    u: usize,
+    v: usize,
+) -> bool {
+    let k = tie_kind(pairs, excluded, u, v);
+    matches!(k, Some(TieKind::Hinge | TieKind::Slide))
+        && tie_kind(pairs, excluded, w, u) == k
+        && tie_kind(pairs, excluded, w, v) == k
+}
+
+/// The bodies `v` of `tree` that [`spanning_tree`]'s exact-tie rule left on their parent `u`
+/// only for the fit margin, as `(w, u, v)` with `w` the grandparent: the pairs `w`-`u`,
+/// `u`-`v` and `w`-`v` are all hinges or all slides, and `v` carries no other body. Whether
+/// `v` turns or slides with `u` about one axis, so that hanging it on `w` fits as well, is
+/// for a whole-tree fit to tell. In order of `v`.
+pub fn fit_margin_ties(pairs: &[PairDof], tree: &Tree) -> Vec<(usize, usize, usize)> {
+    (0..tree.parent.len())
+        .filter_map(|v| {
+            let u = tree.parent[v]?;
+            let w = tree.parent[u]?;
+            (!tree.parent.contains(&Some(v)) && single_dof_triangle(pairs, &[], w, u, v))
+                .then_some((w, u, v))
+        })
+        .collect()
 }
 
 /// Bodies reachable from `root` through `parent`, breadth first, children by ascending id.

@@ -19,6 +19,7 @@ mod noise_refinement;
 mod readmit_joints;
 mod regroup;
 mod retest;
+mod sibling_ties;
 mod split;
 mod tree_ties;
 mod type_by_fit;
@@ -37,6 +38,7 @@ pub use noise_refinement::{NoiseRefinement, NoiseRefinementParams};
 pub use readmit_joints::{ReadmitJoints, ReadmitJointsParams};
 pub use regroup::{Regroup, RegroupParams};
 pub use retest::{Retest, RetestParams};
+pub use sibling_ties::{SiblingTies, SiblingTiesParams};
 pub use split::{Split, SplitParams};
 pub use tree_ties::{TreeTies, TreeTiesParams};
 pub use type_by_fit::{TypeByFit, TypeByFitParams};
@@ -115,6 +117,9 @@ repairs_config! {
     merge: MergeParams => Merge,
     /// Tree: near-tied tree edges settled by whole-tree fits.
     tree_ties: TreeTiesParams => TreeTies,
+    /// Tree: a body that moves with its parent about one axis hung on the grandparent when a
+    /// whole-tree fit fits both trees alike.
+    sibling_ties: SiblingTiesParams => SiblingTies,
     /// Fit: joints the whole-tree fit cannot follow freed.
     free_joints: FreeJointsParams => FreeJoints,
     /// Fit: the followed joints bundle-adjusted over every frame.
@@ -168,6 +173,12 @@ pub(crate) fn count_within(key: &str, value: usize, min: usize, max: usize) -> R
 /// The draft's poses, or a typed error naming the repair that needed them.
 pub(crate) fn poses_of<'a>(repair: &str, poses: Option<&'a BodyPoses>) -> Result<&'a BodyPoses> {
     poses.ok_or_else(|| Error::Degenerate(format!("repair `{repair}` needs the draft's poses")))
+}
+
+/// The keypoints' squared residual of a plain whole-tree fit of every frame.
+pub(crate) fn plain_sse(model: &Model, tracks: &Tracks) -> Result<f64> {
+    let fits = kinetree_fit::Observer::new(model)?.fit_sequence(tracks)?;
+    Ok(fits.iter().map(|f| f.sum_sq_m2).sum())
 }
 
 /// The dissimilarities among `points` (unknown pairs NaN), with the matrix's cut and measure.

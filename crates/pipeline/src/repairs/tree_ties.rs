@@ -9,10 +9,8 @@
 //! sibling's, through the same anchor, ties its edges with the base and with the sibling
 //! (`docs/decisions.md`, `tree_ties`).
 
-use super::{count_in_range, doubtful_joints, in_range};
-use kinetree_core::{
-    Draft, Edit, Error, Model, Proposal, Repair, RepairContext, RepairPhase, Result, Tracks,
-};
+use super::{count_in_range, doubtful_joints, in_range, plain_sse};
+use kinetree_core::{Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`TreeTies`] (`[pipeline.repairs.tree_ties]`).
@@ -75,12 +73,6 @@ impl TreeTies {
         params.validate()?;
         Ok(Self { params })
     }
-}
-
-/// The keypoints' squared residual of a plain whole-tree fit of every frame.
-fn plain_sse(model: &Model, tracks: &Tracks) -> Result<f64> {
-    let fits = kinetree_fit::Observer::new(model)?.fit_sequence(tracks)?;
-    Ok(fits.iter().map(|f| f.sum_sq_m2).sum())
 }
 
 impl Repair for TreeTies {
