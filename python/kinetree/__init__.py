@@ -136,6 +136,10 @@ class Joint:
             unknown; ``(T, 0)`` otherwise.
         coordinate_std: ``(T, k)`` their standard deviations.
         range: ``(min, max)`` of the positions, or None.
+        axis_std_deg: The axis direction's standard deviation (RMS angle), degrees: the
+            Cramér-Rao bound from the whole-tree fit of every frame; None for joints the fit
+            does not follow and for types other than revolute and prismatic.
+        pivot_std_m: The same for a revolute axis line's position across the axis, metres.
         dof: The estimated relative degrees of freedom.
         fit: How the whole-tree fit treats it: ``"followed"``, ``"freed"`` or
             ``"typed_by_fit"``.
@@ -160,6 +164,8 @@ class Joint:
     coordinate_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     second_axis: Optional[np.ndarray] = None
     second_axis_in_parent: Optional[np.ndarray] = None
+    axis_std_deg: Optional[float] = None
+    pivot_std_m: Optional[float] = None
 
 
 class Model:
@@ -242,6 +248,8 @@ class Model:
                 coordinate_std=_vectors(j.get("coordinate_std"), t),
                 second_axis=_vector(j.get("second_axis")),
                 second_axis_in_parent=_vector(j.get("second_axis_in_parent")),
+                axis_std_deg=j.get("axis_std_deg"),
+                pivot_std_m=j.get("pivot_std_m"),
             )
             for j in data["joints"]
         ]

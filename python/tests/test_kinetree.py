@@ -71,6 +71,9 @@ def test_discover_finds_the_paper_arm(arm):
         assert np.isfinite(joint.positions).mean() > 0.9
         # The position moves over the recording, by well over its standard deviation.
         assert np.nanstd(joint.positions) > 10 * np.nanmedian(joint.position_std)
+        # The axis and pivot bounds of a well-seen hinge: well under a degree and a
+        # millimetre, and not zero.
+        assert 0 < joint.axis_std_deg < 1 and 0 < joint.pivot_std_m < 1e-3
     # Estimated noise: about the simulated 1 mm.
     estimated = kinetree.discover(tracks)
     assert estimated.noise_source == "estimated"

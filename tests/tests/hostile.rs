@@ -143,6 +143,16 @@ fn damages() -> Vec<Damage> {
             "joints[0].position_std[0]",
         ),
         (
+            "a negative axis precision",
+            |m| m["joints"][0]["axis_std_deg"] = json!(-0.1),
+            "joints[0].axis_std_deg",
+        ),
+        (
+            "a negative pivot precision",
+            |m| m["joints"][0]["pivot_std_m"] = json!(-1e-3),
+            "joints[0].pivot_std_m",
+        ),
+        (
             "coordinates on a one-coordinate joint",
             |m| m["joints"][0]["coordinates"] = json!([[0.0, 0.0, 0.0]]),
             "joints[0].coordinates",

@@ -339,6 +339,18 @@ pub struct Joint {
     /// Observed range `[min, max]` of the positions (for a spherical or universal joint, of
     /// its rotation angle from the reference pose).
     pub range: Option<[f64; 2]>,
+    /// Standard deviation of the axis direction (the RMS angle between the estimated and the
+    /// true axis), degrees: the Cramér-Rao bound from the whole-tree fit of every frame at the
+    /// model's noise level, with every frame's configuration and the other joints' parameters
+    /// as nuisances and the reference shapes taken as exact. Null for joints the fit does not
+    /// follow, for types other than revolute and prismatic, and in files written before it
+    /// existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis_std_deg: Option<f64>,
+    /// The same bound for a revolute axis line's position across the axis (RMS distance),
+    /// metres; null otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pivot_std_m: Option<f64>,
     /// Estimated relative DoF.
     pub dof: usize,
     /// Rank decisions behind the type.

@@ -32,6 +32,13 @@ pub struct JointEval {
     /// (revolute), metres, with the same alignment.
     #[serde(default)]
     pub pivot_error_in_parent_m: Option<f64>,
+    /// `axis_error_in_parent_deg` in units of the model's stated axis precision
+    /// (`Joint::axis_std_deg`): about 1 in the RMS for a bound that the estimate reaches.
+    #[serde(default)]
+    pub axis_z: Option<f64>,
+    /// `pivot_error_in_parent_m` in units of the model's `Joint::pivot_std_m`.
+    #[serde(default)]
+    pub pivot_z: Option<f64>,
     /// RMS joint-position error after sign and offset alignment (radians or metres).
     pub position_rms: Option<f64>,
     /// RMS of the model's per-frame position standard deviations (`Joint::position_std`),
@@ -193,6 +200,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             pivot_error_m: None,
             axis_error_in_parent_deg: None,
             pivot_error_in_parent_m: None,
+            axis_z: None,
+            pivot_z: None,
             position_rms: None,
             position_std_rms: None,
             position_z_rms: None,
@@ -243,6 +252,11 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                     ));
                 }
             }
+            let per_std = |error: Option<f64>, std: Option<f64>| {
+                error.zip(std.filter(|&s| s > 0.0)).map(|(e, s)| e / s)
+            };
+            e.axis_z = per_std(e.axis_error_in_parent_deg, j.axis_std_deg);
+            e.pivot_z = per_std(e.pivot_error_in_parent_m, j.pivot_std_m);
             let centred = matches!(spec.joint_type, JointType::Spherical | JointType::Universal);
             if centred && let Some(p) = j.point {
                 let centre = truth.anchor_in_camera(k, j.reference_frame);

@@ -102,21 +102,7 @@ pub(crate) fn adjust(
     known: &[crate::FrameFit],
     limits: &BundleLimits,
 ) -> Result<Option<Observer>> {
-    let mut blocks = Vec::new();
-    let mut n = 0;
-    for (k, j) in observer.joints.iter().enumerate() {
-        if observer.joint_col[k].is_none() {
-            continue;
-        }
-        if let Some(params) = JointParams::of(j) {
-            blocks.push(Block {
-                joint: k,
-                params,
-                offset: n,
-            });
-            n += reduced_len(&params);
-        }
-    }
+    let (mut blocks, n) = blocks_of(observer);
     if blocks.is_empty() {
         return Ok(None);
     }
@@ -198,6 +184,97 @@ pub(crate) fn adjust(
         current.joints[b.joint].reference = params.reference;
     }
     Ok(Some(current))
+}
+
+/// The single-DoF joints `observer` follows, each with its parameters' place in the global
+/// vector, and the number of parameters.
+fn blocks_of(observer: &Observer) -> (Vec<Block>, usize) {
+    let mut blocks = Vec::new();
+    let mut n = 0;
+    for (k, j) in observer.joints.iter().enumerate() {
+        if observer.joint_col[k].is_none() {
+            continue;
+        }
+        if let Some(params) = JointParams::of(j) {
+            blocks.push(Block {
+                joint: k,
+                params,
+                offset: n,
+            });
+            n += reduced_len(&params);
+        }
+    }
+    (blocks, n)
+}
+
+/// Standard deviations of a single-DoF joint's parameters from the whole-tree fit of every
+/// frame, at the observer's noise level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointPrecision {
+    /// RMS angle between the estimated and the true axis direction, radians.
+    pub axis_std_rad: f64,
+    /// RMS distance across the axis between the estimated and the true axis line, metres
+    /// (revolute joints; `None` for prismatic ones, which have no line).
+    pub pivot_std_m: Option<f64>,
+}
+
+/// The Cramér-Rao bound of every followed single-DoF joint's axis (and pivot) for Gaussian
+/// keypoint noise at the observer's level, the reference shapes taken as exact: the inverse
+/// of the normal matrix of the joints' parameters with every frame's configuration eliminated
+/// (the matrix [`adjust`] steps with), linearised at the observer's own fit `known` of
+/// `tracks`. The other joints' parameters and every frame's configuration are nuisance
+/// parameters, so a joint seen in few frames or over a small arc gets a large bound. One
+/// entry per joint, `None` for joints that are not followed or not single-DoF, and for every
+/// joint when the normal matrix is singular.
+///
+/// # Errors
+/// [`kinetree_core::Error::Shape`] when the tracks do not match the observer's model.
+pub(crate) fn joint_precision(
+    observer: &Observer,
+    tracks: &Tracks,
+    known: &[crate::FrameFit],
+) -> Result<Vec<Option<JointPrecision>>> {
+    let mut out = vec![None; observer.joints.len()];
+    let (blocks, n) = blocks_of(observer);
+    if blocks.is_empty() {
+        return Ok(out);
+    }
+    let frames: Vec<Frame> = observer
+        .settle_sequence(tracks, known)?
+        .into_iter()
+        .map(|(descent, visible)| Frame { visible, descent })
+        .collect();
+    let Some((normal, _)) = reduced_system(observer, &blocks, n, &frames) else {
+        return Ok(out);
+    };
+    let Some(chol) = normal.cholesky() else {
+        return Ok(out);
+    };
+    let covariance = chol.inverse() * (observer.sigma * observer.sigma);
+    let std_of = |first: usize| {
+        let v = covariance[(first, first)] + covariance[(first + 1, first + 1)];
+        (v.is_finite() && v >= 0.0).then(|| v.sqrt())
+    };
+    for b in &blocks {
+        // The reduced parameters start with the axis tilt (2, radians), then for a revolute
+        // joint the pivot across the axis (2, metres).
+        let Some(axis_std_rad) = std_of(b.offset) else {
+            continue;
+        };
+        let pivot_std_m = if b.params.revolute {
+            let Some(s) = std_of(b.offset + 2) else {
+                continue;
+            };
+            Some(s)
+        } else {
+            None
+        };
+        out[b.joint] = Some(JointPrecision {
+            axis_std_rad,
+            pivot_std_m,
+        });
+    }
+    Ok(out)
 }
 
 /// The normal equations of the joints' parameters with every frame's own parameters

@@ -33,7 +33,8 @@ pub use observation::{
 };
 pub use policy::{
     FitState, FreeLimits, MAX_JOINT_EXCESS, TypeByFitLimits, bundle_adjust, fit_model_positions,
-    free_unfollowed_joints, readmit_freed_joints, type_joints_by_fit, write_positions,
+    free_unfollowed_joints, readmit_freed_joints, type_joints_by_fit, write_joint_precision,
+    write_positions,
 };
 pub use smooth::{PositionColumn, SmoothedPositions, smooth_fitted_positions, smooth_positions};
 pub use solver::{FrameFit, Observer};

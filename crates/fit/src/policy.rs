@@ -674,6 +674,31 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
     Ok(rms_in_sigma(fits, model.noise.sigma_m))
 }
 
+/// Writes every joint's axis and pivot precision into `model` ([`Joint::axis_std_deg`],
+/// [`Joint::pivot_std_m`]): the Cramér-Rao bound of the followed single-DoF joints from the
+/// whole-tree fit `state` of `tracks` (`crate::bundle::joint_precision`); null for the others.
+///
+/// [`Joint::axis_std_deg`]: kinetree_core::model::Joint::axis_std_deg
+/// [`Joint::pivot_std_m`]: kinetree_core::model::Joint::pivot_std_m
+///
+/// # Errors
+/// [`kinetree_core::Error::Shape`] when `state` is not the fit of `model` or the tracks do not
+/// match it.
+pub fn write_joint_precision(model: &mut Model, state: &FitState, tracks: &Tracks) -> Result<()> {
+    if !state.is_of(model) {
+        return Err(kinetree_core::Error::Shape {
+            expected: "the whole-tree fit of this model".into(),
+            found: "the fit of another model".into(),
+        });
+    }
+    let precision = crate::bundle::joint_precision(&state.observer, tracks, &state.fits)?;
+    for (joint, p) in model.joints.iter_mut().zip(precision) {
+        joint.axis_std_deg = p.map(|p| p.axis_std_rad.to_degrees());
+        joint.pivot_std_m = p.and_then(|p| p.pivot_std_m);
+    }
+    Ok(())
+}
+
 /// [`write_positions`] for spherical joint `k`: its rotation vectors, re-zeroed at the
 /// joint's reference frame (the reference pose turned about the centre by that frame's
 /// rotation), their standard deviations, each coordinate smoothed on its own, and the range

@@ -545,6 +545,36 @@ impl Observer {
         self.replay_with(tracks, known, |descent, visible, _| Ok((descent, visible)))
     }
 
+    /// Every frame's descent started at `known`'s own fit of that frame, all frames in
+    /// parallel: the converged state of each frame again, within the descent's tolerance (not
+    /// bit for bit, as [`Observer::replay_sequence`] gives it), for a few steps a frame where
+    /// a fit from the frames before takes two full descents. Without a fit per frame in
+    /// `known`, as [`Observer::replay_sequence`].
+    ///
+    /// # Errors
+    /// As [`Observer::fit_sequence`].
+    pub(crate) fn settle_sequence(
+        &self,
+        tracks: &Tracks,
+        known: &[FrameFit],
+    ) -> Result<Vec<(Descent, Visible)>> {
+        if known.len() != tracks.n_frames() {
+            return self.replay_sequence(tracks, known);
+        }
+        self.check_points(tracks.n_points())?;
+        Ok(known
+            .par_iter()
+            .enumerate()
+            .map(|(t, fit)| {
+                let frame: Vec<Option<Point3<f64>>> =
+                    (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+                let visible = self.visible(&frame);
+                let descent = self.descend(self.initial_state(&visible, Some(fit), true), &visible);
+                (descent, visible)
+            })
+            .collect())
+    }
+
     /// Every frame's descent from the last known values of the frames before it (folded from
     /// `known`, one fit per frame), in chunks of [`REPLAY_CHUNK`] frames in parallel, each
     /// handed to `each` with those values.

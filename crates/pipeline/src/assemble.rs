@@ -143,6 +143,9 @@ pub(crate) fn assemble(
             positions,
             // Set with the positions by `kinetree_fit::fit_model_positions`.
             position_std: Vec::new(),
+            // Set for the finished model by `kinetree_fit::write_joint_precision`.
+            axis_std_deg: None,
+            pivot_std_m: None,
             smoothed_positions: Vec::new(),
             smoothed_std: Vec::new(),
             coordinates,

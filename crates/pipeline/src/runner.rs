@@ -706,6 +706,7 @@ impl<'a> Runner<'a> {
         let state = crate::repairs::fit_state(&ctx, &m)?;
         m.cache = None;
         m.body_order = order;
+        kinetree_fit::write_joint_precision(&mut m.model, &state, ctx.tracks)?;
         m.model.reprediction_rms_in_sigma = kinetree_fit::write_positions(&mut m.model, &state)?;
         m.model
             .warnings

@@ -406,6 +406,19 @@ impl Model {
                     "is not a rigid transform (zero or non-finite quaternion, or non-finite translation)",
                 ));
             }
+            for (name, value) in [
+                ("axis_std_deg", j.axis_std_deg),
+                ("pivot_std_m", j.pivot_std_m),
+            ] {
+                if let Some(v) = value
+                    && !(v.is_finite() && v >= 0.0)
+                {
+                    return Err(bad(
+                        field(name),
+                        format!("must be finite and at least 0, got {v}"),
+                    ));
+                }
+            }
             per_frame(&field("positions"), &j.positions, nf, f64::NEG_INFINITY)?;
             per_frame(&field("position_std"), &j.position_std, nf, 0.0)?;
             per_frame(
