@@ -512,7 +512,8 @@ def simulate(
             same with universal wrists and ankles), ``"skeleton-floating"`` (the same with
             a freely moving pelvis and nothing static), ``"gripper-parallel"`` or
             ``"gripper-angular"`` (an arm with two fingers that slide along, or turn about,
-            one axis) or ``"hand"`` (a palm with four fingers and a thumb).
+            one axis), ``"hand"`` (a palm with four fingers and a thumb) or ``"hidden-link"``
+            (an arm whose wrist link is seen in part of the frames).
         seed: Seed of every random choice.
         joints, tree, prismatic_fraction, spherical_fraction: For random mechanisms: the
             number of joints, whether bodies attach as a tree rather than a chain, the chance

@@ -200,6 +200,7 @@ pub mod build {
             dropout: 0.1,
             seed: 3,
             self_occlusion: false,
+            partly_seen: Vec::new(),
         }
     }
 

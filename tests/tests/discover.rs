@@ -225,6 +225,7 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
         dropout: 0.1,
         seed: 5,
         self_occlusion: false,
+        partly_seen: Vec::new(),
     };
     let data = simulate(&scenario).expect("simulate");
     for dof in ["", "[dof]\nkind = \"svd_rank\"\n"] {

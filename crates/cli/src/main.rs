@@ -381,8 +381,9 @@ enum Command {
         /// hinges), `skeleton-universal` (the same with universal wrists and ankles),
         /// `skeleton-floating` (the same with a freely moving pelvis and nothing static),
         /// `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
-        /// or turn about, one axis), `hand` (a palm with four fingers and a thumb), or
-        /// `random` with the options below.
+        /// or turn about, one axis), `hand` (a palm with four fingers and a thumb),
+        /// `hidden-link` (an arm whose wrist link is seen in part of the frames), or `random`
+        /// with the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,
         /// Seed.

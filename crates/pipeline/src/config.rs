@@ -327,6 +327,8 @@ pub enum DataConfig {
     Gripper(kinetree_synth::GripperParams),
     /// A human-like hand of 16 links ([`kinetree_synth::hand_scenario`]).
     Hand(kinetree_synth::HandParams),
+    /// An arm with one link mostly hidden ([`kinetree_synth::hidden_link_arm`]).
+    HiddenLink(kinetree_synth::HiddenLinkParams),
     /// A tracks file (`.npy`, `.npz`, `.csv`, `.c3d` or `.trc`), relative to the config file.
     File(FileData),
 }
@@ -338,7 +340,8 @@ pub struct SimulationRequest {
     /// `paper-arm`, `random`, `skeleton`, `skeleton-universal` (its wrists and ankles
     /// universal joints), `skeleton-floating` (its pelvis moving freely, nothing static),
     /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
-    /// about, one axis), or `hand` (a palm with four fingers and a thumb).
+    /// about, one axis), `hand` (a palm with four fingers and a thumb), or `hidden-link` (an
+    /// arm whose wrist link is seen in part of the frames).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -424,11 +427,20 @@ impl SimulationRequest {
                 seed: self.seed,
                 ..kinetree_synth::HandParams::default()
             }),
+            "hidden-link" => DataConfig::HiddenLink(kinetree_synth::HiddenLinkParams {
+                n_frames: self
+                    .n_frames
+                    .unwrap_or(kinetree_synth::HiddenLinkParams::default().n_frames),
+                noise_sigma_m: self.noise_sigma_m,
+                dropout: self.dropout,
+                seed: self.seed,
+                ..kinetree_synth::HiddenLinkParams::default()
+            }),
             other => {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
-                     skeleton-universal, skeleton-floating, gripper-parallel, gripper-angular \
-                     or hand"
+                     skeleton-universal, skeleton-floating, gripper-parallel, gripper-angular, \
+                     hand or hidden-link"
                 )));
             }
         })

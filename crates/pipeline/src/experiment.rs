@@ -55,6 +55,10 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
             p.validate()?;
             Some(kinetree_synth::hand_scenario(p))
         }
+        DataConfig::HiddenLink(p) => {
+            p.validate()?;
+            Some(kinetree_synth::hidden_link_arm(p))
+        }
         DataConfig::File(_) => None,
     })
 }

@@ -182,5 +182,6 @@ pub fn gripper_scenario(p: &GripperParams) -> Scenario {
         dropout: p.dropout,
         seed: p.seed,
         self_occlusion: true,
+        partly_seen: Vec::new(),
     }
 }

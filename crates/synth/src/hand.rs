@@ -188,6 +188,7 @@ pub fn hand_scenario(p: &HandParams) -> Scenario {
         dropout: p.dropout,
         seed: p.seed,
         self_occlusion: true,
+        partly_seen: Vec::new(),
     }
 }
 

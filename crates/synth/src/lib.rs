@@ -6,6 +6,7 @@
 
 mod gripper;
 mod hand;
+mod hidden;
 mod mechanism;
 mod named;
 mod scale;
@@ -17,10 +18,11 @@ pub mod strategies;
 
 pub use gripper::{GripperKind, GripperParams, gripper_scenario};
 pub use hand::{HandParams, hand_scenario};
+pub use hidden::{HiddenLinkParams, hidden_link_arm};
 pub use mechanism::{BodySpec, BoxShape, JointSpec, JointType, Mechanism};
 pub use named::{RandomParams, paper_arm, random_scenario};
 pub use scale::{ScaleParams, scale_scenario};
-pub use scenario::{Camera, GroundTruth, Scenario, SynthData, Trajectory, simulate};
+pub use scenario::{Camera, GroundTruth, PartlySeen, Scenario, SynthData, Trajectory, simulate};
 pub use skeleton::{SkeletonParams, skeleton_scenario};
 pub use spec::{JointDraw, MechanismSpec, SPEC_FRAMES};
 

@@ -63,6 +63,7 @@ pub fn paper_arm(seed: u64) -> Scenario {
         dropout: 0.0,
         seed,
         self_occlusion: true,
+        partly_seen: Vec::new(),
     }
 }
 
@@ -241,5 +242,6 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
         dropout: p.dropout,
         seed: p.seed,
         self_occlusion: true,
+        partly_seen: Vec::new(),
     }
 }

@@ -113,10 +113,62 @@ pub struct Scenario {
     /// only the field of view and `dropout` hide points; keypoints may then lie inside boxes.
     #[serde(default = "default_true")]
     pub self_occlusion: bool,
+    /// Bodies seen only in part of the frames (a link buried between its neighbours): outside
+    /// their windows, every keypoint of the body is hidden, on top of the other occlusion.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub partly_seen: Vec<PartlySeen>,
 }
 
 fn default_true() -> bool {
     true
+}
+
+/// A body seen only in windows of frames ([`Scenario::partly_seen`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PartlySeen {
+    /// The body.
+    pub body: usize,
+    /// Fraction of the frames in its windows, in `[0, 1]`.
+    pub fraction: f64,
+    /// Number of windows (at least 1): the recording is cut into this many equal spans, and
+    /// each holds one window of `fraction` of its span at a random offset.
+    pub windows: usize,
+}
+
+/// Per body, whether it may be seen at each frame ([`Scenario::partly_seen`]); `None` for
+/// bodies seen throughout. Its own random stream, so a scenario without such bodies simulates
+/// as it would without the option.
+fn seen_windows(s: &Scenario) -> Result<Vec<Option<Vec<bool>>>> {
+    let mut out = vec![None; s.mechanism.bodies.len()];
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ 0x5EE1_0F_B0D1);
+    for p in &s.partly_seen {
+        if p.body >= out.len() || !(0.0..=1.0).contains(&p.fraction) || p.windows == 0 {
+            return Err(Error::Config(format!(
+                "partly_seen: body {} of {}, fraction {} (must be in [0, 1]), windows {} (at \
+                 least 1)",
+                p.body,
+                out.len(),
+                p.fraction,
+                p.windows
+            )));
+        }
+        let mut seen = vec![false; s.n_frames];
+        let w = p.windows.min(s.n_frames.max(1));
+        for k in 0..w {
+            let (start, end) = (k * s.n_frames / w, (k + 1) * s.n_frames / w);
+            let span = end - start;
+            let len = ((p.fraction * span as f64).round() as usize).min(span);
+            let offset = if span > len {
+                rng.random_range(0..=span - len)
+            } else {
+                0
+            };
+            seen[start + offset..start + offset + len].fill(true);
+        }
+        out[p.body] = Some(seen);
+    }
+    Ok(out)
 }
 
 /// The truth behind a simulated data set.
@@ -281,6 +333,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
     for d in &mut dropped {
         *d = rng.random_bool(s.dropout);
     }
+    let windows = seen_windows(s)?;
     let mut frames = Vec::with_capacity(s.n_frames);
     let mut occluded_by_other_body = vec![0usize; n];
     for k in 0..s.n_frames {
@@ -320,7 +373,8 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
                 pc.y + noise.sample(&mut rng),
                 pc.z + noise.sample(&mut rng),
             );
-            frame.push((in_view && !occluded && !dropped[i]).then_some(noisy));
+            let in_window = windows[own].as_ref().is_none_or(|w| w[k]);
+            frame.push((in_view && !occluded && !dropped[i] && in_window).then_some(noisy));
         }
         frames.push(frame);
     }

@@ -352,5 +352,6 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         dropout: p.dropout,
         seed: p.seed,
         self_occlusion: false,
+        partly_seen: Vec::new(),
     }
 }

@@ -173,6 +173,7 @@ impl MechanismSpec {
             dropout: self.dropout.clamp(0.0, 0.4),
             seed: self.seed,
             self_occlusion: false,
+            partly_seen: Vec::new(),
         }
     }
 
