@@ -141,7 +141,7 @@ pub struct PartlySeen {
 /// as it would without the option.
 fn seen_windows(s: &Scenario) -> Result<Vec<Option<Vec<bool>>>> {
     let mut out = vec![None; s.mechanism.bodies.len()];
-    let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ 0x5EE1_0F_B0D1);
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ 0x005E_E10F_B0D1);
     for p in &s.partly_seen {
         if p.body >= out.len() || !(0.0..=1.0).contains(&p.fraction) || p.windows == 0 {
             return Err(Error::Config(format!(
