@@ -73,6 +73,10 @@ near a joint axis, which fit both bodies' motions within noise. "Identifiable AR
 keypoint whose track fits no other body's true motion within noise
 (`kinetree_eval::ambiguous_points`) is on its body. The RMS columns are each run's worst
 joint, per frame and, in the last two, smoothed over time (`Joint::smoothed_positions`).
+The "stds" column is each run's worst axis error in units of the axis precision the model
+states (`Joint::axis_std_deg`, a Cramér-Rao bound): a run of five to ten joints whose
+estimates reach their bounds has a worst joint near 2, and a wrong or misfitted joint shows
+as tens.
 
 ### Noise and clusterers (experiments/sweeps/noise-and-clusterers.toml)
 

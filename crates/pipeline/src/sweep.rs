@@ -132,6 +132,9 @@ pub struct SweepRun {
     /// body frame aligned on its true keypoints (`JointEval::centre_error_in_parent_m`),
     /// metres.
     pub max_centre_error_m: Option<f64>,
+    /// Largest axis error over the joints in units of the model's stated axis precision
+    /// (`JointEval::axis_z`, the error in the parent's frame over `Joint::axis_std_deg`).
+    pub max_axis_error_in_stds: Option<f64>,
     /// Largest axis error over the revolute joints in the parent's body frame aligned on its
     /// true keypoints (`JointEval::axis_error_in_parent_deg`), degrees (with `[sweep]
     /// functional = true`).
@@ -568,6 +571,7 @@ impl Sweep {
             joints_exact: None,
             structure_exact: None,
             max_axis_error_deg: None,
+            max_axis_error_in_stds: None,
             max_revolute_rms_rad: None,
             max_prismatic_rms_m: None,
             max_revolute_smoothed_rms_rad: None,
@@ -616,6 +620,8 @@ impl Sweep {
                     let max = |v: Vec<f64>| v.into_iter().reduce(f64::max);
                     run.max_axis_error_deg =
                         max(e.joints.iter().filter_map(|j| j.axis_error_deg).collect());
+                    run.max_axis_error_in_stds =
+                        max(e.joints.iter().filter_map(|j| j.axis_z).collect());
                     let revolute = |k: usize| {
                         truth.mechanism.joints[k].joint_type == kinetree_synth::JointType::Revolute
                     };
@@ -668,7 +674,7 @@ fn csv_field(s: &str) -> String {
 }
 
 /// The columns of `runs.csv` after the grid keys.
-const RUN_COLUMNS: [&str; 13] = [
+const RUN_COLUMNS: [&str; 14] = [
     "seed",
     "error",
     "bodies",
@@ -682,6 +688,7 @@ const RUN_COLUMNS: [&str; 13] = [
     "max_revolute_smoothed_rms_rad",
     "max_prismatic_smoothed_rms_m",
     "max_centre_error_m",
+    "max_axis_error_in_stds",
 ];
 
 /// The columns of `runs.csv` after the standard ones with `[sweep] functional = true`.
@@ -720,7 +727,7 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
     }
     let _ = write!(
         s,
-        "{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
         r.seed,
         csv_field(r.error.as_deref().unwrap_or("")),
         r.bodies.map_or(String::new(), |b| b.to_string()),
@@ -734,6 +741,7 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
         opt(r.max_revolute_smoothed_rms_rad),
         opt(r.max_prismatic_smoothed_rms_m),
         opt(r.max_centre_error_m),
+        opt(r.max_axis_error_in_stds),
     );
     if sweep.spec.functional {
         let _ = write!(
@@ -860,6 +868,7 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             max_revolute_smoothed_rms_rad: num(10)?,
             max_prismatic_smoothed_rms_m: num(11)?,
             max_centre_error_m: num(12)?,
+            max_axis_error_in_stds: num(13)?,
             max_axis_error_in_parent_deg: functional.map(num).transpose()?.flatten(),
             functional_max_centre_error_m: functional.map(|i| num(i + 1)).transpose()?.flatten(),
             functional_max_axis_error_deg: functional.map(|i| num(i + 2)).transpose()?.flatten(),
@@ -895,7 +904,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
     let _ = writeln!(
         s,
-        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) |{}{}",
+        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) | median max axis error (stds) |{}{}",
         head.join(" | "),
         if head.is_empty() { "" } else { " | " },
         if sweep.spec.functional {
@@ -918,7 +927,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let _ = writeln!(
         s,
         "|{}",
-        "---|".repeat(sweep.keys.len() + 12 + functional_cols + timing_cols)
+        "---|".repeat(sweep.keys.len() + 13 + functional_cols + timing_cols)
     );
     for p in 0..sweep.points.len() {
         let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
@@ -938,7 +947,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
         let values: Vec<String> = sweep.points[p].iter().map(|v| format!("`{v}`")).collect();
         let _ = write!(
             s,
-            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {}{}{n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             values.join(" | "),
             if values.is_empty() { "" } else { " | " },
             rs.iter().filter(|r| r.error.is_some()).count(),
@@ -977,6 +986,10 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
             fmt(
                 median(rs.iter().filter_map(|r| r.max_centre_error_m).collect()),
                 1e3
+            ),
+            fmt(
+                median(rs.iter().filter_map(|r| r.max_axis_error_in_stds).collect()),
+                1.0
             ),
         );
         if sweep.spec.functional {
