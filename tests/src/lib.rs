@@ -208,4 +208,38 @@ pub mod build {
     pub fn base() -> kinetree_synth::BodySpec {
         body([0.0, 0.0, -0.05], [0.25, 0.25, 0.05], 8)
     }
+
+    /// Two links turning through one anchor about axes `tilt_deg` apart, 1 mm of noise: the
+    /// second on the base beside the first (`serial` false), or on the first.
+    pub fn two_links_on_one_anchor(
+        tilt_deg: f64,
+        serial: bool,
+        seed: u64,
+    ) -> kinetree_synth::SynthData {
+        let t = tilt_deg.to_radians();
+        let mechanism = kinetree_synth::Mechanism {
+            bodies: vec![
+                base(),
+                body([0.15, 0.0, 0.12], [0.12, 0.03, 0.03], 8),
+                body([-0.12, 0.06, 0.16], [0.1, 0.03, 0.03], 8),
+            ],
+            joints: vec![
+                joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.1]),
+                joint(
+                    usize::from(serial),
+                    2,
+                    true,
+                    [t.sin(), 0.0, t.cos()],
+                    [0.0, 0.0, 0.1],
+                ),
+            ],
+        };
+        let mut s = scenario(
+            mechanism,
+            vec![sine(0.8, 0.2, 0.0), sine(0.9, 0.33, 1.0)],
+            0.001,
+        );
+        s.seed = seed;
+        kinetree_synth::simulate(&s).expect("simulate")
+    }
 }

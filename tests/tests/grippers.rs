@@ -113,27 +113,8 @@ fn both_fingers_of_a_gripper_hang_on_the_hand() {
 /// and does not stand (the finished model re-predicts about 20 % worse).
 #[test]
 fn serial_hinges_a_few_degrees_apart_stay_a_chain() {
-    use kinetree_tests::build::{base, body, joint, scenario, sine};
-    let t = 5f64.to_radians();
     for seed in [0, 1] {
-        let mechanism = kinetree_synth::Mechanism {
-            bodies: vec![
-                base(),
-                body([0.15, 0.0, 0.12], [0.12, 0.03, 0.03], 8),
-                body([-0.12, 0.06, 0.16], [0.1, 0.03, 0.03], 8),
-            ],
-            joints: vec![
-                joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.1]),
-                joint(1, 2, true, [t.sin(), 0.0, t.cos()], [0.0, 0.0, 0.1]),
-            ],
-        };
-        let mut s = scenario(
-            mechanism,
-            vec![sine(0.8, 0.2, 0.0), sine(0.9, 0.33, 1.0)],
-            0.001,
-        );
-        s.seed = seed;
-        let data = simulate(&s).expect("simulate");
+        let data = kinetree_tests::build::two_links_on_one_anchor(5.0, true, seed);
         let run = |max_cost_per_frame: f64| {
             let mut c = PipelineConfig::default();
             c.repairs.sibling_ties.max_cost_per_frame = max_cost_per_frame;

@@ -571,30 +571,6 @@ fn repair_parameter_rules_name_the_key() {
     assert_eq!(pipeline_from_toml(&text).expect("parse"), c);
 }
 
-/// Two links turning on the base about axes `tilt_deg` apart through one anchor.
-fn siblings_on_one_anchor(tilt_deg: f64, seed: u64) -> SynthData {
-    use kinetree_tests::build::{base, body, joint, scenario, sine};
-    let t = tilt_deg.to_radians();
-    let mechanism = kinetree_synth::Mechanism {
-        bodies: vec![
-            base(),
-            body([0.15, 0.0, 0.12], [0.12, 0.03, 0.03], 8),
-            body([-0.12, 0.06, 0.16], [0.1, 0.03, 0.03], 8),
-        ],
-        joints: vec![
-            joint(0, 1, true, [0.0, 0.0, 1.0], [0.0, 0.0, 0.1]),
-            joint(0, 2, true, [t.sin(), 0.0, t.cos()], [0.0, 0.0, 0.1]),
-        ],
-    };
-    let mut s = scenario(
-        mechanism,
-        vec![sine(0.8, 0.2, 0.0), sine(0.9, 0.33, 1.0)],
-        0.001,
-    );
-    s.seed = seed;
-    simulate(&s).expect("simulate")
-}
-
 /// Two siblings turning 3 deg apart through one anchor tie their edges to the base and to
 /// each other. Two of the scene's noise seeds whose pair tests prefer the wrong edge: the
 /// tree's tie rule (three hinges, the base's pair fitting about as well) hangs both siblings
@@ -603,7 +579,7 @@ fn siblings_on_one_anchor(tilt_deg: f64, seed: u64) -> SynthData {
 #[test]
 fn siblings_of_one_anchor_hang_on_their_parent_with_or_without_tree_ties() {
     for seed in [0, 2] {
-        let data = siblings_on_one_anchor(3.0, seed);
+        let data = kinetree_tests::build::two_links_on_one_anchor(3.0, false, seed);
         let run = |on: bool| {
             let mut c = PipelineConfig::default();
             c.repairs.tree_ties.enabled = on;

@@ -44,8 +44,8 @@ pub use tree_ties::{TreeTies, TreeTiesParams};
 pub use type_by_fit::{TypeByFit, TypeByFitParams};
 
 use kinetree_core::{
-    BodyPoses, BodyTrack, ClusteringInput, DissimilarityMatrix, Error, Model, PoseInput, Repair,
-    RepairContext, Result, Segmentation, Tracks,
+    BodyPoses, BodyTrack, ClusteringInput, DissimilarityMatrix, Draft, Error, Model, ModelDraft,
+    ModelMaker, PoseInput, Repair, RepairContext, Result, Segmentation, Tracks,
 };
 use serde::{Deserialize, Serialize};
 
@@ -173,6 +173,49 @@ pub(crate) fn count_within(key: &str, value: usize, min: usize, max: usize) -> R
 /// The draft's poses, or a typed error naming the repair that needed them.
 pub(crate) fn poses_of<'a>(repair: &str, poses: Option<&'a BodyPoses>) -> Result<&'a BodyPoses> {
     poses.ok_or_else(|| Error::Degenerate(format!("repair `{repair}` needs the draft's poses")))
+}
+
+/// What a tree repair compares trees with: the model maker, the draft's model, its poses and
+/// pair tests, or a typed error naming `repair`.
+pub(crate) fn tree_inputs<'a>(
+    repair: &str,
+    ctx: &RepairContext<'a>,
+    draft: &'a Draft,
+) -> Result<(
+    &'a dyn ModelMaker,
+    &'a ModelDraft,
+    &'a BodyPoses,
+    &'a [kinetree_core::PairDof],
+)> {
+    match (
+        ctx.models,
+        draft.model.as_ref(),
+        draft.poses.as_ref(),
+        draft.pairs.as_ref(),
+    ) {
+        (Some(models), Some(first), Some(poses), Some(pairs)) => Ok((models, first, poses, pairs)),
+        _ => Err(Error::Degenerate(format!(
+            "repair `{repair}` needs a model, its poses and pair tests"
+        ))),
+    }
+}
+
+/// Whether the model of `after` stands against that of `before`: no more doubtful joints, and
+/// a re-prediction RMS that `accept(after's, before's)` takes.
+pub(crate) fn tree_stands(
+    before: &Draft,
+    after: &Draft,
+    accept: impl Fn(f64, f64) -> bool,
+) -> bool {
+    let (Some(b), Some(a)) = (before.model.as_ref(), after.model.as_ref()) else {
+        return false;
+    };
+    let (alt, model) = (&a.model, &b.model);
+    doubtful_joints(alt) <= doubtful_joints(model)
+        && matches!(
+            (alt.reprediction_rms_in_sigma, model.reprediction_rms_in_sigma),
+            (Some(x), Some(m)) if accept(x, m)
+        )
 }
 
 /// The keypoints' squared residual of a plain whole-tree fit of every frame.

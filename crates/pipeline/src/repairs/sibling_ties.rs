@@ -13,8 +13,8 @@
 //! finished model has no more doubtful joints and re-predicts the keypoints within
 //! `rms_tolerance` of the model.
 
-use super::{count_in_range, doubtful_joints, in_range, plain_sse};
-use kinetree_core::{Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result};
+use super::{count_in_range, in_range, plain_sse, tree_inputs, tree_stands};
+use kinetree_core::{Draft, Edit, Proposal, Repair, RepairContext, RepairPhase, Result};
 use kinetree_structure::find_pair;
 use serde::{Deserialize, Serialize};
 
@@ -91,16 +91,7 @@ impl Repair for SiblingTies {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let (Some(models), Some(first), Some(poses), Some(pairs)) = (
-            ctx.models,
-            draft.model.as_ref(),
-            draft.poses.as_ref(),
-            draft.pairs.as_ref(),
-        ) else {
-            return Err(Error::Degenerate(
-                "repair `sibling_ties` needs a model, its poses and pair tests".into(),
-            ));
-        };
+        let (models, first, poses, pairs) = tree_inputs(self.name(), ctx, draft)?;
         let nb = draft.segmentation.n_bodies();
         let Some(tree) = kinetree_structure::spanning_tree(nb, pairs) else {
             return Ok(None);
@@ -144,14 +135,8 @@ impl Repair for SiblingTies {
         before: &Draft,
         after: &Draft,
     ) -> Result<bool> {
-        let (Some(b), Some(a)) = (before.model.as_ref(), after.model.as_ref()) else {
-            return Ok(false);
-        };
-        let (alt, model) = (&a.model, &b.model);
-        Ok(doubtful_joints(alt) <= doubtful_joints(model)
-            && matches!(
-                (alt.reprediction_rms_in_sigma, model.reprediction_rms_in_sigma),
-                (Some(x), Some(m)) if x <= m * (1.0 + self.params.rms_tolerance)
-            ))
+        Ok(tree_stands(before, after, |x, m| {
+            x <= m * (1.0 + self.params.rms_tolerance)
+        }))
     }
 }

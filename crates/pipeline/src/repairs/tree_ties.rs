@@ -9,8 +9,8 @@
 //! sibling's, through the same anchor, ties its edges with the base and with the sibling
 //! (`docs/decisions.md`, `tree_ties`).
 
-use super::{count_in_range, doubtful_joints, in_range, plain_sse};
-use kinetree_core::{Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result};
+use super::{count_in_range, in_range, plain_sse, tree_inputs, tree_stands};
+use kinetree_core::{Draft, Edit, Proposal, Repair, RepairContext, RepairPhase, Result};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`TreeTies`] (`[pipeline.repairs.tree_ties]`).
@@ -85,16 +85,7 @@ impl Repair for TreeTies {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let (Some(models), Some(first), Some(poses), Some(pairs)) = (
-            ctx.models,
-            draft.model.as_ref(),
-            draft.poses.as_ref(),
-            draft.pairs.as_ref(),
-        ) else {
-            return Err(Error::Degenerate(
-                "repair `tree_ties` needs a model, its poses and pair tests".into(),
-            ));
-        };
+        let (models, first, poses, pairs) = tree_inputs(self.name(), ctx, draft)?;
         let nb = draft.segmentation.n_bodies();
         if nb > self.params.max_bodies {
             return Ok(None);
@@ -135,14 +126,8 @@ impl Repair for TreeTies {
         before: &Draft,
         after: &Draft,
     ) -> Result<bool> {
-        let (Some(b), Some(a)) = (before.model.as_ref(), after.model.as_ref()) else {
-            return Ok(false);
-        };
-        let (alt, model) = (&a.model, &b.model);
-        Ok(doubtful_joints(alt) <= doubtful_joints(model)
-            && matches!(
-                (alt.reprediction_rms_in_sigma, model.reprediction_rms_in_sigma),
-                (Some(x), Some(m)) if x < m * (1.0 - self.params.gain)
-            ))
+        Ok(tree_stands(before, after, |x, m| {
+            x < m * (1.0 - self.params.gain)
+        }))
     }
 }
