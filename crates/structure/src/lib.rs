@@ -650,4 +650,52 @@ mod tests {
         let tree = spanning_tree_without(3, &pairs, &[(0, 2)]).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
     }
+
+    /// Three slides whose grandparent pair fits beyond the margin: the tree keeps the chain
+    /// and lists the body as a fit-margin tie; within the margin it hoists the body and lists
+    /// nothing; a body that carries another, or a pair of another type, is no tie.
+    #[test]
+    fn slides_beyond_the_fit_margin_are_listed_as_ties() {
+        let slide = || JointKind::Prismatic { axis: Vector3::x() };
+        let pairs = |grandparent_fit: f64| {
+            vec![
+                pair(None, 0, JointKind::Rigid, 0.1),
+                pair(None, 1, JointKind::MultiDof, 0.0),
+                pair(None, 2, JointKind::MultiDof, 0.0),
+                pair(Some(0), 1, slide(), 0.3),
+                pair(Some(0), 2, slide(), grandparent_fit),
+                pair(Some(1), 2, slide(), 0.3),
+            ]
+        };
+        let far = pairs(0.3 + TIE_FIT_MARGIN + 0.2);
+        let tree = spanning_tree(3, &far).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+        assert_eq!(fit_margin_ties(&far, &tree), vec![(0, 1, 2)]);
+        let near = pairs(0.3 + TIE_FIT_MARGIN / 2.0);
+        let tree = spanning_tree(3, &near).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
+        assert!(fit_margin_ties(&near, &tree).is_empty());
+        // A hinge among the three pairs: no tie.
+        let mut mixed = far.clone();
+        mixed[3] = pair(
+            Some(0),
+            1,
+            JointKind::Revolute {
+                axis: Vector3::z(),
+                pivot: Point3::origin(),
+            },
+            0.3,
+        );
+        let tree = spanning_tree(3, &mixed).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+        assert!(fit_margin_ties(&mixed, &tree).is_empty());
+        // The middle body's child carries a body of its own: not a finger.
+        let carried = Tree {
+            root: 0,
+            root_is_static: true,
+            parent: vec![None, Some(0), Some(1), Some(2)],
+            order: vec![0, 1, 2, 3],
+        };
+        assert!(fit_margin_ties(&far, &carried).is_empty());
+    }
 }
