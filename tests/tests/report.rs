@@ -84,13 +84,13 @@ as tens.
 The method holds up to a few millimetres of noise on these 10-50 cm bodies and fails at 1 cm,
 where pairs on one body vary as much as pairs across a joint near its axis. Hierarchical
 (average linkage) and spectral clustering agree almost everywhere; DBSCAN, whose density
-criterion has little to work with on bodies of 4-12 points, is level with them up to 3 mm
-and a run behind at 1 cm (the pipeline's pairwise split of mixed bodies and DBSCAN's
-regrouping of its leftovers keep it there; without them it had 14/20 joints exact at 3 mm).
+criterion has little to work with on bodies of 4-12 points, is level with them (the
+pipeline's split of mixed bodies and DBSCAN's regrouping of its leftovers keep it there;
+without them it had 14/20 joints exact at 3 mm).
 The two clusterers on the spectral embedding from linfa-clustering agree with spectral
 clustering's k-means: the Gaussian mixture (`spectral_gmm`, as many components as the
 eigengap) on every run; DBSCAN on the embedded rows (`spectral_dbscan`, which counts the bodies
-itself) on every run up to 3 mm, and on 16 of 20 at 1 cm (mean ARI 0.817 against 0.820).
+itself) on every run up to 3 mm, and on 16 of 20 at 1 cm (mean ARI 0.817 against 0.830).
 
 ### Occlusion and sequence length (experiments/sweeps/occlusion-and-frames.toml)
 
@@ -126,7 +126,7 @@ here, though on general-position mechanisms it gave more exactly right structure
 (crates/pipeline/src/config.rs has the numbers). The clusterers on the spectral embedding do
 better than average linkage on this draw: with the F-test and the chi-square tester, 20/20
 joints exact and identifiable ARI 1 on 20/20 for spectral clustering and its Gaussian mixture
-(`spectral_gmm`) and for DBSCAN on the embedding (`spectral_dbscan`), against 20/20 and 19/20
+(`spectral_gmm`) and for DBSCAN on the embedding (`spectral_dbscan`), against 19/20 and 19/20
 for the default hierarchical clusterer, with which the other sweeps were measured.
 
 ### Ball joints (experiments/sweeps/ball-joints.toml)
@@ -137,7 +137,7 @@ about every axis, at 20 % extra occlusion over 300 frames. A pair turning about 
 axis is a ball joint when a centre fixed in both bodies explains its motion (the revolute
 test's pivot fit); the centre column is the largest distance from a true centre to the
 model's, in the parent's frame. The misses at 1 mm are links hidden in most frames; at 1 cm
-the bodies themselves (mean ARI 0.65-0.69). The last three columns set kinetree's hinge axes
+the bodies themselves (mean ARI 0.64-0.71). The last three columns set kinetree's hinge axes
 in the parent's frame beside the functional methods of biomechanics, SCoRE for centres and
 SARA for axes (Ehrig et al. 2006, 2007), run on the poses of the true segmentation: at 1 mm
 kinetree's worst centre is 0.54 and 1.15 mm against SCoRE's 1.16 and 1.68 mm, and its worst

@@ -11,8 +11,9 @@
 
 use super::{count_in_range, halves, in_range, mean_cross, poses_of};
 use kinetree_core::{
-    BodyTrack, Constraints, Draft, Edit, PoseInput, PoseQuality, Proposal, Repair, RepairContext,
-    RepairLimit, RepairPhase, Result, Segmentation, Warning,
+    BodyTrack, ClusteringInput, Constraints, DissimilarityMatrix, Draft, Edit, MIN_BODY_POINTS,
+    PoseInput, PoseQuality, Proposal, Repair, RepairContext, RepairLimit, RepairPhase, Result,
+    Segmentation, Warning,
 };
 use serde::{Deserialize, Serialize};
 
@@ -39,6 +40,20 @@ pub struct SplitParams {
     /// Splits per bodies phase (default 8): a body that is not rigid would otherwise be split
     /// forever.
     pub max_rounds: usize,
+    /// Bodies of at most this many points whose halves by the pairwise measure do not fit
+    /// better are cut again by their points' profiles against every other point (default
+    /// 300; 0 turns it off; `docs/decisions.md`, `split.profile_max_points`).
+    pub profile_max_points: usize,
+    /// Points the profiles are taken against, spread evenly over the keypoints (default 200).
+    pub profile_points: usize,
+    /// Times a profile cut that sets off fewer than three points (a stray keypoint) is redone
+    /// on the rest (default 2).
+    pub profile_peel: usize,
+    /// Least contrast of profile halves, as a fraction of the measure's cut: their mean
+    /// dissimilarity across must exceed the larger mean within a half by this much (default
+    /// 0.25). A body carrying a few keypoints of another cuts into halves that mix both, as
+    /// alike across as within; two bodies cut apart are not.
+    pub profile_contrast: f64,
 }
 
 impl Default for SplitParams {
@@ -51,6 +66,10 @@ impl Default for SplitParams {
             min_frame_share: 0.25,
             min_frames: kinetree_fit::MIN_FRAMES,
             max_rounds: 8,
+            profile_max_points: 300,
+            profile_points: 200,
+            profile_peel: 2,
+            profile_contrast: 0.25,
         }
     }
 }
@@ -67,7 +86,17 @@ impl SplitParams {
         in_range(NAME, "lr_bound_in_std", self.lr_bound_in_std, 0.0, 20.0)?;
         in_range(NAME, "min_frame_share", self.min_frame_share, 0.0, 1.0)?;
         count_in_range(NAME, "min_frames", self.min_frames, 1, 1_000_000)?;
-        count_in_range(NAME, "max_rounds", self.max_rounds, 0, 1000)
+        count_in_range(NAME, "max_rounds", self.max_rounds, 0, 1000)?;
+        count_in_range(
+            NAME,
+            "profile_max_points",
+            self.profile_max_points,
+            0,
+            1_000_000,
+        )?;
+        count_in_range(NAME, "profile_points", self.profile_points, 1, 1_000_000)?;
+        count_in_range(NAME, "profile_peel", self.profile_peel, 0, 100)?;
+        in_range(NAME, "profile_contrast", self.profile_contrast, 0.0, 100.0)
     }
 }
 
@@ -129,6 +158,99 @@ impl Split {
             > self.params.lr_slack
                 * kinetree_core::stats::chi2_per_dof_quantile(k, self.params.lr_bound_in_std)
     }
+}
+
+/// Mean dissimilarity over the observed pairs within `points`; `None` when no pair was
+/// observed.
+fn mean_within(m: &DissimilarityMatrix, points: &[usize]) -> Option<f64> {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (x, &i) in points.iter().enumerate() {
+        for &j in &points[x + 1..] {
+            if let Some(d) = m.get(i, j) {
+                sum += d;
+                count += 1;
+            }
+        }
+    }
+    (count > 0).then(|| sum / count as f64)
+}
+
+/// The two halves of `points` by their profiles: the `halves` slot on the mean absolute
+/// difference of two points' dissimilarities to `n_reference` keypoints spread evenly over
+/// all (pairs unknown on either side left out). Two points of one body stand alike against
+/// every other point, while the pairwise measure alone can miss a slide across the pairs'
+/// directions (their distances barely change). A cut that sets off a side of under three
+/// points is redone on the rest, up to `peel` times; the result has fewer than two halves
+/// when no cut leaves two sides of three points.
+fn profile_halves(
+    ctx: &RepairContext<'_>,
+    points: &[usize],
+    n_reference: usize,
+    peel: usize,
+) -> Result<Vec<Vec<usize>>> {
+    let mut parts = profile_cut(ctx, points, n_reference)?;
+    for _ in 0..peel {
+        match &parts[..] {
+            [rest] if rest.len() < points.len() && rest.len() >= 2 * MIN_BODY_POINTS => {
+                parts = profile_cut(ctx, rest, n_reference)?;
+            }
+            _ => break,
+        }
+    }
+    Ok(parts)
+}
+
+/// One cut of [`profile_halves`].
+fn profile_cut(
+    ctx: &RepairContext<'_>,
+    points: &[usize],
+    n_reference: usize,
+) -> Result<Vec<Vec<usize>>> {
+    let dmat = ctx.dissimilarity;
+    let n = dmat.n_points;
+    let step = n.div_ceil(n_reference.max(1)).max(1);
+    let reference: Vec<usize> = (0..n).step_by(step).collect();
+    let profile: Vec<Vec<Option<f64>>> = points
+        .iter()
+        .map(|&i| {
+            reference
+                .iter()
+                .map(|&k| if k == i { None } else { dmat.get(i, k) })
+                .collect()
+        })
+        .collect();
+    let mut values = Vec::with_capacity(kinetree_core::n_pairs(points.len()));
+    for x in 0..points.len() {
+        for y in x + 1..points.len() {
+            let (mut sum, mut count) = (0.0, 0usize);
+            for (a, b) in profile[x].iter().zip(&profile[y]) {
+                if let (Some(a), Some(b)) = (a, b) {
+                    sum += (a - b).abs();
+                    count += 1;
+                }
+            }
+            values.push(if count > 0 {
+                sum / count as f64
+            } else {
+                f64::NAN
+            });
+        }
+    }
+    let sub = DissimilarityMatrix {
+        n_points: points.len(),
+        values,
+        suggested_cut: dmat.suggested_cut,
+        measure: format!("{} profile", dmat.measure),
+    };
+    let parts = ctx.stages.halves.cluster(&ClusteringInput {
+        dissimilarity: &sub,
+        seed: 0,
+    })?;
+    Ok(parts
+        .members()
+        .iter()
+        .map(|m| m.iter().map(|&x| points[x]).collect())
+        .collect())
 }
 
 impl Repair for Split {
@@ -202,6 +324,66 @@ impl Repair for Split {
                 };
                 let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
                 if self.halves_fit_better(&poses.bodies[*b], first, second, sigma) {
+                    candidates[c].3 = true;
+                }
+            }
+        }
+        // Bodies whose halves by the pairwise measure do not fit better: halves by profile.
+        let profiled: Vec<(usize, Vec<Vec<usize>>)> = candidates
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| !c.3)
+            .filter(|(_, c)| {
+                let n = poses.bodies[c.0].points.len();
+                n >= 2 * MIN_BODY_POINTS && n <= self.params.profile_max_points
+            })
+            .map(|(k, c)| {
+                let parts = profile_halves(
+                    ctx,
+                    &poses.bodies[c.0].points,
+                    self.params.profile_points,
+                    self.params.profile_peel,
+                )?;
+                Ok((k, parts))
+            })
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .filter(|(k, parts)| parts.len() == 2 && *parts != candidates[*k].2)
+            .filter(|(_, parts)| {
+                let within = |p: &[usize]| mean_within(dmat, p).unwrap_or(f64::INFINITY);
+                mean_cross(dmat, &parts[0], &parts[1]).is_some_and(|across| {
+                    across - within(&parts[0]).max(within(&parts[1]))
+                        > self.params.profile_contrast * dmat.suggested_cut
+                })
+            })
+            .collect();
+        if !profiled.is_empty() {
+            let mut half_labels: Vec<Option<usize>> = vec![None; seg.n_points()];
+            for (k, (_, parts)) in profiled.iter().enumerate() {
+                for (h, part) in parts.iter().enumerate() {
+                    for &i in part {
+                        half_labels[i] = Some(2 * k + h);
+                    }
+                }
+            }
+            let half_poses = ctx.stages.pose.estimate(&PoseInput {
+                tracks: ctx.tracks,
+                segmentation: &Segmentation::from_raw(&half_labels, 1),
+                noise_sigma_m: sigma,
+            })?;
+            let index_of = |point: usize| {
+                half_poses
+                    .bodies
+                    .iter()
+                    .position(|t| t.points.binary_search(&point).is_ok())
+            };
+            for (c, parts) in profiled {
+                let (Some(ia), Some(ib)) = (index_of(parts[0][0]), index_of(parts[1][0])) else {
+                    continue;
+                };
+                let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
+                if self.halves_fit_better(&poses.bodies[candidates[c].0], first, second, sigma) {
+                    candidates[c].2 = parts;
                     candidates[c].3 = true;
                 }
             }
