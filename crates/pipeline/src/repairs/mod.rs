@@ -243,8 +243,18 @@ fn sub_matrix(dmat: &DissimilarityMatrix, points: &[usize]) -> DissimilarityMatr
 /// The two halves of `points` by the `halves` slot on their own sub-matrix (each of at least
 /// three points; fewer halves when a side is smaller).
 pub(crate) fn halves(ctx: &RepairContext<'_>, points: &[usize]) -> Result<Vec<Vec<usize>>> {
+    cut_in_two(ctx, &sub_matrix(ctx.dissimilarity, points), points)
+}
+
+/// The two halves of `points` by the `halves` slot on `sub`, a matrix over `points` in their
+/// order (each half of at least three points; fewer halves when a side is smaller).
+pub(crate) fn cut_in_two(
+    ctx: &RepairContext<'_>,
+    sub: &DissimilarityMatrix,
+    points: &[usize],
+) -> Result<Vec<Vec<usize>>> {
     let parts = ctx.stages.halves.cluster(&ClusteringInput {
-        dissimilarity: &sub_matrix(ctx.dissimilarity, points),
+        dissimilarity: sub,
         seed: 0,
     })?;
     Ok(parts

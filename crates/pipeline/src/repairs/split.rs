@@ -9,11 +9,11 @@
 //! rigid" against a body it moves against), and the body's points into `undone_bodies`, so
 //! that the attachment does not remake it.
 
-use super::{count_in_range, halves, in_range, mean_cross, poses_of};
+use super::{count_in_range, cut_in_two, halves, in_range, mean_cross, poses_of};
 use kinetree_core::{
-    BodyTrack, ClusteringInput, Constraints, DissimilarityMatrix, Draft, Edit, MIN_BODY_POINTS,
-    PoseInput, PoseQuality, Proposal, Repair, RepairContext, RepairLimit, RepairPhase, Result,
-    Segmentation, Warning,
+    BodyTrack, Constraints, DissimilarityMatrix, Draft, Edit, MIN_BODY_POINTS, PoseInput,
+    PoseQuality, Proposal, Repair, RepairContext, RepairLimit, RepairPhase, Result, Segmentation,
+    Warning,
 };
 use serde::{Deserialize, Serialize};
 
@@ -160,6 +160,51 @@ impl Split {
     }
 }
 
+impl Split {
+    /// For each `(body, halves)` of two halves, whether the halves, posed as bodies of their
+    /// own (all in one call), fit the body's points better ([`Split::halves_fit_better`]).
+    fn better_halves(
+        &self,
+        ctx: &RepairContext<'_>,
+        bodies: &[BodyTrack],
+        sets: &[(usize, &[Vec<usize>])],
+        sigma: f64,
+    ) -> Result<Vec<bool>> {
+        if sets.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut half_labels: Vec<Option<usize>> = vec![None; ctx.tracks.n_points()];
+        for (k, (_, parts)) in sets.iter().enumerate() {
+            for (h, part) in parts.iter().enumerate() {
+                for &i in part {
+                    half_labels[i] = Some(2 * k + h);
+                }
+            }
+        }
+        let half_poses = ctx.stages.pose.estimate(&PoseInput {
+            tracks: ctx.tracks,
+            segmentation: &Segmentation::from_raw(&half_labels, 1),
+            noise_sigma_m: sigma,
+        })?;
+        let index_of = |point: usize| {
+            half_poses
+                .bodies
+                .iter()
+                .position(|t| t.points.binary_search(&point).is_ok())
+        };
+        Ok(sets
+            .iter()
+            .map(|(b, parts)| {
+                let (Some(ia), Some(ib)) = (index_of(parts[0][0]), index_of(parts[1][0])) else {
+                    return false;
+                };
+                let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
+                self.halves_fit_better(&bodies[*b], first, second, sigma)
+            })
+            .collect())
+    }
+}
+
 /// Mean dissimilarity over the observed pairs within `points`; `None` when no pair was
 /// observed.
 fn mean_within(m: &DissimilarityMatrix, points: &[usize]) -> Option<f64> {
@@ -242,15 +287,7 @@ fn profile_cut(
         suggested_cut: dmat.suggested_cut,
         measure: format!("{} profile", dmat.measure),
     };
-    let parts = ctx.stages.halves.cluster(&ClusteringInput {
-        dissimilarity: &sub,
-        seed: 0,
-    })?;
-    Ok(parts
-        .members()
-        .iter()
-        .map(|m| m.iter().map(|&x| points[x]).collect())
-        .collect())
+    cut_in_two(ctx, &sub, points)
 }
 
 impl Repair for Split {
@@ -297,36 +334,13 @@ impl Repair for Split {
         let undecided: Vec<usize> = (0..candidates.len())
             .filter(|&c| !candidates[c].3 && candidates[c].2.len() == 2)
             .collect();
-        if !undecided.is_empty() {
-            let mut half_labels: Vec<Option<usize>> = vec![None; seg.n_points()];
-            for (k, &c) in undecided.iter().enumerate() {
-                for (h, part) in candidates[c].2.iter().enumerate() {
-                    for &i in part {
-                        half_labels[i] = Some(2 * k + h);
-                    }
-                }
-            }
-            let half_poses = ctx.stages.pose.estimate(&PoseInput {
-                tracks: ctx.tracks,
-                segmentation: &Segmentation::from_raw(&half_labels, 1),
-                noise_sigma_m: sigma,
-            })?;
-            let index_of = |point: usize| {
-                half_poses
-                    .bodies
-                    .iter()
-                    .position(|t| t.points.binary_search(&point).is_ok())
-            };
-            for &c in &undecided {
-                let (b, _, parts, _) = &candidates[c];
-                let (Some(ia), Some(ib)) = (index_of(parts[0][0]), index_of(parts[1][0])) else {
-                    continue;
-                };
-                let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
-                if self.halves_fit_better(&poses.bodies[*b], first, second, sigma) {
-                    candidates[c].3 = true;
-                }
-            }
+        let sets: Vec<(usize, &[Vec<usize>])> = undecided
+            .iter()
+            .map(|&c| (candidates[c].0, &candidates[c].2[..]))
+            .collect();
+        let better = self.better_halves(ctx, &poses.bodies, &sets, sigma)?;
+        for (&c, better) in undecided.iter().zip(better) {
+            candidates[c].3 = better;
         }
         // Bodies whose halves by the pairwise measure do not fit better: halves by profile.
         let profiled: Vec<(usize, Vec<Vec<usize>>)> = candidates
@@ -357,35 +371,15 @@ impl Repair for Split {
                 })
             })
             .collect();
-        if !profiled.is_empty() {
-            let mut half_labels: Vec<Option<usize>> = vec![None; seg.n_points()];
-            for (k, (_, parts)) in profiled.iter().enumerate() {
-                for (h, part) in parts.iter().enumerate() {
-                    for &i in part {
-                        half_labels[i] = Some(2 * k + h);
-                    }
-                }
-            }
-            let half_poses = ctx.stages.pose.estimate(&PoseInput {
-                tracks: ctx.tracks,
-                segmentation: &Segmentation::from_raw(&half_labels, 1),
-                noise_sigma_m: sigma,
-            })?;
-            let index_of = |point: usize| {
-                half_poses
-                    .bodies
-                    .iter()
-                    .position(|t| t.points.binary_search(&point).is_ok())
-            };
-            for (c, parts) in profiled {
-                let (Some(ia), Some(ib)) = (index_of(parts[0][0]), index_of(parts[1][0])) else {
-                    continue;
-                };
-                let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
-                if self.halves_fit_better(&poses.bodies[candidates[c].0], first, second, sigma) {
-                    candidates[c].2 = parts;
-                    candidates[c].3 = true;
-                }
+        let sets: Vec<(usize, &[Vec<usize>])> = profiled
+            .iter()
+            .map(|(c, parts)| (candidates[*c].0, &parts[..]))
+            .collect();
+        let better = self.better_halves(ctx, &poses.bodies, &sets, sigma)?;
+        for ((c, parts), better) in profiled.into_iter().zip(better) {
+            if better {
+                candidates[c].2 = parts;
+                candidates[c].3 = true;
             }
         }
         let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
