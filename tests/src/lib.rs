@@ -16,6 +16,24 @@ pub fn rate_draw(n: usize) -> Vec<kinetree_synth::MechanismSpec> {
         .collect()
 }
 
+/// Seed of the property tests' draws when `PROPTEST_RNG_SEED` is not set, so that every run on
+/// every machine draws the same cases; set the variable to explore others.
+pub const PROPERTY_SEED: u64 = 1;
+
+/// A property test's config: `cases` cases, drawn from `PROPTEST_RNG_SEED` when it is set,
+/// else from [`PROPERTY_SEED`].
+pub fn property_config(cases: u32) -> proptest::test_runner::Config {
+    use proptest::test_runner::{Config, RngSeed};
+    let mut config = Config {
+        cases,
+        ..Config::default()
+    };
+    if matches!(config.rng_seed, RngSeed::Random) {
+        config.rng_seed = RngSeed::Fixed(PROPERTY_SEED);
+    }
+    config
+}
+
 /// Cases per property (and draws per rate test): `PROPTEST_CASES` when set, else 64.
 pub fn cases() -> u32 {
     std::env::var("PROPTEST_CASES")
