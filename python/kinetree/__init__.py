@@ -137,9 +137,14 @@ class Joint:
         coordinate_std: ``(T, k)`` their standard deviations.
         range: ``(min, max)`` of the positions, or None.
         axis_std_deg: The axis direction's standard deviation (RMS angle), degrees: the
-            Cramér-Rao bound from the whole-tree fit of every frame; None for joints the fit
-            does not follow and for types other than revolute and prismatic.
+            Cramér-Rao bound from the whole-tree fit of every frame (a universal joint's
+            first axis); None for joints the fit does not follow and for ball and multi-DoF
+            joints.
         pivot_std_m: The same for a revolute axis line's position across the axis, metres.
+        centre_std_m: The same for a ball or universal joint's centre in the parent's frame
+            (RMS distance), metres.
+        second_axis_std_deg: The same for a universal joint's second axis in the child's
+            frame, degrees.
         dof: The estimated relative degrees of freedom.
         fit: How the whole-tree fit treats it: ``"followed"``, ``"freed"`` or
             ``"typed_by_fit"``.
@@ -166,6 +171,8 @@ class Joint:
     second_axis_in_parent: Optional[np.ndarray] = None
     axis_std_deg: Optional[float] = None
     pivot_std_m: Optional[float] = None
+    centre_std_m: Optional[float] = None
+    second_axis_std_deg: Optional[float] = None
 
 
 class Model:
@@ -250,6 +257,8 @@ class Model:
                 second_axis_in_parent=_vector(j.get("second_axis_in_parent")),
                 axis_std_deg=j.get("axis_std_deg"),
                 pivot_std_m=j.get("pivot_std_m"),
+                centre_std_m=j.get("centre_std_m"),
+                second_axis_std_deg=j.get("second_axis_std_deg"),
             )
             for j in data["joints"]
         ]

@@ -342,15 +342,23 @@ pub struct Joint {
     /// Standard deviation of the axis direction (the RMS angle between the estimated and the
     /// true axis), degrees: the Cramér-Rao bound from the whole-tree fit of every frame at the
     /// model's noise level, with every frame's configuration and the other joints' parameters
-    /// as nuisances and the reference shapes taken as exact. Null for joints the fit does not
-    /// follow, for types other than revolute and prismatic, and in files written before it
-    /// existed.
+    /// as nuisances and the reference shapes taken as exact; a universal joint's first axis.
+    /// Null for joints the fit does not follow, for ball and multi-DoF joints, and in files
+    /// written before it existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub axis_std_deg: Option<f64>,
     /// The same bound for a revolute axis line's position across the axis (RMS distance),
     /// metres; null otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pivot_std_m: Option<f64>,
+    /// The same bound for a ball or universal joint's centre in the parent's frame (RMS
+    /// distance), metres; null otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub centre_std_m: Option<f64>,
+    /// The same bound for a universal joint's second axis in the child's frame (RMS angle),
+    /// degrees; null otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_axis_std_deg: Option<f64>,
     /// Estimated relative DoF.
     pub dof: usize,
     /// Rank decisions behind the type.

@@ -39,6 +39,10 @@ pub struct JointEval {
     /// `pivot_error_in_parent_m` in units of the model's `Joint::pivot_std_m`.
     #[serde(default)]
     pub pivot_z: Option<f64>,
+    /// `centre_error_in_parent_m` in units of the model's `Joint::centre_std_m` (ball and
+    /// universal joints).
+    #[serde(default)]
+    pub centre_z: Option<f64>,
     /// RMS joint-position error after sign and offset alignment (radians or metres).
     pub position_rms: Option<f64>,
     /// RMS of the model's per-frame position standard deviations (`Joint::position_std`),
@@ -69,6 +73,14 @@ pub struct JointEval {
     /// `axis_error_in_parent_deg`).
     #[serde(default)]
     pub second_axis_error_in_parent_deg: Option<f64>,
+    /// A universal joint's second axis error in the child's body frame (the model's
+    /// `second_axis_in_parent` carried back through its `reference_pose`, the child's
+    /// reference shape aligned with its true keypoints), degrees.
+    #[serde(default)]
+    pub second_axis_error_in_child_deg: Option<f64>,
+    /// `second_axis_error_in_child_deg` in units of the model's `Joint::second_axis_std_deg`.
+    #[serde(default)]
+    pub second_axis_z: Option<f64>,
 }
 
 /// The comparison of a model with the truth.
@@ -202,6 +214,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             pivot_error_in_parent_m: None,
             axis_z: None,
             pivot_z: None,
+            centre_z: None,
             position_rms: None,
             position_std_rms: None,
             position_z_rms: None,
@@ -210,6 +223,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             centre_error_m: None,
             centre_error_in_parent_m: None,
             second_axis_error_in_parent_deg: None,
+            second_axis_error_in_child_deg: None,
+            second_axis_z: None,
         };
         if spec.joint_type == JointType::Free {
             // A free joint from the unseen world is the model's free root; from a seen body
@@ -266,6 +281,7 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                 let centre = align * Point3::from(p);
                 e.centre_error_in_parent_m = Some((centre - Point3::from(spec.anchor)).norm());
             }
+            e.centre_z = per_std(e.centre_error_in_parent_m, j.centre_std_m);
             // A universal joint's second axis where the model's reference frame holds it: the
             // true one turned by the true first angle there (not compared on a reversed joint,
             // whose first axis is the true second one).
@@ -286,6 +302,23 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                     &(align.rotation * Vector3::from(a)),
                     &turned,
                 ));
+            }
+            // The second axis is fixed in the child, where the truth's zero configuration
+            // holds it.
+            if let (JointType::Universal, false, Some(a), Some(second), Some(zero)) = (
+                spec.joint_type,
+                reversed,
+                j.second_axis_in_parent,
+                spec.second_axis,
+                j.reference_pose.and_then(|r| r.to_isometry()),
+            ) && let Some(align) = parent_alignment(model, truth, j.child, spec.child)
+            {
+                let in_child = align.rotation * (zero.rotation.inverse() * Vector3::from(a));
+                e.second_axis_error_in_child_deg = Some(axis_error_deg(
+                    &in_child,
+                    &Vector3::from(second).normalize(),
+                ));
+                e.second_axis_z = per_std(e.second_axis_error_in_child_deg, j.second_axis_std_deg);
             }
             if let Some(q) = truth.single_positions(k) {
                 e.position_rms = aligned_rms(&j.positions, q);

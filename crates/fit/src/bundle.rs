@@ -1,6 +1,6 @@
-//! Bundle adjustment of a model's single-DoF joints: every joint's axis, pivot and reference
-//! pose, with every frame's configuration (the root's pose, the joint positions and the poses
-//! of freely posed bodies), fitted to all keypoints of all frames at once.
+//! Bundle adjustment of a model's joints: every followed joint's axes, pivot or centre and
+//! reference pose, with every frame's configuration (the root's pose, the joint coordinates
+//! and the poses of freely posed bodies), fitted to all keypoints of all frames at once.
 //!
 //! [`crate::refine`] fits one joint at a time on its child's points with the rest of the tree
 //! held where the last whole-tree fit put it. The frame's fit then moves the root and the
@@ -18,9 +18,12 @@
 //! twist per joint parameter, not a pass over the points.
 
 use crate::refine::JointParams;
-use crate::solver::{Descent, Observer, Scratch, Visible};
+use crate::solver::{Descent, Measure, ObservedJoint, Observer, Scratch, State, Visible};
 use kinetree_core::geom::perpendicular_basis;
-use kinetree_core::nalgebra::{DMatrix, DVector, Isometry3, Matrix6xX, Point3, Vector6};
+use kinetree_core::nalgebra::{
+    DMatrix, DVector, Isometry3, Matrix6xX, Point3, Translation3, Unit, UnitQuaternion, Vector3,
+    Vector6,
+};
 use kinetree_core::{Result, Tracks};
 use rayon::prelude::*;
 
@@ -28,35 +31,183 @@ use rayon::prelude::*;
 #[derive(Debug, Clone, Copy)]
 struct Block {
     joint: usize,
-    params: JointParams,
+    params: Params,
     /// First of its parameters in the global vector.
     offset: usize,
 }
 
-/// Free parameters of a joint in the adjustment: revolute 9 (axis tilt 2, pivot across the
-/// axis 2, reference pose turned about the two directions across the axis and shifted 3),
-/// prismatic 7 (tilt 2, turn 3, shift across the axis 2). The reference pose's turn about a
-/// revolute axis and shift along a prismatic one are left out: a change of every frame's
-/// position undoes them (a gauge freedom that would make the normal equations singular).
-fn reduced_len(p: &JointParams) -> usize {
-    if p.revolute { 9 } else { 7 }
+/// The parameters of an adjusted joint, all in the parent's body frame.
+#[derive(Debug, Clone, Copy)]
+enum Params {
+    /// A revolute or prismatic joint.
+    Single(JointParams),
+    /// A ball joint: its centre and the child's pose at rotation zero.
+    Ball {
+        centre: Point3<f64>,
+        reference: Isometry3<f64>,
+    },
+    /// A universal joint: its first axis, its second where it is at angles zero, their
+    /// intersection, and the child's pose at angles zero.
+    Cardan {
+        first: Vector3<f64>,
+        second: Vector3<f64>,
+        centre: Point3<f64>,
+        reference: Isometry3<f64>,
+    },
 }
 
-/// `p` moved by `d` ([`reduced_len`] entries), through [`JointParams::moved`].
-fn moved(p: &JointParams, d: &[f64]) -> JointParams {
-    let (e1, e2) = perpendicular_basis(&p.axis);
-    let mut full = vec![0.0; p.len()];
-    if p.revolute {
-        full[..4].copy_from_slice(&d[..4]);
-        let turn = e1 * d[4] + e2 * d[5];
-        full[4..7].copy_from_slice(turn.as_slice());
-        full[7..10].copy_from_slice(&d[6..9]);
-    } else {
-        full[..5].copy_from_slice(&d[..5]);
-        let shift = e1 * d[5] + e2 * d[6];
-        full[5..8].copy_from_slice(shift.as_slice());
+impl Params {
+    /// From an observer's joint; `None` when it has no position (multi-DoF).
+    fn of(j: &ObservedJoint) -> Option<Self> {
+        match j.measure {
+            Measure::Spherical(centre) => Some(Self::Ball {
+                centre,
+                reference: j.reference,
+            }),
+            Measure::Universal(first, second, centre) => Some(Self::Cardan {
+                first,
+                second,
+                centre,
+                reference: j.reference,
+            }),
+            _ => JointParams::of(j).map(Self::Single),
+        }
     }
-    p.moved(&full)
+
+    /// Free parameters in the adjustment: revolute 9 (axis tilt 2, pivot across the axis 2,
+    /// reference pose turned about the two directions across the axis and shifted 3),
+    /// prismatic 7 (tilt 2, turn 3, shift across the axis 2), ball 6 (centre 3, reference
+    /// pose shifted 3), universal 11 (first axis tilted 2, second tilted towards or away from
+    /// the first 1, centre 3, reference pose turned about the two directions across the
+    /// second axis 2 and shifted 3). What a change of every frame's coordinates undoes is
+    /// left out (a gauge freedom that would make the normal equations singular): the
+    /// reference pose's turn about a revolute axis and shift along a prismatic one; every
+    /// turn of a ball joint's reference pose; a universal joint's turn about its second axis
+    /// (its second angle) and the second axis turned about the first together with the
+    /// reference pose (its first angle).
+    fn len(&self) -> usize {
+        match self {
+            Params::Single(p) if p.revolute => 9,
+            Params::Single(_) => 7,
+            Params::Ball { .. } => 6,
+            Params::Cardan { .. } => 11,
+        }
+    }
+
+    /// Moved by `d` ([`Params::len`] entries).
+    fn moved(&self, d: &[f64]) -> Self {
+        let shift = |d: &[f64]| Translation3::new(d[0], d[1], d[2]);
+        match *self {
+            Params::Single(p) => {
+                let (e1, e2) = perpendicular_basis(&p.axis);
+                let mut full = vec![0.0; p.len()];
+                if p.revolute {
+                    full[..4].copy_from_slice(&d[..4]);
+                    let turn = e1 * d[4] + e2 * d[5];
+                    full[4..7].copy_from_slice(turn.as_slice());
+                    full[7..10].copy_from_slice(&d[6..9]);
+                } else {
+                    full[..5].copy_from_slice(&d[..5]);
+                    let shift = e1 * d[5] + e2 * d[6];
+                    full[5..8].copy_from_slice(shift.as_slice());
+                }
+                Params::Single(p.moved(&full))
+            }
+            Params::Ball { centre, reference } => Params::Ball {
+                centre: centre + Vector3::new(d[0], d[1], d[2]),
+                reference: shift(&d[3..6]) * reference,
+            },
+            Params::Cardan {
+                first,
+                second,
+                centre,
+                reference,
+            } => {
+                let (e1, e2) = perpendicular_basis(&first);
+                let (f1, f2) = perpendicular_basis(&second);
+                let turn = UnitQuaternion::from_scaled_axis(f1 * d[6] + f2 * d[7]);
+                Params::Cardan {
+                    first: (first + e1 * d[0] + e2 * d[1]).normalize(),
+                    second: (second + cardan_tilt(&first, &second) * d[2]).normalize(),
+                    centre: centre + Vector3::new(d[3], d[4], d[5]),
+                    reference: shift(&d[8..11]) * turn * reference,
+                }
+            }
+        }
+    }
+
+    /// `parent_from_child` of joint `k` at its coordinates in `state` (`None` while unknown).
+    fn transform(&self, k: usize, state: &State) -> Option<Isometry3<f64>> {
+        let about = |c: &Point3<f64>, turn: UnitQuaternion<f64>, reference: &Isometry3<f64>| {
+            Translation3::from(c.coords) * turn * Translation3::from(-c.coords) * reference
+        };
+        match self {
+            Params::Single(p) => Some(p.transform(state.q[k]?)),
+            Params::Ball { centre, reference } => Some(about(centre, state.turn[k]?, reference)),
+            Params::Cardan {
+                first,
+                second,
+                centre,
+                reference,
+            } => {
+                let turn = |axis: &Vector3<f64>, q: f64| {
+                    UnitQuaternion::from_axis_angle(&Unit::new_normalize(*axis), q)
+                };
+                let both = turn(first, state.q[k]?) * turn(second, state.q2[k]?);
+                Some(about(centre, both, reference))
+            }
+        }
+    }
+
+    /// The same joint with a revolute pivot moved to its canonical place
+    /// ([`JointParams::canonical`]).
+    fn canonical(self) -> Self {
+        match self {
+            Params::Single(p) => Params::Single(p.canonical()),
+            other => other,
+        }
+    }
+
+    /// The measure an observer's joint takes from these parameters.
+    fn measure(&self) -> Measure {
+        match *self {
+            Params::Single(p) => p.measure(),
+            Params::Ball { centre, .. } => Measure::Spherical(centre),
+            Params::Cardan {
+                first,
+                second,
+                centre,
+                ..
+            } => Measure::Universal(first, second, centre),
+        }
+    }
+
+    /// `parent_from_child` at coordinates zero.
+    fn reference(&self) -> Isometry3<f64> {
+        match self {
+            Params::Single(p) => p.reference,
+            Params::Ball { reference, .. } | Params::Cardan { reference, .. } => *reference,
+        }
+    }
+
+    /// Writes the parameters into the observer's joint `j`.
+    fn store(&self, j: &mut ObservedJoint) {
+        j.measure = self.measure();
+        j.reference = self.reference();
+    }
+}
+
+/// The direction a universal joint's second axis `second` tilts in towards or away from its
+/// first axis `first` (turning the angle between them); any direction across the second axis
+/// when the two are parallel.
+fn cardan_tilt(first: &Vector3<f64>, second: &Vector3<f64>) -> Vector3<f64> {
+    let normal = first.cross(second);
+    let about = if normal.norm() > 1e-9 {
+        normal.normalize()
+    } else {
+        perpendicular_basis(second).0
+    };
+    about.cross(second)
 }
 
 /// Finite-difference step of the joint parameters' twists (metres or radians).
@@ -89,8 +240,8 @@ struct Frame {
     descent: Descent,
 }
 
-/// Bundle-adjusts the single-DoF joints `observer` follows (freed joints and joints that are
-/// not single-DoF are left alone) against every frame of `tracks`, starting from `known`, the
+/// Bundle-adjusts the joints `observer` follows (freed joints and multi-DoF ones are left
+/// alone) against every frame of `tracks`, starting from `known`, the
 /// observer's own fit of them ([`Observer::fit_sequence`]): the observer with the adjusted
 /// joints, or `None` when there is no such joint or no step lowered the residual.
 ///
@@ -142,10 +293,9 @@ pub(crate) fn adjust(
             let trial_blocks: Vec<Block> = blocks
                 .iter()
                 .map(|b| {
-                    let len = reduced_len(&b.params);
-                    let params = moved(&b.params, &step.as_slice()[b.offset..b.offset + len]);
-                    trial.joints[b.joint].measure = params.measure();
-                    trial.joints[b.joint].reference = params.reference;
+                    let len = b.params.len();
+                    let params = b.params.moved(&step.as_slice()[b.offset..b.offset + len]);
+                    params.store(&mut trial.joints[b.joint]);
                     Block { params, ..*b }
                 })
                 .collect();
@@ -179,14 +329,12 @@ pub(crate) fn adjust(
         return Ok(None);
     }
     for b in &blocks {
-        let params = b.params.canonical();
-        current.joints[b.joint].measure = params.measure();
-        current.joints[b.joint].reference = params.reference;
+        b.params.canonical().store(&mut current.joints[b.joint]);
     }
     Ok(Some(current))
 }
 
-/// The single-DoF joints `observer` follows, each with its parameters' place in the global
+/// The joints `observer` follows, each with its parameters' place in the global
 /// vector, and the number of parameters.
 fn blocks_of(observer: &Observer) -> (Vec<Block>, usize) {
     let mut blocks = Vec::new();
@@ -195,36 +343,43 @@ fn blocks_of(observer: &Observer) -> (Vec<Block>, usize) {
         if observer.joint_col[k].is_none() {
             continue;
         }
-        if let Some(params) = JointParams::of(j) {
+        if let Some(params) = Params::of(j) {
             blocks.push(Block {
                 joint: k,
                 params,
                 offset: n,
             });
-            n += reduced_len(&params);
+            n += params.len();
         }
     }
     (blocks, n)
 }
 
-/// Standard deviations of a single-DoF joint's parameters from the whole-tree fit of every
-/// frame, at the observer's noise level.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Standard deviations of a joint's parameters from the whole-tree fit of every frame, at the
+/// observer's noise level.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct JointPrecision {
-    /// RMS angle between the estimated and the true axis direction, radians.
-    pub axis_std_rad: f64,
+    /// RMS angle between the estimated and the true axis direction (a universal joint's
+    /// first axis), radians; `None` for a ball joint.
+    pub axis_std_rad: Option<f64>,
     /// RMS distance across the axis between the estimated and the true axis line, metres
-    /// (revolute joints; `None` for prismatic ones, which have no line).
+    /// (revolute joints; `None` for others).
     pub pivot_std_m: Option<f64>,
+    /// RMS distance between the estimated and the true centre in the parent's frame, metres
+    /// (ball and universal joints; `None` for others).
+    pub centre_std_m: Option<f64>,
+    /// RMS angle between the estimated and the true second axis of a universal joint in the
+    /// child's frame, radians (`None` for others).
+    pub second_axis_std_rad: Option<f64>,
 }
 
-/// The Cramér-Rao bound of every followed single-DoF joint's axis (and pivot) for Gaussian
+/// The Cramér-Rao bound of every followed joint's axes and pivot or centre for Gaussian
 /// keypoint noise at the observer's level, the reference shapes taken as exact: the inverse
 /// of the normal matrix of the joints' parameters with every frame's configuration eliminated
 /// (the matrix [`adjust`] steps with), linearised at the observer's own fit `known` of
 /// `tracks`. The other joints' parameters and every frame's configuration are nuisance
 /// parameters, so a joint seen in few frames or over a small arc gets a large bound. One
-/// entry per joint, `None` for joints that are not followed or not single-DoF, and for every
+/// entry per joint, `None` for joints that are not followed or multi-DoF, and for every
 /// joint when the normal matrix is singular.
 ///
 /// # Errors
@@ -251,28 +406,54 @@ pub(crate) fn joint_precision(
         return Ok(out);
     };
     let covariance = chol.inverse() * (observer.sigma * observer.sigma);
-    let std_of = |first: usize| {
-        let v = covariance[(first, first)] + covariance[(first + 1, first + 1)];
+    // The RMS size of `sum_i directions[i] * d[indices[i]]` over the parameters' covariance:
+    // the square root of the trace of the propagated covariance.
+    let rms = |indices: &[usize], directions: &[Vector3<f64>]| {
+        let mut v = 0.0;
+        for (&i, a) in indices.iter().zip(directions) {
+            for (&j, b) in indices.iter().zip(directions) {
+                v += a.dot(b) * covariance[(i, j)];
+            }
+        }
         (v.is_finite() && v >= 0.0).then(|| v.sqrt())
     };
+    let unit = [Vector3::x(), Vector3::y(), Vector3::z()];
     for b in &blocks {
-        // The reduced parameters start with the axis tilt (2, radians), then for a revolute
-        // joint the pivot across the axis (2, metres).
-        let Some(axis_std_rad) = std_of(b.offset) else {
-            continue;
+        let o = b.offset;
+        // Each reduced parameter vector ([`Params::len`]) starts with what moves the axis or
+        // the centre along orthonormal directions.
+        let precision = match b.params {
+            Params::Single(p) => JointPrecision {
+                axis_std_rad: rms(&[o, o + 1], &unit[..2]),
+                pivot_std_m: if p.revolute {
+                    rms(&[o + 2, o + 3], &unit[..2])
+                } else {
+                    None
+                },
+                ..Default::default()
+            },
+            Params::Ball { .. } => JointPrecision {
+                centre_std_m: rms(&[o, o + 1, o + 2], &unit),
+                ..Default::default()
+            },
+            Params::Cardan { first, second, .. } => {
+                // The second axis in the child's frame moves with its tilt and against the
+                // reference pose's turn (parameters 2, then 6 and 7).
+                let (f1, f2) = perpendicular_basis(&second);
+                let in_child = [
+                    cardan_tilt(&first, &second),
+                    -f1.cross(&second),
+                    -f2.cross(&second),
+                ];
+                JointPrecision {
+                    axis_std_rad: rms(&[o, o + 1], &unit[..2]),
+                    centre_std_m: rms(&[o + 3, o + 4, o + 5], &unit),
+                    second_axis_std_rad: rms(&[o + 2, o + 6, o + 7], &in_child),
+                    ..Default::default()
+                }
+            }
         };
-        let pivot_std_m = if b.params.revolute {
-            let Some(s) = std_of(b.offset + 2) else {
-                continue;
-            };
-            Some(s)
-        } else {
-            None
-        };
-        out[b.joint] = Some(JointPrecision {
-            axis_std_rad,
-            pivot_std_m,
-        });
+        out[b.joint] = Some(precision);
     }
     Ok(out)
 }
@@ -496,19 +677,20 @@ fn block_twists(
 ) -> Option<Matrix6xX<f64>> {
     let j = &observer.joints[b.joint];
     let parent = f.descent.poses[j.parent]?;
-    let q = f.descent.state.q[b.joint]?;
+    let state = &f.descent.state;
     let origin = Point3::from(*origin);
-    let inverse = (parent * b.params.transform(q)).inverse();
-    let motion =
-        |d: &[f64]| -> Isometry3<f64> { parent * moved(&b.params, d).transform(q) * inverse };
-    let len = reduced_len(&b.params);
+    let inverse = (parent * b.params.transform(b.joint, state)?).inverse();
+    let motion = |d: &[f64]| -> Option<Isometry3<f64>> {
+        Some(parent * b.params.moved(d).transform(b.joint, state)? * inverse)
+    };
+    let len = b.params.len();
     let mut out = Matrix6xX::<f64>::zeros(len);
     let mut d = vec![0.0; len];
     for i in 0..len {
         d[i] = DIFF_STEP;
-        let plus = motion(&d);
+        let plus = motion(&d)?;
         d[i] = -DIFF_STEP;
-        let minus = motion(&d);
+        let minus = motion(&d)?;
         d[i] = 0.0;
         let v = (plus * origin - minus * origin) / (2.0 * DIFF_STEP);
         let w = (plus.rotation.scaled_axis() - minus.rotation.scaled_axis()) / (2.0 * DIFF_STEP);

@@ -352,10 +352,12 @@ pub struct TypeByFitLimits {
     /// many.
     pub max_ball_off_axis_in_std: f64,
     /// A universal joint the fit follows is typed spherical when the ball lowers the fit's
-    /// squared residual by more than this many noise variances per frame (default 5: true
-    /// universal joints of simulated skeletons gained 1.0-2.6, a ball typed universal 237;
-    /// see [`type_joints_by_fit`]).
-    pub min_ball_gain_per_frame: f64,
+    /// squared residual, in noise variances, by more than the `K` frames with angles plus
+    /// this many standard deviations `sqrt(2 K)` of what the extra coordinate gains on a
+    /// true universal joint (default 5: at 300 frames, true universal joints of simulated
+    /// skeletons gained 0.83-1.23 per frame, balls typed universal 1.5 and more, the bound
+    /// is 1.41; see [`type_joints_by_fit`]).
+    pub min_ball_gain_in_std: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
 }
@@ -368,7 +370,7 @@ impl Default for TypeByFitLimits {
             max_rotation_rank: 1,
             max_translation_rank: 2,
             max_ball_off_axis_in_std: BALL_OFF_AXIS,
-            min_ball_gain_per_frame: BALL_GAIN_PER_FRAME,
+            min_ball_gain_in_std: BALL_GAIN_IN_STD,
             bundle: BundleLimits::default(),
         }
     }
@@ -486,10 +488,10 @@ fn typing_candidates(model: &Model, k: usize, observer: &Observer) -> &'static [
 /// intersecting axes too) for a universal joint.
 ///
 /// The joint is first fitted as a ball. With the joint followed, the ball is kept when it
-/// lowers the fit's squared residual by more than `min_ball_gain_per_frame` noise variances
-/// in each of the `K` frames where the joint has angles (its extra coordinate alone gains
-/// about one, and a universal joint's axes from the pair test, which the fit does not
-/// refine, a little more); with the joint freed (the fit could not follow it), when the fit
+/// lowers the fit's squared residual, in noise variances, by more than `K` plus
+/// `min_ball_gain_in_std` times `sqrt(2 K)`, with `K` the frames where the joint has angles:
+/// on a true universal joint, whose axes the bundle adjustment has fitted, the ball's extra
+/// coordinate gains a chi-square of `K` degrees of freedom; with the joint freed (the fit could not follow it), when the fit
 /// follows the ball and every other joint within `others_max_excess`, the freeing bound.
 /// Otherwise, when one of its angles spreads by at most `max_ball_off_axis_in_std` of its
 /// standard deviations, a hinge is tried as for a ball joint, from the ball's fit (whose
@@ -527,7 +529,9 @@ fn universal_by_fit(
         let frames = fits.iter().filter(|f| f.angles[k].is_some()).count() as f64;
         let sum = |f: &[FrameFit]| f.iter().map(|f| f.sum_sq_m2).sum::<f64>();
         let gain = (sum(fits) - sum(&trial_fits)) / model.noise.sigma_m.powi(2);
-        frames > 0.0 && gain > frames * limits.min_ball_gain_per_frame
+        // The extra coordinate of a ball gains a chi-square of `frames` degrees of freedom
+        // on a true universal joint: mean `frames`, standard deviation `sqrt(2 frames)`.
+        frames > 0.0 && gain > frames + limits.min_ball_gain_in_std * (2.0 * frames).sqrt()
     };
     if keep {
         model.warnings.push(Warning::JointTypedByFit {
@@ -674,12 +678,15 @@ pub fn write_positions(model: &mut Model, state: &FitState) -> Result<Option<f64
     Ok(rms_in_sigma(fits, model.noise.sigma_m))
 }
 
-/// Writes every joint's axis and pivot precision into `model` ([`Joint::axis_std_deg`],
-/// [`Joint::pivot_std_m`]): the Cramér-Rao bound of the followed single-DoF joints from the
-/// whole-tree fit `state` of `tracks` (`crate::bundle::joint_precision`); null for the others.
+/// Writes every joint's precision into `model` ([`Joint::axis_std_deg`],
+/// [`Joint::pivot_std_m`], [`Joint::centre_std_m`], [`Joint::second_axis_std_deg`]): the
+/// Cramér-Rao bound of the followed joints from the whole-tree fit `state` of `tracks`
+/// (`crate::bundle::joint_precision`); null for the others.
 ///
 /// [`Joint::axis_std_deg`]: kinetree_core::model::Joint::axis_std_deg
 /// [`Joint::pivot_std_m`]: kinetree_core::model::Joint::pivot_std_m
+/// [`Joint::centre_std_m`]: kinetree_core::model::Joint::centre_std_m
+/// [`Joint::second_axis_std_deg`]: kinetree_core::model::Joint::second_axis_std_deg
 ///
 /// # Errors
 /// [`kinetree_core::Error::Shape`] when `state` is not the fit of `model` or the tracks do not
@@ -693,8 +700,11 @@ pub fn write_joint_precision(model: &mut Model, state: &FitState, tracks: &Track
     }
     let precision = crate::bundle::joint_precision(&state.observer, tracks, &state.fits)?;
     for (joint, p) in model.joints.iter_mut().zip(precision) {
-        joint.axis_std_deg = p.map(|p| p.axis_std_rad.to_degrees());
-        joint.pivot_std_m = p.and_then(|p| p.pivot_std_m);
+        let p = p.unwrap_or_default();
+        joint.axis_std_deg = p.axis_std_rad.map(f64::to_degrees);
+        joint.pivot_std_m = p.pivot_std_m;
+        joint.centre_std_m = p.centre_std_m;
+        joint.second_axis_std_deg = p.second_axis_std_rad.map(f64::to_degrees);
     }
     Ok(())
 }
@@ -864,15 +874,17 @@ fn adjust_model(
         if adjusted.joint_col[k].is_none() {
             continue;
         }
-        let (Some(params), Some(cam_parent)) = (
-            crate::refine::JointParams::of(j),
-            adjusted_fits
-                .get(model.joints[k].reference_frame)
-                .and_then(|f| f.poses.get(j.parent).copied().flatten()),
-        ) else {
+        let Some(cam_parent) = adjusted_fits
+            .get(model.joints[k].reference_frame)
+            .and_then(|f| f.poses.get(j.parent).copied().flatten())
+        else {
             continue;
         };
-        store_joint(&mut model.joints[k], &params, &cam_parent);
+        if let Some(params) = crate::refine::JointParams::of(j) {
+            store_joint(&mut model.joints[k], &params, &cam_parent);
+        } else {
+            store_centred_joint(&mut model.joints[k], j, &cam_parent);
+        }
     }
     let observer = Observer::new(model)?;
     let fits = observer.fit_sequence(tracks)?;
@@ -1034,9 +1046,9 @@ const TYPE_EXCESS: f64 = 3.0;
 /// `type_by_fit.max_ball_off_axis_in_std`).
 const BALL_OFF_AXIS: f64 = 20.0;
 
-/// Default of [`TypeByFitLimits::min_ball_gain_per_frame`] (`docs/decisions.md`,
-/// `type_by_fit.min_ball_gain_per_frame`).
-const BALL_GAIN_PER_FRAME: f64 = 5.0;
+/// Default of [`TypeByFitLimits::min_ball_gain_in_std`] (`docs/decisions.md`,
+/// `type_by_fit.min_ball_gain_in_std`).
+const BALL_GAIN_IN_STD: f64 = 5.0;
 
 /// Default bound of [`readmit_freed_joints`] (`docs/decisions.md`,
 /// `readmit_joints.max_excess`).
@@ -1108,6 +1120,31 @@ pub(crate) fn store_joint(
         joint.point = Some(arr((cam_parent * refined.pivot).coords));
     }
     joint.reference_pose = Some(RigidTransform::from_isometry(&refined.reference));
+}
+
+/// Writes a ball or universal joint's parameters `j` (in the parent's frame) into `joint`,
+/// and into the camera frame through `cam_parent`, the parent's pose at the joint's reference
+/// frame; other joints are left alone.
+fn store_centred_joint(
+    joint: &mut kinetree_core::model::Joint,
+    j: &crate::solver::ObservedJoint,
+    cam_parent: &Isometry3<f64>,
+) {
+    let arr = |v: Vector3<f64>| [v.x, v.y, v.z];
+    let centre = match j.measure {
+        Measure::Spherical(centre) => centre,
+        Measure::Universal(first, second, centre) => {
+            joint.axis_in_parent = Some(arr(first));
+            joint.axis = Some(arr(cam_parent.rotation * first));
+            joint.second_axis_in_parent = Some(arr(second));
+            joint.second_axis = Some(arr(cam_parent.rotation * second));
+            centre
+        }
+        _ => return,
+    };
+    joint.point_in_parent = Some(arr(centre.coords));
+    joint.point = Some(arr((cam_parent * centre).coords));
+    joint.reference_pose = Some(RigidTransform::from_isometry(&j.reference));
 }
 
 /// A joint whose [`Observer::joint_excess`] is above this is freed by

@@ -146,6 +146,8 @@ pub(crate) fn assemble(
             // Set for the finished model by `kinetree_fit::write_joint_precision`.
             axis_std_deg: None,
             pivot_std_m: None,
+            centre_std_m: None,
+            second_axis_std_deg: None,
             smoothed_positions: Vec::new(),
             smoothed_std: Vec::new(),
             coordinates,

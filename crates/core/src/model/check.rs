@@ -409,6 +409,8 @@ impl Model {
             for (name, value) in [
                 ("axis_std_deg", j.axis_std_deg),
                 ("pivot_std_m", j.pivot_std_m),
+                ("centre_std_m", j.centre_std_m),
+                ("second_axis_std_deg", j.second_axis_std_deg),
             ] {
                 if let Some(v) = value
                     && !(v.is_finite() && v >= 0.0)

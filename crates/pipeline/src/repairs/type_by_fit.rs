@@ -29,9 +29,10 @@ pub struct TypeByFitParams {
     /// angles spreads) by at most this many standard deviations, RMS (default 20).
     pub max_ball_off_axis_in_std: f64,
     /// A universal joint is typed spherical first when the ball lowers the fit's squared
-    /// residual by more than this many noise variances per frame, or, freed, when the fit
-    /// follows the ball (default 5).
-    pub min_ball_gain_per_frame: f64,
+    /// residual, in noise variances, by more than the `K` frames with angles plus this many
+    /// `sqrt(2 K)` (a chance gain's standard deviation), or, freed, when the fit follows the
+    /// ball (default 5).
+    pub min_ball_gain_in_std: f64,
     /// Most bundle-adjustment steps on each candidate type (default 20, as
     /// `bundle_adjust.max_steps`).
     pub bundle_max_steps: usize,
@@ -50,7 +51,7 @@ impl Default for TypeByFitParams {
             max_rotation_rank: l.max_rotation_rank,
             max_translation_rank: l.max_translation_rank,
             max_ball_off_axis_in_std: l.max_ball_off_axis_in_std,
-            min_ball_gain_per_frame: l.min_ball_gain_per_frame,
+            min_ball_gain_in_std: l.min_ball_gain_in_std,
             bundle_max_steps: l.bundle.max_steps,
             bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
         }
@@ -83,8 +84,8 @@ impl TypeByFitParams {
         )?;
         in_range(
             NAME,
-            "min_ball_gain_per_frame",
-            self.min_ball_gain_per_frame,
+            "min_ball_gain_in_std",
+            self.min_ball_gain_in_std,
             0.0,
             1e6,
         )?;
@@ -133,7 +134,7 @@ impl Repair for TypeByFit {
             max_rotation_rank: p.max_rotation_rank,
             max_translation_rank: p.max_translation_rank,
             max_ball_off_axis_in_std: p.max_ball_off_axis_in_std,
-            min_ball_gain_per_frame: p.min_ball_gain_per_frame,
+            min_ball_gain_in_std: p.min_ball_gain_in_std,
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
                 min_gain_in_variances: p.bundle_min_gain_in_variances,
