@@ -140,8 +140,8 @@ model's, in the parent's frame. The misses at 1 mm are links hidden in most fram
 the bodies themselves (mean ARI 0.64-0.71). The last three columns set kinetree's hinge axes
 in the parent's frame beside the functional methods of biomechanics, SCoRE for centres and
 SARA for axes (Ehrig et al. 2006, 2007), run on the poses of the true segmentation: at 1 mm
-kinetree's worst centre is 0.54 and 1.15 mm against SCoRE's 1.16 and 1.68 mm, and its worst
-hinge axis 0.11 and 0.19 deg against SARA's 0.22 and 0.29 deg.
+kinetree's worst centre is 0.34 and 0.53 mm against SCoRE's 1.16 and 1.68 mm, and its worst
+hinge axis 0.08 and 0.14 deg against SARA's 0.22 and 0.29 deg.
 
 ### Skeletons (experiments/sweeps/skeleton.toml)
 
@@ -149,12 +149,12 @@ hinge axis 0.11 and 0.19 deg against SARA's 0.22 and 0.29 deg.
 A human-like skeleton: a static pelvis, ball joints at the spine, neck, shoulders, wrists,
 hips and ankles, hinges at the elbows and knees, six markers on each segment, 30-90 deg of
 motion per joint coordinate, 20 % occlusion, 300 frames. Beside SCoRE on the true segmentation
-kinetree's worst ball centre is about half the error (median 0.49 against 1.11 mm at 1 mm,
-2.15 against 3.81 mm at 3 mm); SARA's hinge axes are a little better than kinetree's (0.44
-against 0.57 deg at 1 mm, 1.56 against 2.18 deg at 3 mm). The 3 mm runs lost to universal
-joints are ball joints typed universal, wrists in two of three and a hip in one: the third
-rotation is then within what two axes and the pose noise explain, and the type test takes
-the fewer DoF the data allow.
+kinetree's worst ball centre is about a third of the error (median 0.36 against 1.11 mm at
+1 mm, 1.17 against 3.81 mm at 3 mm), and its worst hinge axis in the parent's frame about
+half of SARA's (0.23 against 0.44 deg at 1 mm, 0.70 against 1.56 deg at 3 mm): the bundle
+adjustment fits the centres and axes to every frame at once. Each of the three 3 mm misses
+is a ball joint of a hand or foot, two typed revolute and one left multi-DoF: the small
+segment's third rotation is within a few noise levels of none.
 
 ### Floating skeletons (experiments/sweeps/skeleton-floating.toml)
 
@@ -163,7 +163,7 @@ The same skeleton with a pelvis that moves freely: it turns through 30-90 deg ab
 vertical and a third of that about the other axes, and travels 0.2-1 m forward and sideways.
 Nothing is static, so the model's root joint is free (six coordinates, first in the
 configuration) and the root is a centre of the tree that turns least: the pelvis. Every joint is found
-with its type in 20 of 20 skeletons at 1 mm and 16 of 20 at 3 mm; the centres and axes are
+with its type in 20 of 20 skeletons at 1 mm and 17 of 20 at 3 mm; the centres and axes are
 as good as on the static skeleton.
 
 ### Grippers (experiments/sweeps/grippers.toml)
@@ -203,11 +203,11 @@ The same skeleton with universal wrists and ankles: flexion about the medio-late
 fixed in the forearm or shank, then deviation about the antero-posterior axis, fixed in the
 hand or foot. A pair typed spherical is universal when an axis fixed in each body keeps a
 fixed angle to the other (`docs/model-schema.md`). At 1 mm every joint is typed right in 19
-of 20 skeletons, and the worst centre (balls and universal joints) is 0.62 mm against
+of 20 skeletons, and the worst centre (balls and universal joints) is 0.36 mm against
 SCoRE's 1.51 mm (medians). The axis column is in the camera frame and is led by the
-universal joints' axes, which come from the pair test on the small bodies' own poses (the
-bundle adjustment does not refine them). At 3 mm, universal and ball joints of the hands and
-feet are confused in both directions.
+universal joints' axes on the small hands and feet (2.0 deg at 1 mm); in the parent's frame
+the worst axis is 0.25 deg. At 3 mm, universal and ball joints of the hands and feet are
+confused in both directions.
 
 ## Real recordings (experiments/real)
 
