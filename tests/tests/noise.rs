@@ -185,3 +185,42 @@ fn noise_free_small_slides_get_their_joints() {
     let e = kinetree_eval::evaluate(&m, &data.truth);
     assert!(e.joints_exact, "{:?}", e.joints);
 }
+
+/// Markers a body model writes out carry no noise: the motion-capture settings' estimator
+/// (each marker's most rigid partners) would read the rounding of the distances, below what
+/// the later stages resolve. Its floor of 1e-6 of the pairs' distances keeps a skeleton's
+/// bodies and joints, on exact coordinates and on float32 ones (as a C3D file stores them).
+#[test]
+fn noise_free_body_model_markers_keep_their_skeleton_with_the_motion_capture_settings() {
+    let data = simulate(&kinetree_synth::skeleton_scenario(
+        &kinetree_synth::SkeletonParams {
+            noise_sigma_m: 0.0,
+            ..kinetree_synth::SkeletonParams::default()
+        },
+    ))
+    .expect("simulate");
+    let float32: Vec<Vec<Option<kinetree_core::nalgebra::Point3<f64>>>> =
+        (0..data.tracks.n_frames())
+            .map(|t| {
+                (0..data.tracks.n_points())
+                    .map(|i| {
+                        data.tracks
+                            .get(t, i)
+                            .map(|p| p.map(|c| f64::from(c as f32)))
+                    })
+                    .collect()
+            })
+            .collect();
+    let float32 = kinetree_core::Tracks::from_points(&float32).expect("tracks");
+    for tracks in [&data.tracks, &float32] {
+        let run = Pipeline::from_config(&PipelineConfig::motion_capture())
+            .expect("pipeline")
+            .run(tracks)
+            .expect("run");
+        let sigma = run.model.noise.sigma_m;
+        assert!((1e-8..1e-5).contains(&sigma), "noise level {sigma} m");
+        let e = kinetree_eval::evaluate(&run.model, &data.truth);
+        assert_eq!(e.n_bodies_found, data.truth.n_bodies(), "{e:?}");
+        assert!(e.ari > 0.99 && e.joints_exact, "{e:?}");
+    }
+}

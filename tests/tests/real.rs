@@ -7,7 +7,7 @@
 
 use kinetree_core::Model;
 use kinetree_core::model::JointType;
-use kinetree_pipeline::Pipeline;
+use kinetree_pipeline::{Pipeline, PipelineConfig};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -258,4 +258,14 @@ fn articulation_handle_tracks_are_typed_right_in_nine_of_ten() {
         partial_doors >= 5,
         "{partial_doors} of 10 partly opened doors revolute"
     );
+}
+
+/// `kinetree discover` takes the motion-capture settings for C3D and TRC files: they are the
+/// settings these recordings are run with.
+#[test]
+fn the_motion_capture_preset_is_the_real_recordings_pipeline() {
+    let text = std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml");
+    let file = kinetree_pipeline::config::pipeline_from_toml(&text).expect("parse");
+    assert_eq!(PipelineConfig::motion_capture(), file);
+    assert_ne!(PipelineConfig::motion_capture(), PipelineConfig::default());
 }

@@ -260,9 +260,17 @@ enum Command {
         /// Per-coordinate noise std-dev in metres; estimated from the data when absent.
         #[arg(long)]
         noise_sigma: Option<f64>,
-        /// Pipeline config (TOML, the `[pipeline]` table's contents) to swap stages.
+        /// Pipeline config (TOML, the `[pipeline]` table's contents) to swap stages; it
+        /// replaces the preset.
         #[arg(long)]
         pipeline: Option<PathBuf>,
+        /// The settings without `--pipeline`: `motion-capture` (for markers on skin: the
+        /// noise from each marker's most rigid partners, the distance std-dev as
+        /// dissimilarity, 3 mm / 0.02 rad of joint model error; `experiments/real/README.md`),
+        /// `default` (the defaults, for rigid bodies), or `auto`: `motion-capture` for C3D
+        /// and TRC files, `default` otherwise.
+        #[arg(long, value_enum, default_value_t = Preset::Auto)]
+        preset: Preset,
         /// Output model JSON.
         #[arg(short, long, default_value = "model.json")]
         output: PathBuf,
@@ -670,6 +678,7 @@ fn run_command() -> Result<()> {
             keys,
             noise_sigma,
             pipeline,
+            preset,
             output,
             no_poses,
         } => {
@@ -679,7 +688,7 @@ fn run_command() -> Result<()> {
                         .with_context(|| format!("reading {}", p.display()))?;
                     toml_pipeline(&text).with_context(|| format!("in {}", p.display()))?
                 }
-                None => PipelineConfig::default(),
+                None => preset_config(preset, &tracks),
             };
             if noise_sigma.is_some() {
                 cfg.noise_sigma_m = noise_sigma;
@@ -984,6 +993,38 @@ fn observe(
         unexplained.len()
     );
     Ok(())
+}
+
+/// The settings `kinetree discover` starts from without `--pipeline`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Preset {
+    /// `motion-capture` for C3D and TRC files, `default` otherwise.
+    Auto,
+    /// The defaults, for rigid bodies.
+    Default,
+    /// [`PipelineConfig::motion_capture`], for markers on skin.
+    MotionCapture,
+}
+
+/// The pipeline of `preset` for the tracks file `tracks`; says so when `auto` took the
+/// motion-capture one.
+fn preset_config(preset: Preset, tracks: &Path) -> PipelineConfig {
+    let motion_capture = tracks
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("c3d") || e.eq_ignore_ascii_case("trc"));
+    match preset {
+        Preset::Default => PipelineConfig::default(),
+        Preset::MotionCapture => PipelineConfig::motion_capture(),
+        Preset::Auto if motion_capture => {
+            eprintln!(
+                "note: motion-capture file: using the motion-capture settings (markers on skin; \
+                 --preset default for rigid bodies, --pipeline FILE for your own)"
+            );
+            PipelineConfig::motion_capture()
+        }
+        Preset::Auto => PipelineConfig::default(),
+    }
 }
 
 fn toml_pipeline(text: &str) -> Result<PipelineConfig> {

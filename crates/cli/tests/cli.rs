@@ -408,6 +408,38 @@ fn discover_reads_c3d_and_fit_track_reads_a_handle() {
     assert!(out.contains("12 bodies"), "{out}");
     let labels = read_json(&model)["point_labels"].clone();
     assert_eq!(labels.as_array().map(Vec::len), Some(36), "{labels}");
+    // Without a config a C3D file gets the motion-capture settings, which are that file's;
+    // the defaults (for rigid bodies) merge the segments.
+    let (auto, rigid) = (d.join("auto.json"), d.join("rigid.json"));
+    for (model, preset) in [(&auto, None), (&rigid, Some("default"))] {
+        let mut command = kinetree();
+        command
+            .arg("discover")
+            .arg(data.join("c3dorg-fullbody-triads/pc_real.c3d"))
+            .args(["-q", "--no-poses", "-o"])
+            .arg(model);
+        if let Some(p) = preset {
+            command.args(["--preset", p]);
+        }
+        let out = command.output().expect("runs");
+        assert!(out.status.success(), "{out:?}");
+        let said = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(
+            said.contains("motion-capture settings"),
+            preset.is_none(),
+            "{said}"
+        );
+    }
+    assert_eq!(
+        read_json(&auto)["point_body"],
+        read_json(&model)["point_body"]
+    );
+    let bodies = |m: &std::path::Path| read_json(m)["bodies"].as_array().map_or(0, Vec::len);
+    assert!(
+        bodies(&rigid) < 12,
+        "{} bodies with the defaults",
+        bodies(&rigid)
+    );
     let joint = d.join("door.json");
     let out = run_ok(
         kinetree()
@@ -724,7 +756,7 @@ fn discover_reads_trc_files() {
             kinetree()
                 .arg("discover")
                 .arg(input)
-                .args(["-q", "--no-poses", "-o"])
+                .args(["-q", "--no-poses", "--preset", "default", "-o"])
                 .arg(model),
         );
     }

@@ -168,26 +168,36 @@ pub fn refine_noise_sigma(stats: &PairStats, segmentation: &Segmentation) -> Opt
 /// ignores the minority without any. On rigid synthetic bodies it reads low (the second
 /// smallest of about ten sample std-devs), so it is not the default.
 ///
+/// The estimate is at least `1e-6` of the typical distance of those pairs, as
+/// [`estimate_noise_sigma`]'s floor for noise-free data: markers a body model writes out
+/// (no noise, float32 coordinates) keep their distances to float rounding, about `1e-8` m,
+/// below what the later stages' iterations resolve.
+///
 /// # Errors
 /// [`Error::Degenerate`] when fewer than three points have two pairs seen in 3+ frames, or
 /// the result is zero (constant data).
 pub fn estimate_noise_sigma_nearest_rigid(stats: &PairStats) -> Result<f64> {
     let n = stats.n_points;
-    let mut second: Vec<f64> = (0..n)
+    // Each point's second most rigid pair: its distance std-dev and mean distance.
+    let (mut second, mut distance): (Vec<f64>, Vec<f64>) = (0..n)
         .filter_map(|i| {
-            let mut s: Vec<f64> = (0..n)
+            let mut s: Vec<(f64, f64)> = (0..n)
                 .filter(|&j| j != i)
                 .map(|j| condensed_index(n, i, j))
-                .filter(|&k| stats.count[k] >= 3 && stats.var_m2[k].is_finite())
-                .map(|k| stats.var_m2[k].max(0.0).sqrt())
+                .filter(|&k| {
+                    stats.count[k] >= 3
+                        && stats.var_m2[k].is_finite()
+                        && stats.mean_m[k].is_finite()
+                })
+                .map(|k| (stats.var_m2[k].max(0.0).sqrt(), stats.mean_m[k]))
                 .collect();
             if s.len() < 2 {
                 return None;
             }
-            s.sort_by(f64::total_cmp);
+            s.sort_by(|a, b| a.0.total_cmp(&b.0));
             Some(s[1])
         })
-        .collect();
+        .unzip();
     if second.len() < 3 {
         return Err(Error::Degenerate(format!(
             "cannot estimate the noise level: only {} points have two partners seen in 3+ frames",
@@ -195,8 +205,12 @@ pub fn estimate_noise_sigma_nearest_rigid(stats: &PairStats) -> Result<f64> {
         )));
     }
     let sigma = median(&mut second) / std::f64::consts::SQRT_2;
+    let floor = 1e-6 * median(&mut distance);
     if sigma > 0.0 {
-        Ok(sigma)
+        Ok(sigma.max(floor))
+    } else if floor > 0.0 && stats.var_m2.iter().any(|&v| v.is_finite() && v > 0.0) {
+        // Some pairs move: noise-free motion, not constant data.
+        Ok(floor)
     } else {
         Err(Error::Degenerate(
             "cannot estimate the noise level: the points keep exactly constant distances (noise-free or constant data); give the noise level explicitly".into(),

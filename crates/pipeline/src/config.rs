@@ -260,7 +260,29 @@ impl Default for PipelineConfig {
     }
 }
 
+/// The pipeline for motion-capture markers on skin (the `[pipeline]` table's contents):
+/// the noise level from each marker's most rigid partners, the distance std-dev cut at three
+/// noise std-devs as dissimilarity, and 3 mm / 0.02 rad of joint model error in the DoF test.
+/// `experiments/real/README.md` gives the measurements behind each setting.
+pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
+
+[dissimilarity]
+kind = "distance_std"
+cut_in_noise_std = 3.0
+
+[dof]
+kind = "chi2_rank"
+model_error_m = 0.003
+model_error_rad = 0.02
+"#;
+
 impl PipelineConfig {
+    /// The pipeline for motion-capture markers on skin ([`MOTION_CAPTURE_TOML`]), which
+    /// `kinetree discover` takes for C3D and TRC files unless told otherwise.
+    pub fn motion_capture() -> Self {
+        pipeline_from_toml(MOTION_CAPTURE_TOML).expect("the motion-capture preset parses")
+    }
+
     /// Checks what the stages' and repairs' constructors do not: the noise level, the
     /// `halves` slot's cluster count, the repairs', runner's and positions' ranges.
     ///
