@@ -288,3 +288,49 @@ fn heavy_occlusion_keeps_most_mechanisms_right() {
         );
     }
 }
+
+/// A marker that is not rigid with any body (a loose marker wobbling by a few centimetres on
+/// its link) is left off the bodies, and the summary names it by its label.
+#[test]
+fn a_loose_marker_is_left_out_and_named() {
+    use kinetree_core::nalgebra::{Point3, Vector3};
+    let (data, _) = discovered(&RandomParams {
+        n_joints: 2,
+        seed: 3,
+        ..RandomParams::default()
+    });
+    let tracks = &data.tracks;
+    let n = tracks.n_points();
+    // The loose marker follows the last point of the last body, 3 cm off it and swinging
+    // through 2.5 cm about that offset.
+    let carrier = (0..n)
+        .rev()
+        .find(|&i| data.truth.point_body[i] == data.truth.n_bodies() - 1)
+        .expect("a point on the last body");
+    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
+        .map(|t| {
+            let phase = t as f64 * 0.37;
+            let wobble = Vector3::new(0.03 + 0.025 * phase.sin(), 0.025 * phase.cos(), 0.0);
+            let mut row: Vec<Option<Point3<f64>>> = (0..n).map(|i| tracks.get(t, i)).collect();
+            row.push(tracks.get(t, carrier).map(|p| p + wobble));
+            row
+        })
+        .collect();
+    let mut labels: Vec<String> = (0..n).map(|i| format!("M{i}")).collect();
+    labels.push("LOOSE".into());
+    let with_loose = kinetree_core::Tracks::from_points(&frames)
+        .expect("tracks")
+        .with_labels(labels)
+        .expect("labels");
+    let model = kinetree_tests::discover_default(&with_loose);
+    assert_eq!(model.point_body[n], -1, "the loose marker is on a body");
+    let summary = kinetree_pipeline::report::summary(&model);
+    assert!(
+        summary
+            .lines()
+            .any(|l| l.contains("warning") && l.contains("markers LOOSE")),
+        "{summary}"
+    );
+    let e = evaluate(&model, &data.truth);
+    assert_eq!(e.n_bodies_found, data.truth.n_bodies(), "{e:?}");
+}

@@ -221,6 +221,24 @@ pub enum Warning {
     },
 }
 
+impl Warning {
+    /// The keypoints a warning took off the bodies or left without one, which a reader with
+    /// marker names wants named: never visible, unpaired, in a discarded cluster or dropped
+    /// body, unassigned, or making a joint multi-DoF. Empty for other warnings.
+    pub fn points_left_out(&self) -> &[usize] {
+        match self {
+            Warning::PointNeverVisible { point } | Warning::PointUnpaired { point } => {
+                std::slice::from_ref(point)
+            }
+            Warning::ClusterDiscarded { points }
+            | Warning::PointsUnassigned { points }
+            | Warning::PointsMakingJointsMultiDof { points }
+            | Warning::BodyDropped { points, .. } => points,
+            _ => &[],
+        }
+    }
+}
+
 impl std::fmt::Display for Warning {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {

@@ -168,7 +168,21 @@ pub fn summary(model: &Model) -> String {
         );
     }
     for w in &model.warnings {
-        let _ = writeln!(s, "  warning: {w}");
+        // Markers left off the bodies by name, when the input named them.
+        let names: Vec<&str> = model
+            .point_labels
+            .iter()
+            .flat_map(|labels| {
+                w.points_left_out()
+                    .iter()
+                    .filter_map(|&p| labels.get(p).map(String::as_str))
+            })
+            .collect();
+        if names.is_empty() {
+            let _ = writeln!(s, "  warning: {w}");
+        } else {
+            let _ = writeln!(s, "  warning: {w} (markers {})", names.join(", "));
+        }
     }
     s
 }
