@@ -521,11 +521,13 @@ def simulate(
             same with universal wrists and ankles), ``"skeleton-floating"`` (the same with
             a freely moving pelvis and nothing static), ``"gripper-parallel"`` or
             ``"gripper-angular"`` (an arm with two fingers that slide along, or turn about,
-            one axis), ``"hand"`` (a palm with four fingers and a thumb) or ``"hidden-link"``
-            (an arm whose wrist link is seen in part of the frames).
+            one axis), ``"hand"`` (a palm with four fingers and a thumb), ``"hidden-link"``
+            (an arm whose wrist link is seen in part of the frames), ``"slender-planar"`` or
+            ``"slender"`` (an arm of rods a few millimetres thick turning about parallel, or
+            random, axes).
         seed: Seed of every random choice.
         joints, tree, prismatic_fraction, spherical_fraction: For random mechanisms: the
-            number of joints, whether bodies attach as a tree rather than a chain, the chance
+            number of joints (also of a slender arm), whether bodies attach as a tree rather than a chain, the chance
             of a slide, and the chance that a joint that is not a slide is a ball joint.
         noise_sigma: Per-coordinate noise, metres.
         dropout: Extra random occlusion fraction.

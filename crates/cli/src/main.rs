@@ -390,14 +390,15 @@ enum Command {
         /// `skeleton-floating` (the same with a freely moving pelvis and nothing static),
         /// `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
         /// or turn about, one axis), `hand` (a palm with four fingers and a thumb),
-        /// `hidden-link` (an arm whose wrist link is seen in part of the frames), or `random`
-        /// with the options below.
+        /// `hidden-link` (an arm whose wrist link is seen in part of the frames),
+        /// `slender-planar` or `slender` (an arm of rods a few millimetres thick turning about
+        /// parallel, or random, axes; `--joints` of them), or `random` with the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,
         /// Seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Number of joints (random mechanisms).
+        /// Number of joints (random mechanisms and slender arms).
         #[arg(long, default_value_t = 3)]
         joints: usize,
         /// Attach bodies as a tree rather than a chain (random mechanisms).

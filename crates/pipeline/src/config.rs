@@ -351,6 +351,8 @@ pub enum DataConfig {
     Hand(kinetree_synth::HandParams),
     /// An arm with one link mostly hidden ([`kinetree_synth::hidden_link_arm`]).
     HiddenLink(kinetree_synth::HiddenLinkParams),
+    /// An arm of slender rods ([`kinetree_synth::slender_arm`]).
+    SlenderArm(kinetree_synth::SlenderArmParams),
     /// A tracks file (`.npy`, `.npz`, `.csv`, `.c3d` or `.trc`), relative to the config file.
     File(FileData),
 }
@@ -362,12 +364,13 @@ pub struct SimulationRequest {
     /// `paper-arm`, `random`, `skeleton`, `skeleton-universal` (its wrists and ankles
     /// universal joints), `skeleton-floating` (its pelvis moving freely, nothing static),
     /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
-    /// about, one axis), `hand` (a palm with four fingers and a thumb), or `hidden-link` (an
-    /// arm whose wrist link is seen in part of the frames).
+    /// about, one axis), `hand` (a palm with four fingers and a thumb), `hidden-link` (an
+    /// arm whose wrist link is seen in part of the frames), or `slender-planar` or `slender`
+    /// (an arm of rods a few millimetres thick turning about parallel, or random, axes).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
-    /// Number of joints (random mechanisms).
+    /// Number of joints (random mechanisms and slender arms).
     pub joints: usize,
     /// Bodies attached as a tree rather than a chain (random mechanisms).
     pub tree: bool,
@@ -458,11 +461,24 @@ impl SimulationRequest {
                 seed: self.seed,
                 ..kinetree_synth::HiddenLinkParams::default()
             }),
+            "slender-planar" | "slender" => {
+                DataConfig::SlenderArm(kinetree_synth::SlenderArmParams {
+                    n_joints: self.joints,
+                    planar: self.mechanism == "slender-planar",
+                    n_frames: self
+                        .n_frames
+                        .unwrap_or(kinetree_synth::SlenderArmParams::default().n_frames),
+                    noise_sigma_m: self.noise_sigma_m,
+                    dropout: self.dropout,
+                    seed: self.seed,
+                    ..kinetree_synth::SlenderArmParams::default()
+                })
+            }
             other => {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
                      skeleton-universal, skeleton-floating, gripper-parallel, gripper-angular, \
-                     hand or hidden-link"
+                     hand, hidden-link, slender-planar or slender"
                 )));
             }
         })

@@ -59,6 +59,10 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
             p.validate()?;
             Some(kinetree_synth::hidden_link_arm(p))
         }
+        DataConfig::SlenderArm(p) => {
+            p.validate()?;
+            Some(kinetree_synth::slender_arm(p))
+        }
         DataConfig::File(_) => None,
     })
 }

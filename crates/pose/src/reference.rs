@@ -22,6 +22,14 @@ pub struct KabschParams {
     /// A frame's visible points must spread at least this many noise std-devs along their
     /// second principal axis, else they count as collinear and the frame gets no pose.
     pub min_spread_in_sigma: f64,
+    /// A body whose points, in the frame that shows the most of them, spread along their
+    /// second principal axis by less than this share of their spread along the first is
+    /// slender (a rod: its points nearly on a line)...
+    pub slender_aspect: f64,
+    /// ... and its frames need only this many noise std-devs of spread: every frame of a
+    /// rod is nearly collinear, and its pose's precision (poor about the rod's own axis)
+    /// goes with it into the pair tests.
+    pub slender_min_spread_in_sigma: f64,
     /// Robust fitting: the point with the largest residual, if above this many noise
     /// std-devs (per coordinate, so `sqrt 3` of them is typical), is left out of its frame's
     /// fit and of the shape, and the frame is refitted, up to `ROBUST_ROUNDS` points per
@@ -39,6 +47,8 @@ impl Default for KabschParams {
             shape_passes: 4,
             shape_steps: 10,
             min_spread_in_sigma: 1.0,
+            slender_aspect: 0.1,
+            slender_min_spread_in_sigma: 0.5,
             outlier_in_sigma: None,
         }
     }
@@ -60,11 +70,20 @@ impl KabschParams {
                 message: format!("must be finite and positive, got {k}"),
             });
         }
-        if !(self.min_spread_in_sigma.is_finite() && self.min_spread_in_sigma >= 0.0) {
-            return Err(Error::InvalidParameter {
-                name: "min_spread_in_sigma".into(),
-                message: format!("must be finite and >= 0, got {}", self.min_spread_in_sigma),
-            });
+        for (name, value) in [
+            ("min_spread_in_sigma", self.min_spread_in_sigma),
+            ("slender_aspect", self.slender_aspect),
+            (
+                "slender_min_spread_in_sigma",
+                self.slender_min_spread_in_sigma,
+            ),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(Error::InvalidParameter {
+                    name: name.into(),
+                    message: format!("must be finite and >= 0, got {value}"),
+                });
+            }
         }
         Ok(())
     }
@@ -112,10 +131,18 @@ impl KabschPoses {
                     .collect()
             })
             .collect();
-        let min_spread = self.params.min_spread_in_sigma * sigma;
-        let usable = |pts: &[Point3<f64>]| pts.len() >= 3 && spread(pts)[1] > min_spread.max(1e-12);
         let mut order: Vec<usize> = (0..t_len).collect();
         order.sort_by_key(|&t| std::cmp::Reverse(obs[t].len()));
+        let points_of = |t: usize| obs[t].iter().map(|o| o.1).collect::<Vec<_>>();
+        let fullest = order.first().map_or([0.0; 3], |&t| spread(&points_of(t)));
+        let slender = fullest[1] < self.params.slender_aspect * fullest[0];
+        let min_spread = sigma
+            * if slender {
+                self.params.slender_min_spread_in_sigma
+            } else {
+                self.params.min_spread_in_sigma
+            };
+        let usable = |pts: &[Point3<f64>]| pts.len() >= 3 && spread(pts)[1] > min_spread.max(1e-12);
         // Initial shape: the first frame (most points) whose points are usable.
         let mut shape: Vec<Option<Point3<f64>>> = vec![None; nb];
         if let Some(&t0) = order

@@ -1,6 +1,6 @@
 //! Synthetic articulated mechanisms: boxes joined by revolute, prismatic and spherical joints
 //! (random mechanisms, the paper's arm, a human-like skeleton, an arm with a gripper, a
-//! hand), joint
+//! hand, an arm with a hidden link, an arm of slender rods), joint
 //! trajectories, a camera with a field of view, self-occlusion by ray casting, extra burst
 //! dropout and Gaussian noise, all from a seed.
 
@@ -12,6 +12,7 @@ mod named;
 mod scale;
 mod scenario;
 mod skeleton;
+mod slender;
 mod spec;
 #[cfg(feature = "proptest")]
 pub mod strategies;
@@ -24,6 +25,7 @@ pub use named::{RandomParams, paper_arm, random_scenario};
 pub use scale::{ScaleParams, scale_scenario};
 pub use scenario::{Camera, GroundTruth, PartlySeen, Scenario, SynthData, Trajectory, simulate};
 pub use skeleton::{SkeletonParams, skeleton_scenario};
+pub use slender::{SlenderArmParams, slender_arm};
 pub use spec::{JointDraw, MechanismSpec, SPEC_FRAMES};
 
 #[cfg(test)]
