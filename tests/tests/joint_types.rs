@@ -27,6 +27,16 @@ fn skeleton(seed: u64, noise_sigma_m: f64) -> SynthData {
     .expect("simulate")
 }
 
+/// A skeleton with universal wrists and ankles at 1 mm.
+fn universal_skeleton(seed: u64) -> SynthData {
+    simulate(&skeleton_scenario(&SkeletonParams {
+        seed,
+        universal_wrists_and_ankles: true,
+        ..SkeletonParams::default()
+    }))
+    .expect("simulate")
+}
+
 /// The true rotation of spherical joint `k` at `frame`, in the parent's frame at the zero
 /// configuration (the truth's coordinates are its rotation vector).
 fn true_turn(data: &SynthData, k: usize, frame: usize) -> UnitQuaternion<f64> {
@@ -321,12 +331,7 @@ fn urdf_ball_joints_turn_about_their_centre() {
 /// the child as the model says: `T(c) R(axis, q1) R(second_axis, q2) T(-c) reference_pose`.
 #[test]
 fn urdf_universal_joints_turn_by_the_models_angles() {
-    let data = simulate(&skeleton_scenario(&SkeletonParams {
-        seed: 1,
-        universal_wrists_and_ankles: true,
-        ..SkeletonParams::default()
-    }))
-    .expect("simulate");
+    let data = universal_skeleton(1);
     let model = discover(&data);
     let text = kinetree_io::export::to_urdf(&model).expect("urdf");
     let robot = urdf_rs::read_from_string(&text).expect("urdf-rs parses it");
@@ -430,12 +435,7 @@ fn universal_wrists_and_ankles_are_typed_centred_and_followed() {
     let mut worst_centre: f64 = 0.0;
     let mut angle_rms = Vec::new();
     for seed in 0..3 {
-        let data = simulate(&skeleton_scenario(&SkeletonParams {
-            seed,
-            universal_wrists_and_ankles: true,
-            ..SkeletonParams::default()
-        }))
-        .expect("simulate");
+        let data = universal_skeleton(seed);
         let model = discover(&data);
         let e = evaluate(&model, &data.truth);
         let map = body_map(&model, &data.truth);
@@ -523,12 +523,7 @@ fn ball_and_universal_joints_reach_their_stated_precision() {
     let (mut centre_z, mut axis_z, mut second_z) = (Vec::new(), Vec::new(), Vec::new());
     let mut centred = 0;
     for seed in 0..6 {
-        let data = simulate(&skeleton_scenario(&SkeletonParams {
-            seed,
-            universal_wrists_and_ankles: true,
-            ..SkeletonParams::default()
-        }))
-        .expect("simulate");
+        let data = universal_skeleton(seed);
         let model = discover(&data);
         let e = evaluate(&model, &data.truth);
         for j in &model.joints {

@@ -491,8 +491,9 @@ fn typing_candidates(model: &Model, k: usize, observer: &Observer) -> &'static [
 /// lowers the fit's squared residual, in noise variances, by more than `K` plus
 /// `min_ball_gain_in_std` times `sqrt(2 K)`, with `K` the frames where the joint has angles:
 /// on a true universal joint, whose axes the bundle adjustment has fitted, the ball's extra
-/// coordinate gains a chi-square of `K` degrees of freedom; with the joint freed (the fit could not follow it), when the fit
-/// follows the ball and every other joint within `others_max_excess`, the freeing bound.
+/// coordinate gains a chi-square of `K` degrees of freedom. With the joint freed (the fit
+/// could not follow it), the ball is kept when the fit follows it and every other joint
+/// within `others_max_excess`, the freeing bound.
 /// Otherwise, when one of its angles spreads by at most `max_ball_off_axis_in_std` of its
 /// standard deviations, a hinge is tried as for a ball joint, from the ball's fit (whose
 /// child poses the universal joint's axes do not bend). Returns the new observer and fit

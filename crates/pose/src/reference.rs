@@ -24,11 +24,12 @@ pub struct KabschParams {
     pub min_spread_in_sigma: f64,
     /// A body whose points, in the frame that shows the most of them, spread along their
     /// second principal axis by less than this share of their spread along the first is
-    /// slender (a rod: its points nearly on a line)...
+    /// slender (a rod: its points nearly on a line; default 0.1)...
     pub slender_aspect: f64,
-    /// ... and its frames need only this many noise std-devs of spread: every frame of a
-    /// rod is nearly collinear, and its pose's precision (poor about the rod's own axis)
-    /// goes with it into the pair tests.
+    /// ... and its frames need only this many noise std-devs of spread (default 0.5): every
+    /// frame of a rod is nearly collinear, and its pose's precision (poor about the rod's
+    /// own axis) goes with it into the pair tests (`docs/decisions.md`,
+    /// `pose.slender_aspect`).
     pub slender_min_spread_in_sigma: f64,
     /// Robust fitting: the point with the largest residual, if above this many noise
     /// std-devs (per coordinate, so `sqrt 3` of them is typical), is left out of its frame's
