@@ -39,6 +39,12 @@ from ._kinetree import (
 
 __version__ = _kinetree.version()
 
+#: The pipeline for motion-capture markers on skin, as TOML for :func:`discover`'s ``config``:
+#: the noise level from each marker's most rigid partners, the distance std-dev as
+#: dissimilarity, 3 mm / 0.02 rad of joint model error. ``kinetree discover`` takes it for C3D
+#: and TRC files; arrays from :func:`read_tracks` need it given.
+MOTION_CAPTURE: str = _kinetree.MOTION_CAPTURE
+
 __all__ = [
     "Body",
     "ConfigError",
@@ -46,6 +52,7 @@ __all__ = [
     "InputError",
     "Joint",
     "KinetreeError",
+    "MOTION_CAPTURE",
     "Model",
     "ModelError",
     "Observation",

@@ -398,6 +398,10 @@ fn _kinetree(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("FileError", py.get_type::<FileError>())?;
     m.add("ModelError", py.get_type::<ModelError>())?;
     m.add("TooLargeError", py.get_type::<TooLargeError>())?;
+    m.add(
+        "MOTION_CAPTURE",
+        kinetree_pipeline::config::MOTION_CAPTURE_TOML,
+    )?;
     m.add_function(wrap_pyfunction!(discover, m)?)?;
     m.add_function(wrap_pyfunction!(model_json, m)?)?;
     m.add_function(wrap_pyfunction!(export_model, m)?)?;

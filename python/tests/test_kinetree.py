@@ -133,6 +133,13 @@ def test_config_as_dict_toml_text_or_file(arm, tmp_path):
     ).data["stages"]["clustering"]
 
 
+def test_motion_capture_settings_are_the_cli_preset(arm):
+    tracks, _ = arm
+    model = kinetree.discover(tracks, config=kinetree.MOTION_CAPTURE)
+    assert model.data["stages"]["dissimilarity"] == "distance_std"
+    assert kinetree.discover(tracks).data["stages"]["dissimilarity"] != "distance_std"
+
+
 def test_errors_are_value_errors_naming_the_problem(arm):
     tracks, _ = arm
     with pytest.raises(kinetree.InputError, match=r"\(T, N, 3\)"):
