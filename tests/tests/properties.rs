@@ -155,6 +155,9 @@ proptest! {
                 centre_uncentred: RankTest::empty(),
                 axes: RankTest::empty(),
                 dof: match kind { 0 => 0, 1 | 2 => 1, _ => 3 }, joint, fit_ratio: fit,
+                // Bodies farther apart the farther apart their ids, so the tree's adjacency
+                // term weighs in too.
+                distance_m: a.map(|a| 0.1 * (b - a) as f64),
             }
         };
         for b in 0..n {

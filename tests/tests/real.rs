@@ -116,6 +116,19 @@ fn real_recordings_segment_into_their_labelled_segments() {
         std::fs::write(&path, text).expect("write table");
     }
     println!("{table}");
+    // The tree joins neighbouring segments: the thighs hang on the pelvis, not on the trunk.
+    for (folder, edges, least) in [
+        ("c3dorg-fullbody-triads", TRIADS_EDGES, 10),
+        ("c3dorg-qualisys-walk", WALK_EDGES, 6),
+    ] {
+        let o = outcomes.iter().find(|o| o.folder == folder).expect(folder);
+        let found = anatomical_edges(o, edges);
+        assert!(
+            found >= least,
+            "{folder}: {found} of {} anatomical edges",
+            edges.len()
+        );
+    }
     // The wheelchair sprint's wheel turns on the chair: a revolute joint over many turns.
     let sprint = outcomes
         .iter()
@@ -180,6 +193,74 @@ fn real_recordings_segment_into_their_labelled_segments() {
             o.folder
         );
     }
+}
+
+/// The full-body triads' anatomical tree, by the segment names of `segments.json`.
+const TRIADS_EDGES: &[(&str, &str)] = &[
+    ("pelvis", "trunk"),
+    ("pelvis", "right_thigh"),
+    ("right_thigh", "right_shank"),
+    ("right_shank", "right_foot"),
+    ("pelvis", "left_thigh"),
+    ("left_thigh", "left_shank"),
+    ("left_shank", "left_foot"),
+    ("trunk", "right_upper_arm"),
+    ("right_upper_arm", "right_forearm"),
+    ("trunk", "left_upper_arm"),
+    ("left_upper_arm", "left_forearm"),
+];
+
+/// The gait recording's anatomical tree.
+const WALK_EDGES: &[(&str, &str)] = &[
+    ("pelvis", "right_thigh"),
+    ("right_thigh", "right_shank"),
+    ("right_shank", "right_foot"),
+    ("pelvis", "left_thigh"),
+    ("left_thigh", "left_shank"),
+    ("left_shank", "left_foot"),
+];
+
+/// How many of `edges` (segment names, either direction) the model's joints join, each body
+/// named by the segment most of its markers belong to.
+fn anatomical_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
+    let dir = kinetree_tests::real_data(o.folder);
+    let seg: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
+    )
+    .expect("json");
+    let mut segment_of: BTreeMap<&str, &str> = BTreeMap::new();
+    for (name, markers) in seg["segments"].as_object().expect("segments") {
+        for m in markers.as_array().expect("markers") {
+            segment_of.insert(m.as_str().expect("marker"), name.as_str());
+        }
+    }
+    let labels = o.model.point_labels.as_ref().expect("labels");
+    let name: Vec<&str> = o
+        .model
+        .bodies
+        .iter()
+        .map(|b| {
+            let mut count: BTreeMap<&str, usize> = BTreeMap::new();
+            for &p in &b.points {
+                if let Some(s) = segment_of.get(labels[p].as_str()) {
+                    *count.entry(s).or_default() += 1;
+                }
+            }
+            count
+                .into_iter()
+                .max_by_key(|&(s, c)| (c, std::cmp::Reverse(s)))
+                .map_or("", |(s, _)| s)
+        })
+        .collect();
+    edges
+        .iter()
+        .filter(|&&(x, y)| {
+            o.model.joints.iter().any(|j| {
+                let (p, c) = (name[j.parent], name[j.child]);
+                (p, c) == (x, y) || (c, p) == (x, y)
+            })
+        })
+        .count()
 }
 
 /// One tracked handle each: the door's must be a revolute joint about a vertical hinge with

@@ -261,4 +261,9 @@ pub struct PairDof {
     /// Largest `rejected singular value / threshold` among the tests behind `joint`: below 1
     /// the decision holds; the smaller, the clearer.
     pub fit_ratio: f64,
+    /// Median distance between the two bodies' origins (the centroids of their keypoints)
+    /// over the frames tested, metres; `None` for a pair with the camera and in files
+    /// written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distance_m: Option<f64>,
 }

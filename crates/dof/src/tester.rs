@@ -917,6 +917,11 @@ fn classify_ranks(
             (dof, fit_ratio) = multi;
         }
     }
+    let distance_m = a.and_then(|_| {
+        let mut d: Vec<f64> = c.x_abs.iter().map(|(_, t)| t.norm()).collect();
+        d.sort_by(f64::total_cmp);
+        d.get(d.len() / 2).copied()
+    });
     Ok(PairDof {
         a,
         b,
@@ -930,6 +935,7 @@ fn classify_ranks(
         dof,
         joint,
         fit_ratio,
+        distance_m,
     })
 }
 

@@ -412,19 +412,53 @@ fn posed_frames(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
         .collect()
 }
 
-/// The spanning tree's cost of a pair between bodies `a` and `p.b` ([`edge_cost`] with its
-/// [`missed_share`]), `posed` from [`posed_frames`].
-fn pair_cost(p: &PairDof, a: usize, posed: &[usize]) -> f64 {
-    edge_cost(p, missed_share(p, posed[a].min(posed[p.b])))
+/// Weight of a pair's distance in the spanning tree's edge cost: the distance between the
+/// two bodies' centroids over the median of every body pair's, at most [`ADJACENCY_CAP`],
+/// times this. A joint joins neighbours: on skin markers many far pairs pass a loose test as
+/// hinges (`docs/decisions.md`).
+pub const ADJACENCY_WEIGHT: f64 = 0.2;
+
+/// Largest relative distance [`ADJACENCY_WEIGHT`] counts.
+pub const ADJACENCY_CAP: f64 = 2.0;
+
+/// What the spanning tree's edge costs share: each body's posed frames ([`posed_frames`]) and
+/// the median distance between two bodies' centroids over every body pair.
+struct CostScale {
+    posed: Vec<usize>,
+    distance: Option<f64>,
 }
 
-/// [`pair_cost`] of every pair between two bodies; `None` for pairs with the camera.
+impl CostScale {
+    fn of(n_bodies: usize, pairs: &[PairDof]) -> Self {
+        let mut d: Vec<f64> = pairs
+            .iter()
+            .filter(|p| p.a.is_some())
+            .filter_map(|p| p.distance_m)
+            .filter(|d| d.is_finite())
+            .collect();
+        d.sort_by(f64::total_cmp);
+        Self {
+            posed: posed_frames(n_bodies, pairs),
+            distance: d.get(d.len() / 2).copied().filter(|&m| m > 0.0),
+        }
+    }
+
+    /// The spanning tree's cost of a pair between bodies `a` and `p.b`: [`edge_cost`] with
+    /// its [`missed_share`], and the pair's distance (adjacent bodies first: a joint joins
+    /// neighbours).
+    fn cost(&self, p: &PairDof, a: usize) -> f64 {
+        let near = match (p.distance_m, self.distance) {
+            (Some(d), Some(m)) if d.is_finite() => ADJACENCY_WEIGHT * (d / m).min(ADJACENCY_CAP),
+            _ => 0.0,
+        };
+        edge_cost(p, missed_share(p, self.posed[a].min(self.posed[p.b]))) + near
+    }
+}
+
+/// [`CostScale::cost`] of every pair between two bodies; `None` for pairs with the camera.
 fn edge_costs(n_bodies: usize, pairs: &[PairDof]) -> Vec<Option<f64>> {
-    let posed = posed_frames(n_bodies, pairs);
-    pairs
-        .iter()
-        .map(|p| Some(pair_cost(p, p.a?, &posed)))
-        .collect()
+    let scale = CostScale::of(n_bodies, pairs);
+    pairs.iter().map(|p| Some(scale.cost(p, p.a?))).collect()
 }
 
 /// The single-DoF edges of `tree` (as `(parent, child)`) whose child another body outside its
@@ -436,10 +470,10 @@ pub fn near_tied_edges(
     tree: &Tree,
     margin: f64,
 ) -> Vec<(usize, usize)> {
-    let posed = posed_frames(n_bodies, pairs);
+    let scale = CostScale::of(n_bodies, pairs);
     let cost_of = |a: usize, b: usize| {
         let p = find_pair(pairs, Some(a), b).filter(|p| p.joint.is_single_dof())?;
-        Some(pair_cost(p, p.a?, &posed))
+        Some(scale.cost(p, p.a?))
     };
     let below = |c: usize, x: usize| {
         // Whether `x` is `c` or one of its descendants.
@@ -604,6 +638,7 @@ mod tests {
             dof,
             joint,
             fit_ratio,
+            distance_m: None,
         }
     }
 
@@ -649,6 +684,45 @@ mod tests {
         // Excluded edges are not taken back by the hoisting.
         let tree = spanning_tree_without(3, &pairs, &[(0, 2)]).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+    }
+
+    /// Two hinges that fit a body about as well: the tree takes the one to the nearer body;
+    /// without distances, the better fit.
+    #[test]
+    fn of_two_equal_fits_the_nearer_body_is_the_parent() {
+        let hinge = || JointKind::Revolute {
+            axis: Vector3::z(),
+            pivot: Point3::origin(),
+        };
+        let at = |mut p: PairDof, d: f64| {
+            p.distance_m = Some(d);
+            p
+        };
+        let pairs = |fit_far: f64| {
+            vec![
+                pair(None, 0, JointKind::Rigid, 0.1),
+                pair(None, 1, JointKind::MultiDof, 0.0),
+                pair(None, 2, JointKind::MultiDof, 0.0),
+                pair(None, 3, JointKind::MultiDof, 0.0),
+                at(pair(Some(0), 1, hinge(), 0.2), 0.3),
+                at(pair(Some(0), 2, hinge(), 0.2), 0.3),
+                at(pair(Some(0), 3, hinge(), 0.9), 0.8),
+                at(pair(Some(1), 3, hinge(), fit_far), 0.8),
+                at(pair(Some(2), 3, hinge(), 0.3), 0.2),
+                at(pair(Some(1), 2, JointKind::MultiDof, 0.0), 0.4),
+            ]
+        };
+        let tree = spanning_tree(4, &pairs(0.3)).expect("tree");
+        assert_eq!(tree.parent[3], Some(2));
+        let tree = spanning_tree(4, &pairs(0.0)).expect("tree");
+        assert_eq!(tree.parent[3], Some(2));
+        // Without distances the better fit wins.
+        let mut bare = pairs(0.0);
+        for p in &mut bare {
+            p.distance_m = None;
+        }
+        let tree = spanning_tree(4, &bare).expect("tree");
+        assert_eq!(tree.parent[3], Some(1));
     }
 
     /// Three slides whose grandparent pair fits beyond the margin: the tree keeps the chain

@@ -236,6 +236,7 @@ mod tests {
             dof: usize::from(!matches!(joint, JointKind::Rigid)),
             joint,
             fit_ratio,
+            distance_m: None,
         }
     }
 
