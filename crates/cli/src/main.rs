@@ -1003,7 +1003,7 @@ enum Preset {
     Auto,
     /// The defaults, for rigid bodies.
     Default,
-    /// [`PipelineConfig::motion_capture`], for markers on skin.
+    /// The motion-capture settings, for markers on skin.
     MotionCapture,
 }
 
