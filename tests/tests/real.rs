@@ -129,6 +129,37 @@ fn real_recordings_segment_into_their_labelled_segments() {
             edges.len()
         );
     }
+    // Hips and shoulders are ball joints: each joint between a thigh or an upper arm and the
+    // pelvis or the trunk is spherical or universal, or a hinge that a `joint_not_identifiable`
+    // warning says a ball fits as well; never a slide.
+    for folder in ["c3dorg-fullbody-triads", "c3dorg-qualisys-walk"] {
+        let o = outcomes.iter().find(|o| o.folder == folder).expect(folder);
+        let name = body_segments(o);
+        let mut judged = 0;
+        for j in &o.model.joints {
+            let mut ends = [name[j.parent].as_str(), name[j.child].as_str()];
+            ends.sort_unstable();
+            let limb = |s: &str| s.ends_with("thigh") || s.ends_with("upper_arm");
+            let core = |s: &str| s == "pelvis" || s == "trunk";
+            if !((limb(ends[0]) && core(ends[1])) || (core(ends[0]) && limb(ends[1]))) {
+                continue;
+            }
+            judged += 1;
+            let ball_fits = o.model.warnings.iter().any(|w| {
+                matches!(w, kinetree_core::Warning::JointNotIdentifiable { child, alternatives, .. }
+                    if *child == j.child && alternatives.contains(&JointType::Spherical))
+            });
+            assert!(
+                matches!(j.joint_type, JointType::Spherical | JointType::Universal)
+                    || (j.joint_type == JointType::Revolute && ball_fits),
+                "{folder}: the {} -> {} joint is {} with no verdict that a ball fits",
+                name[j.parent],
+                name[j.child],
+                j.joint_type
+            );
+        }
+        assert!(judged >= 2, "{folder}: {judged} hips and shoulders");
+    }
     // The wheelchair sprint's wheel turns on the chair: a revolute joint over many turns.
     let sprint = outcomes
         .iter()
@@ -223,6 +254,20 @@ const WALK_EDGES: &[(&str, &str)] = &[
 /// How many of `edges` (segment names, either direction) the model's joints join, each body
 /// named by the segment most of its markers belong to.
 fn anatomical_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
+    let name = body_segments(o);
+    edges
+        .iter()
+        .filter(|&&(x, y)| {
+            o.model.joints.iter().any(|j| {
+                let (p, c) = (name[j.parent].as_str(), name[j.child].as_str());
+                (p, c) == (x, y) || (c, p) == (x, y)
+            })
+        })
+        .count()
+}
+
+/// Each body's segment: the one most of its markers belong to (empty when none).
+fn body_segments(o: &Outcome) -> Vec<String> {
     let dir = kinetree_tests::real_data(o.folder);
     let seg: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
@@ -235,8 +280,7 @@ fn anatomical_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
         }
     }
     let labels = o.model.point_labels.as_ref().expect("labels");
-    let name: Vec<&str> = o
-        .model
+    o.model
         .bodies
         .iter()
         .map(|b| {
@@ -249,18 +293,9 @@ fn anatomical_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
             count
                 .into_iter()
                 .max_by_key(|&(s, c)| (c, std::cmp::Reverse(s)))
-                .map_or("", |(s, _)| s)
+                .map_or(String::new(), |(s, _)| s.to_string())
         })
-        .collect();
-    edges
-        .iter()
-        .filter(|&&(x, y)| {
-            o.model.joints.iter().any(|j| {
-                let (p, c) = (name[j.parent], name[j.child]);
-                (p, c) == (x, y) || (c, p) == (x, y)
-            })
-        })
-        .count()
+        .collect()
 }
 
 /// One tracked handle each: the door's must be a revolute joint about a vertical hinge with

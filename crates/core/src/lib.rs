@@ -31,4 +31,4 @@ pub use stage::{
     PoseEstimator, PoseInput,
 };
 pub use tracks::{MAX_COORDINATE, MIN_FRAMES, MIN_POINTS, Tracks};
-pub use warning::Warning;
+pub use warning::{NotIdentifiableBasis, Warning};

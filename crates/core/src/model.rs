@@ -54,6 +54,13 @@ pub struct PositionLimits {
     /// per-frame standard deviations; below, a `joint_not_identifiable` warning names the
     /// types the data fit as well (default 3; `docs/decisions.md`).
     pub min_identifiable_spread_in_std: f64,
+    /// A revolute joint whose child turns off the axis, relative to the parent, by at least
+    /// this many standard deviations of the keypoint noise (the RMS about the mean of the
+    /// largest principal direction, each frame's off-axis rotation whitened by the two
+    /// bodies' rotation precision in that frame) gets a `joint_not_identifiable` warning
+    /// naming the ball and universal joints: the pair tests took that motion for model error
+    /// (default 2; pure noise gives about 1; `docs/decisions.md`).
+    pub min_off_axis_spread_in_std: f64,
 }
 
 impl Default for PositionLimits {
@@ -63,6 +70,7 @@ impl Default for PositionLimits {
             max_std_m: 0.1,
             min_smoothed_frames: 3,
             min_identifiable_spread_in_std: 3.0,
+            min_off_axis_spread_in_std: 2.0,
         }
     }
 }
@@ -83,6 +91,10 @@ impl PositionLimits {
             (
                 "min_identifiable_spread_in_std",
                 self.min_identifiable_spread_in_std,
+            ),
+            (
+                "min_off_axis_spread_in_std",
+                self.min_off_axis_spread_in_std,
             ),
         ] {
             if !(v.is_finite() && v > 0.0) {

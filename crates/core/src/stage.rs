@@ -88,4 +88,11 @@ pub trait DofTester: Send + Sync + std::fmt::Debug {
     /// # Errors
     /// [`crate::Error::Degenerate`] when the two are never registered in the same frame.
     fn test_pair(&self, input: &DofInput<'_>, a: Option<usize>, b: usize) -> Result<PairDof>;
+    /// The rotation, radians (std-dev per body), that the tests allow each body beyond its
+    /// pose noise: a real joint's play or the skin under markers. With an allowance, a hinge
+    /// whose child turns off its axis by more than noise explains is reported as not
+    /// identifiable from a ball or universal joint. Zero (the default) for ideal joints.
+    fn model_error_rad(&self) -> f64 {
+        0.0
+    }
 }

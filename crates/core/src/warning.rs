@@ -185,11 +185,16 @@ pub enum Warning {
         /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
         excess_in_sigma2: f64,
     },
-    /// A joint's motion is too small to tell its type from others: its least-moving
-    /// coordinate (for a ball joint, its rotations' least principal direction that the type
-    /// needs) spread over the frames by less than `bound_in_std` of its per-frame standard
-    /// deviations (`[pipeline.positions] min_identifiable_spread_in_std`). The type is the
-    /// one the tests chose; the alternatives fit the data as well.
+    /// The recorded motion cannot tell a joint's type from others; the type is the one the
+    /// tests chose, and the alternatives fit the data as well. `basis` says why:
+    /// - `small_motion`: its least-moving coordinate (for a ball joint, its rotations' least
+    ///   principal direction that the type needs) spread over the frames by less than
+    ///   `bound_in_std` of its per-frame standard deviations (`[pipeline.positions]
+    ///   min_identifiable_spread_in_std`);
+    /// - `within_model_error`: a hinge's child turned off the axis by at least `bound_in_std`
+    ///   of the keypoint noise's standard deviations (`[pipeline.positions]
+    ///   min_off_axis_spread_in_std`): motion a ball or universal joint has, which the type
+    ///   decision took for the bodies' model error (skin under markers, joint play).
     JointNotIdentifiable {
         /// Parent body (model numbering).
         parent: usize,
@@ -201,8 +206,12 @@ pub enum Warning {
         alternatives: Vec<crate::model::JointType>,
         /// The spread, RMS about the mean over the frames, in per-frame standard deviations.
         spread_in_std: f64,
-        /// The least spread that tells the types apart.
+        /// The bound the spread was held against.
         bound_in_std: f64,
+        /// Why the types cannot be told apart (absent in files written before it existed:
+        /// `small_motion`).
+        #[serde(default)]
+        basis: NotIdentifiableBasis,
     },
     /// The model had multi-DoF joints or joints its whole-tree fit did not follow, so every
     /// pair was tested again on the poses of its whole-tree fit and the model rebuilt on
@@ -219,6 +228,18 @@ pub enum Warning {
         /// The estimate, per-coordinate std-dev in metres.
         sigma_m: f64,
     },
+}
+
+/// Why a `joint_not_identifiable` warning finds a joint's type undecided by the data.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NotIdentifiableBasis {
+    /// The coordinates that tell the types apart moved too little.
+    #[default]
+    SmallMotion,
+    /// The child moved in a way the type lacks, by more than the keypoint noise explains and
+    /// within what the type decision allows a real joint (its model error).
+    WithinModelError,
 }
 
 impl Warning {
@@ -374,13 +395,21 @@ impl std::fmt::Display for Warning {
                 alternatives,
                 spread_in_std,
                 bound_in_std,
+                basis,
             } => {
                 let others: Vec<String> = alternatives.iter().map(|t| t.to_string()).collect();
-                write!(
-                    f,
-                    "joint {parent} -> {child}: not identifiable; typed {joint_type}, but its motion spread only {spread_in_std:.2} std (below {bound_in_std}) where a {} joint differs, so the data fit that as well",
-                    others.join(" or ")
-                )
+                match basis {
+                    NotIdentifiableBasis::SmallMotion => write!(
+                        f,
+                        "joint {parent} -> {child}: not identifiable; typed {joint_type}, but its motion spread only {spread_in_std:.2} std (below {bound_in_std}) where a {} joint differs, so the data fit that as well",
+                        others.join(" or ")
+                    ),
+                    NotIdentifiableBasis::WithinModelError => write!(
+                        f,
+                        "joint {parent} -> {child}: not identifiable; typed {joint_type}, but its child turned off the axis by {spread_in_std:.2} std of noise (at least {bound_in_std}), as a {} joint would, and the type decision took that for model error",
+                        others.join(" or ")
+                    ),
+                }
             }
             Warning::PairsRetested {
                 multi_dof_before,

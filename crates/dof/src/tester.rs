@@ -1177,6 +1177,10 @@ impl DofTester for Chi2Rank {
             },
         )
     }
+
+    fn model_error_rad(&self) -> f64 {
+        self.params.model_error_rad
+    }
 }
 
 #[cfg(test)]

@@ -6,10 +6,17 @@
 //! A ball joint whose rotations stay within noise off one axis moved as a hinge would; so
 //! did a universal joint whose angle about one axis stays within noise. The bound is
 //! [`PositionLimits::min_identifiable_spread_in_std`].
+//!
+//! The other way round, a hinge whose child turns off its axis by more than the keypoint
+//! noise explains was typed a hinge only because the type decision allows each body a model
+//! error (skin under markers, joint play): a ball or universal joint fits that motion too.
+//! The bound is [`PositionLimits::min_off_axis_spread_in_std`].
 
-use kinetree_core::Warning;
 use kinetree_core::model::{JointType, Model, PositionLimits};
-use kinetree_core::nalgebra::{DMatrix, DVector};
+use kinetree_core::nalgebra::{
+    DMatrix, DVector, Matrix2, Matrix3, Point3, Rotation3, Unit, UnitQuaternion, Vector2, Vector3,
+};
+use kinetree_core::{NotIdentifiableBasis, Tracks, Warning};
 
 /// Fewest frames with a coordinate and its standard deviation for a spread to be measured.
 const MIN_FRAMES: usize = 3;
@@ -120,6 +127,127 @@ fn hinge_turn_in_std(model: &Model, joint: &kinetree_core::model::Joint) -> Opti
     Some(rms / reach / rotation_std)
 }
 
+/// The rotation of body `b` in `frame` (camera from body), its shape fitted to its visible
+/// placed keypoints, with that rotation's covariance per sigma^2 in the body frame: the
+/// inverse of `sum (|p|^2 I - p p^T)` over the visible shape points `p` about their centroid.
+/// `None` under three such keypoints or for a spread too thin to fix every rotation.
+fn body_rotation(
+    model: &Model,
+    tracks: &Tracks,
+    b: usize,
+    frame: usize,
+) -> Option<(Rotation3<f64>, Matrix3<f64>)> {
+    let body = model.bodies.get(b)?;
+    let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = body
+        .points
+        .iter()
+        .zip(&body.shape)
+        .filter_map(|(&i, s)| Some(((*s).map(Point3::from)?, tracks.get(frame, i)?)))
+        .unzip();
+    if src.len() < 3 {
+        return None;
+    }
+    let c = kinetree_core::geom::centroid(&src);
+    let mut info = Matrix3::zeros();
+    for p in &src {
+        let r = p - c;
+        info += Matrix3::identity() * r.norm_squared() - r * r.transpose();
+    }
+    let cov = info.try_inverse()?;
+    let pose = kinetree_core::geom::kabsch(&src, &dst)?;
+    Some((pose.rotation.to_rotation_matrix(), cov))
+}
+
+/// How far the child of revolute `joint` turns off a hinge's axis relative to its parent,
+/// in keypoint-noise standard deviations: each frame's relative rotation, taken from the
+/// mean relative rotation, is split into a turn about the axis (fixed in the parent; the
+/// first principal direction of those rotations) and a swing across it; the swings, whitened by the two bodies' rotation covariance in that
+/// frame, are taken about their mean, and the RMS along their largest principal direction is
+/// returned. About 1 for a hinge whose only off-axis motion is noise. `None` with fewer than [`MIN_FRAMES`] frames where both bodies are posed.
+fn off_axis_spread_in_std(
+    model: &Model,
+    tracks: &Tracks,
+    joint: &kinetree_core::model::Joint,
+) -> Option<f64> {
+    let sigma = model.noise.sigma_m;
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return None;
+    }
+    // Relative rotation (child in parent) and its left-perturbation covariance in the
+    // parent's frame, per frame where both bodies are posed.
+    let mut rel: Vec<(Rotation3<f64>, Matrix3<f64>)> = Vec::new();
+    for t in 0..tracks.n_frames() {
+        let (Some((rp, cp)), Some((rc, cc))) = (
+            body_rotation(model, tracks, joint.parent, t),
+            body_rotation(model, tracks, joint.child, t),
+        ) else {
+            continue;
+        };
+        let r = rp.inverse() * rc;
+        let m = r.matrix();
+        rel.push((r, (cp + m * cc * m.transpose()) * sigma * sigma));
+    }
+    if rel.len() < MIN_FRAMES {
+        return None;
+    }
+    // The chordal mean: on a hinge, the relative rotations turned about the axis to their
+    // mean angle, so that every frame's rotation from it is a pure turn about the axis.
+    let sum: Matrix3<f64> = rel.iter().map(|(r, _)| r.matrix()).sum();
+    let svd = sum.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut d = Matrix3::identity();
+    d[(2, 2)] = (u * v_t).determinant().signum();
+    let mean = Rotation3::from_matrix_unchecked(u * d * v_t);
+    // The axis that explains most of the turns from the mean (their rotation vectors' first
+    // principal direction): the hinge that fits these data best, so that an error in the
+    // fitted axis does not count as motion off it.
+    let turns: Matrix3<f64> = rel
+        .iter()
+        .map(|(r, _)| {
+            let w = (r * mean.inverse()).scaled_axis();
+            w * w.transpose()
+        })
+        .sum();
+    let eig = turns.symmetric_eigen();
+    let axis = Unit::try_new(
+        eig.eigenvectors.column(eig.eigenvalues.imax()).into_owned(),
+        1e-9,
+    )?;
+    // A basis across the axis.
+    let e1 = axis
+        .cross(&Vector3::x())
+        .try_normalize(1e-6)
+        .unwrap_or_else(|| {
+            axis.cross(&Vector3::y())
+                .try_normalize(1e-6)
+                .unwrap_or_else(Vector3::z)
+        });
+    let e2 = axis.cross(&e1);
+    let basis = kinetree_core::nalgebra::Matrix3x2::from_columns(&[e1, e2]);
+    let mut swings: Vec<(Vector2<f64>, Matrix2<f64>)> = Vec::with_capacity(rel.len());
+    for (r, cov) in &rel {
+        let q = UnitQuaternion::from_rotation_matrix(&(r * mean.inverse()));
+        let along = axis.dot(&q.imag());
+        let twist = UnitQuaternion::try_new(
+            kinetree_core::nalgebra::Quaternion::from_parts(q.w, axis.into_inner() * along),
+            1e-12,
+        )
+        .unwrap_or_else(UnitQuaternion::identity);
+        let swing = (q * twist.inverse()).scaled_axis();
+        swings.push((basis.transpose() * swing, basis.transpose() * cov * basis));
+    }
+    let n = swings.len() as f64;
+    let centre: Vector2<f64> = swings.iter().map(|(s, _)| s).sum::<Vector2<f64>>() / n;
+    let mut scatter = Matrix2::zeros();
+    for (s, cov) in &swings {
+        let l = cov.cholesky()?;
+        let z = l.l().solve_lower_triangular(&(s - centre))?;
+        scatter += z * z.transpose() / n;
+    }
+    let eig = scatter.symmetric_eigenvalues();
+    Some(eig.max().max(0.0).sqrt())
+}
+
 /// A `joint_not_identifiable` warning for every joint of `model` whose fitted coordinates
 /// (`positions`, `coordinates` and their standard deviations, as the whole-tree fit wrote
 /// them) spread too little to tell its type from the alternatives, `limits`'
@@ -135,10 +263,37 @@ fn hinge_turn_in_std(model: &Model, joint: &kinetree_core::model::Joint) -> Opti
 ///
 /// Joints without standard deviations (multi-DoF, rigid, or not followed by the fit) are
 /// not judged.
-pub fn identifiability_warnings(model: &Model, limits: &PositionLimits) -> Vec<Warning> {
+///
+/// When the type decision allowed each body a model error (`model_error_rad` > 0), a
+/// revolute joint also gets a warning naming the spherical and universal types when its
+/// child turns off the axis by at least `limits`' `min_off_axis_spread_in_std` noise
+/// standard deviations in `tracks` (the bodies posed from their own keypoints). Without an
+/// allowance such motion fails the rank tests, and what remains of it comes from poses that
+/// noise moves beyond their linear precision (slender or centimetre-sized bodies).
+pub fn identifiability_warnings(
+    model: &Model,
+    tracks: &Tracks,
+    limits: &PositionLimits,
+    model_error_rad: f64,
+) -> Vec<Warning> {
     let bound = limits.min_identifiable_spread_in_std;
     let mut out = Vec::new();
     for joint in &model.joints {
+        if model_error_rad > 0.0
+            && joint.joint_type == JointType::Revolute
+            && let Some(off) = off_axis_spread_in_std(model, tracks, joint)
+            && off >= limits.min_off_axis_spread_in_std
+        {
+            out.push(Warning::JointNotIdentifiable {
+                parent: joint.parent,
+                child: joint.child,
+                joint_type: joint.joint_type,
+                alternatives: vec![JointType::Spherical, JointType::Universal],
+                spread_in_std: off,
+                bound_in_std: limits.min_off_axis_spread_in_std,
+                basis: NotIdentifiableBasis::WithinModelError,
+            });
+        }
         let values = usable(joint);
         let (spread, alternatives) = match joint.joint_type {
             JointType::Revolute => {
@@ -178,6 +333,7 @@ pub fn identifiability_warnings(model: &Model, limits: &PositionLimits) -> Vec<W
                 alternatives,
                 spread_in_std: spread,
                 bound_in_std: bound,
+                basis: NotIdentifiableBasis::SmallMotion,
             });
         }
     }

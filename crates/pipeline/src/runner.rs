@@ -711,7 +711,12 @@ impl<'a> Runner<'a> {
         m.model
             .warnings
             .retain(|w| !matches!(w, Warning::JointNotIdentifiable { .. }));
-        let verdicts = kinetree_fit::identifiability_warnings(&m.model, &m.model.position_limits);
+        let verdicts = kinetree_fit::identifiability_warnings(
+            &m.model,
+            ctx.tracks,
+            &m.model.position_limits,
+            self.pipeline.dof.model_error_rad(),
+        );
         m.model.warnings.extend(verdicts);
         m.model.trace = entries;
         Ok(m)
