@@ -192,6 +192,8 @@ class Model:
     Attributes:
         n_frames, n_points: The size of the tracks it was discovered on.
         point_body: ``(N,)`` int64 body of every keypoint, -1 for a keypoint on no body.
+        shared_points: ``(S, 2)`` int64 rows ``[point, body]``: keypoints that belong to a
+            second body as well (markers on a joint's axis); ``point_body`` names the first.
         point_labels: Marker names when the input had them, else None.
         noise_sigma: The per-coordinate noise standard deviation used, metres.
         noise_source: ``"given"`` or ``"estimated"``.
@@ -215,6 +217,9 @@ class Model:
         self.n_frames: int = data["n_frames"]
         self.n_points: int = data["n_points"]
         self.point_body: np.ndarray = np.asarray(data["point_body"], dtype=np.int64)
+        self.shared_points: np.ndarray = np.asarray(
+            data.get("shared_points", []), dtype=np.int64
+        ).reshape(-1, 2)
         self.point_labels: Optional[List[str]] = data.get("point_labels")
         self.noise_sigma: float = data["noise"]["sigma_m"]
         self.noise_source: str = data["noise"]["source"]
@@ -526,7 +531,8 @@ def simulate(
         mechanism: ``"paper-arm"`` (the paper's 2-DoF arm), ``"random"``, ``"skeleton"`` (a
             human-like skeleton of ball joints and hinges), ``"skeleton-universal"`` (the
             same with universal wrists and ankles), ``"skeleton-floating"`` (the same with
-            a freely moving pelvis and nothing static), ``"gripper-parallel"`` or
+            a freely moving pelvis and nothing static), ``"skeleton-clinical"`` (the
+            floating skeleton with a clinical marker set), ``"gripper-parallel"`` or
             ``"gripper-angular"`` (an arm with two fingers that slide along, or turn about,
             one axis), ``"hand"`` (a palm with four fingers and a thumb), ``"hidden-link"``
             (an arm whose wrist link is seen in part of the frames), ``"slender-planar"`` or

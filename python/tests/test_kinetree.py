@@ -140,6 +140,18 @@ def test_motion_capture_settings_are_the_cli_preset(arm):
     assert kinetree.discover(tracks).data["stages"]["dissimilarity"] != "distance_std"
 
 
+def test_markers_on_a_joint_axis_are_shared_by_both_bodies():
+    tracks, truth = kinetree.simulate("skeleton-clinical", seed=0, dropout=0.2)
+    model = kinetree.discover(tracks)
+    assert model.shared_points.ndim == 2 and model.shared_points.shape[1] == 2
+    assert len(model.shared_points) >= 2
+    for point, body in model.shared_points:
+        # Listed by both bodies; point_body names the other one.
+        assert point in model.bodies[body].points
+        assert model.point_body[point] not in (-1, body)
+        assert point in model.bodies[model.point_body[point]].points
+
+
 def test_errors_are_value_errors_naming_the_problem(arm):
     tracks, _ = arm
     with pytest.raises(kinetree.InputError, match=r"\(T, N, 3\)"):

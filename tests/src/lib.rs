@@ -162,6 +162,7 @@ pub mod build {
             skip_corners: (0..8).collect(),
             extra_points: 0,
             interior_points: points,
+            marked_points: Vec::new(),
         }
     }
 
@@ -219,6 +220,7 @@ pub mod build {
             seed: 3,
             self_occlusion: false,
             partly_seen: Vec::new(),
+            soft_tissue_m: 0.0,
         }
     }
 

@@ -177,6 +177,7 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
         skip_corners: (0..8).collect(),
         extra_points: 0,
         interior_points: n,
+        marked_points: Vec::new(),
     };
     let scenario = Scenario {
         mechanism: Mechanism {
@@ -226,6 +227,7 @@ fn revolute_on_a_perpendicular_prismatic_is_not_a_joint_to_the_base() {
         seed: 5,
         self_occlusion: false,
         partly_seen: Vec::new(),
+        soft_tissue_m: 0.0,
     };
     let data = simulate(&scenario).expect("simulate");
     for dof in ["", "[dof]\nkind = \"svd_rank\"\n"] {

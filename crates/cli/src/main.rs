@@ -388,7 +388,9 @@ enum Command {
         /// Mechanism: `paper-arm`, `skeleton` (a human-like skeleton of ball joints and
         /// hinges), `skeleton-universal` (the same with universal wrists and ankles),
         /// `skeleton-floating` (the same with a freely moving pelvis and nothing static),
-        /// `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
+        /// `skeleton-clinical` (the floating skeleton with a clinical marker set: two markers
+        /// a limb segment, four on the pelvis, torso and head, two on each elbow, knee, wrist
+        /// and ankle axis), `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
         /// or turn about, one axis), `hand` (a palm with four fingers and a thumb),
         /// `hidden-link` (an arm whose wrist link is seen in part of the frames),
         /// `slender-planar` or `slender` (an arm of rods a few millimetres thick turning about

@@ -428,6 +428,12 @@ pub struct Model {
     pub stages: StageNames,
     /// Body of every point, -1 for discarded points.
     pub point_body: Vec<i64>,
+    /// Points that belong to a second body as well, as `[point, body]`, ascending: a marker
+    /// on a joint's axis, rigid with both bodies it joins, which both bodies' `points` list
+    /// and both poses use. `point_body` names its first body. Empty in files written before
+    /// it existed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub shared_points: Vec<[usize; 2]>,
     /// How clearly each point belongs to its body: the mean dissimilarity to the nearest other
     /// body minus that to its own (observed pairs, the measure's scale); null for discarded
     /// points. Near zero or negative: the point could belong elsewhere.

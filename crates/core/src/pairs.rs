@@ -65,6 +65,10 @@ impl DissimilarityMatrix {
     /// Value for the pair, `None` when unknown.
     #[inline]
     pub fn get(&self, i: usize, j: usize) -> Option<f64> {
+        // A point is no pair with itself (a point shared by two bodies meets itself).
+        if i == j {
+            return None;
+        }
         let v = self.values[condensed_index(self.n_points, i, j)];
         (!v.is_nan()).then_some(v)
     }

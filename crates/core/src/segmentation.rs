@@ -14,6 +14,11 @@ pub struct Segmentation {
     n_bodies: usize,
     /// Groups of points that formed clusters too small for a pose, in point order.
     pub discarded_groups: Vec<Vec<usize>>,
+    /// Points that belong to a second body as well, as `(point, body)`, ascending: a marker
+    /// on a joint's axis or centre is rigid with both bodies it joins. `labels` holds each
+    /// point's first body.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    shared: Vec<(usize, usize)>,
 }
 
 /// `new_id` with `new_id[order[k]] = k`, when `order` is a permutation of `0..n`.
@@ -66,6 +71,7 @@ impl Segmentation {
             labels,
             n_bodies,
             discarded_groups,
+            shared: Vec::new(),
         }
     }
 
@@ -89,7 +95,7 @@ impl Segmentation {
         self.labels.get(point).copied().flatten()
     }
 
-    /// The points of each body, in point order.
+    /// The points of each body, in point order, its shared points included.
     pub fn members(&self) -> Vec<Vec<usize>> {
         let mut m = vec![Vec::new(); self.n_bodies];
         for (i, l) in self.labels.iter().enumerate() {
@@ -97,7 +103,66 @@ impl Segmentation {
                 m[*b].push(i);
             }
         }
+        for &(p, b) in &self.shared {
+            m[b].push(p);
+        }
+        for points in &mut m {
+            points.sort_unstable();
+        }
         m
+    }
+
+    /// The points that belong to a second body as well, as `(point, body)`, ascending.
+    pub fn shared(&self) -> &[(usize, usize)] {
+        &self.shared
+    }
+
+    /// The same partition with each `(point, body)` of `pairs` made a second membership of
+    /// the point: one that names a body that does not exist, the point's own body, or a
+    /// point on no body is left out.
+    pub fn with_shared(&self, pairs: &[(usize, usize)]) -> Self {
+        let mut out = self.clone();
+        for &(p, b) in pairs {
+            if b < self.n_bodies && self.body_of(p).is_some_and(|own| own != b) {
+                out.shared.push((p, b));
+            }
+        }
+        out.shared.sort_unstable();
+        out.shared.dedup();
+        out
+    }
+
+    /// `self`, built from `raw` (labels in `old`'s body numbering, new bodies numbered past
+    /// its), with `old`'s shared points carried over to the same bodies.
+    pub fn with_shared_of(mut self, old: &Segmentation, raw: &[Option<usize>]) -> Self {
+        self.shared = Self::carried_shared(raw, &old.shared, &self);
+        self
+    }
+
+    /// `self.shared` with each membership's body taken from `old` numbering (the bodies of
+    /// `raw`, which `out` was built from) to `out`'s: each old body becomes the body of one of
+    /// its first-body points in `out`. Memberships in a body left with no such point, or in
+    /// the point's own body, are dropped.
+    fn carried_shared(
+        raw: &[Option<usize>],
+        shared: &[(usize, usize)],
+        out: &Self,
+    ) -> Vec<(usize, usize)> {
+        let new_of = |old: usize| {
+            raw.iter()
+                .position(|l| *l == Some(old))
+                .and_then(|q| out.body_of(q))
+        };
+        let mut carried: Vec<(usize, usize)> = shared
+            .iter()
+            .filter_map(|&(p, old)| {
+                let b = new_of(old)?;
+                (out.body_of(p).is_some_and(|own| own != b)).then_some((p, b))
+            })
+            .collect();
+        carried.sort_unstable();
+        carried.dedup();
+        carried
     }
 
     /// Labels as integers with -1 for discarded points (the model-file convention).
@@ -117,6 +182,12 @@ impl Segmentation {
             .collect();
         let mut out = Self::from_raw(&raw, 0);
         out.discarded_groups.clone_from(&self.discarded_groups);
+        let grouped: Vec<(usize, usize)> = self
+            .shared
+            .iter()
+            .map(|&(p, b)| (p, group_of_body[b]))
+            .collect();
+        out.shared = Self::carried_shared(&raw, &grouped, &out);
         out
     }
 
@@ -130,10 +201,14 @@ impl Segmentation {
     /// The same partition with body `b` renumbered `new_id[b]`; `new_id` must be a
     /// permutation of the bodies ([`inverse_permutation`] of an order).
     pub(crate) fn relabeled(&self, new_id: &[usize]) -> Self {
+        let mut shared: Vec<(usize, usize)> =
+            self.shared.iter().map(|&(p, b)| (p, new_id[b])).collect();
+        shared.sort_unstable();
         Self {
             labels: self.labels.iter().map(|l| l.map(|b| new_id[b])).collect(),
             n_bodies: self.n_bodies,
             discarded_groups: self.discarded_groups.clone(),
+            shared,
         }
     }
 
@@ -163,16 +238,29 @@ impl Segmentation {
     }
 
     /// The assignments `keep(point, body)` accepts, renumbered canonically, with the same
-    /// discarded groups.
+    /// discarded groups. A shared point whose first body is dropped keeps its second as its
+    /// first.
     fn keeping(&self, keep: impl Fn(usize, usize) -> bool) -> Self {
-        let raw: Vec<Option<usize>> = self
+        let mut raw: Vec<Option<usize>> = self
             .labels
             .iter()
             .enumerate()
             .map(|(i, l)| l.filter(|&b| keep(i, b)))
             .collect();
+        let mut second = Vec::new();
+        for &(p, b) in &self.shared {
+            if !keep(p, b) {
+                continue;
+            }
+            if raw[p].is_none() {
+                raw[p] = Some(b);
+            } else {
+                second.push((p, b));
+            }
+        }
         let mut out = Self::from_raw(&raw, 0);
         out.discarded_groups.clone_from(&self.discarded_groups);
+        out.shared = Self::carried_shared(&raw, &second, &out);
         out
     }
 }
@@ -193,6 +281,55 @@ mod tests {
         let dropped = seg.without_bodies(&[0]);
         assert_eq!(dropped.labels(), &[None, None, Some(0), Some(1), None]);
         assert_eq!(dropped.discarded_groups, vec![vec![4]]);
+    }
+
+    #[test]
+    fn shared_points_follow_their_bodies_through_every_edit() {
+        // Body 0: points 0-2; body 1: points 3-5; point 2 shared with body 1.
+        let seg = Segmentation::from_raw(
+            &[Some(0), Some(0), Some(0), Some(1), Some(1), Some(1), None],
+            1,
+        )
+        .with_shared(&[(2, 1), (2, 0), (6, 0), (3, 7)]);
+        assert_eq!(
+            seg.shared(),
+            &[(2, 1)],
+            "own body, unassigned, unknown body left out"
+        );
+        assert_eq!(seg.members(), vec![vec![0, 1, 2], vec![2, 3, 4, 5]]);
+        // Renumbered: body 1 first.
+        let turned = seg.renumbered(&[1, 0]).expect("permutation");
+        assert_eq!(turned.shared(), &[(2, 0)]);
+        // Dropping body 0 keeps point 2 on body 1 as its first body.
+        let dropped = seg.without_bodies(&[0]);
+        assert_eq!(dropped.body_of(2), Some(0));
+        assert!(dropped.shared().is_empty());
+        assert_eq!(dropped.members(), vec![vec![2, 3, 4, 5]]);
+        // Dropping body 1 drops the membership.
+        assert!(seg.without_bodies(&[1]).shared().is_empty());
+        // Taking point 2 off takes both memberships.
+        let off = seg.without_points(&[2]);
+        assert!(off.shared().is_empty() && off.body_of(2).is_none());
+        // Merging the two bodies leaves point 2 once.
+        let merged = seg.merged(&[0, 0]);
+        assert!(merged.shared().is_empty());
+        assert_eq!(merged.members(), vec![vec![0, 1, 2, 3, 4, 5]]);
+        // Merging body 1 with a third body carries the membership to the merged body.
+        let three = Segmentation::from_raw(
+            &[
+                Some(0),
+                Some(0),
+                Some(0),
+                Some(1),
+                Some(1),
+                Some(1),
+                Some(2),
+            ],
+            1,
+        )
+        .with_shared(&[(2, 1)]);
+        let joined = three.merged(&[5, 9, 9]);
+        assert_eq!(joined.shared(), &[(2, 1)]);
     }
 
     #[test]

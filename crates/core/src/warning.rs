@@ -81,6 +81,15 @@ pub enum Warning {
         /// Frames posed through the hinge.
         frames: usize,
     },
+    /// A cluster too small for a pose made a body with points of other bodies that are rigid
+    /// with it (`[pipeline.repairs.share_points]`): markers on a joint's axis, which now
+    /// belong to both bodies (the model's `shared_points`).
+    PointsShared {
+        /// The points that belong to two bodies.
+        points: Vec<usize>,
+        /// The cluster's own points, which make the new body with them.
+        body: Vec<usize>,
+    },
     /// Points of a body posed through a hinge that do not turn with it: left out, each lowered
     /// the hinge's `chi^2` by far more than its own degrees of freedom allow. They were left on
     /// no body and the body posed again.
@@ -308,6 +317,10 @@ impl std::fmt::Display for Warning {
             Warning::UnassignedPointsGrouped { groups } => write!(
                 f,
                 "point groups {groups:?} left unassigned by the clustering move as rigid bodies and became bodies"
+            ),
+            Warning::PointsShared { points, body } => write!(
+                f,
+                "point(s) {points:?}, rigid with their body and with the cluster of point(s) {body:?} (too small for a pose alone), belong to both: a body was made of them"
             ),
             Warning::BodyPosedThroughHinge {
                 points,

@@ -233,6 +233,12 @@ pub(crate) fn assemble(
             dof: pipeline.dof.name().into(),
         },
         point_body,
+        shared_points: {
+            let mut shared: Vec<[usize; 2]> =
+                seg.shared().iter().map(|&(p, b)| [p, new_id[b]]).collect();
+            shared.sort_unstable();
+            shared
+        },
         point_confidence: Vec::new(),
         // The root when it is static (the most posed of several), else none is.
         static_body: tree.root_is_static.then(|| new_id[tree.root]),

@@ -363,6 +363,9 @@ pub enum DataConfig {
 pub struct SimulationRequest {
     /// `paper-arm`, `random`, `skeleton`, `skeleton-universal` (its wrists and ankles
     /// universal joints), `skeleton-floating` (its pelvis moving freely, nothing static),
+    /// `skeleton-clinical` (the floating skeleton with a clinical marker set: two markers a
+    /// limb segment, four on the pelvis, torso and head, two on each elbow, knee, wrist and
+    /// ankle axis),
     /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
     /// about, one axis), `hand` (a palm with four fingers and a thumb), `hidden-link` (an
     /// arm whose wrist link is seen in part of the frames), or `slender-planar` or `slender`
@@ -414,7 +417,7 @@ impl SimulationRequest {
                 seed: self.seed,
                 ..RandomParams::default()
             }),
-            "skeleton" | "skeleton-universal" | "skeleton-floating" => {
+            "skeleton" | "skeleton-universal" | "skeleton-floating" | "skeleton-clinical" => {
                 DataConfig::Skeleton(kinetree_synth::SkeletonParams {
                     n_frames: self
                         .n_frames
@@ -423,7 +426,11 @@ impl SimulationRequest {
                     dropout: self.dropout,
                     seed: self.seed,
                     universal_wrists_and_ankles: self.mechanism == "skeleton-universal",
-                    floating_pelvis: self.mechanism == "skeleton-floating",
+                    floating_pelvis: matches!(
+                        self.mechanism.as_str(),
+                        "skeleton-floating" | "skeleton-clinical"
+                    ),
+                    clinical_markers: self.mechanism == "skeleton-clinical",
                     ..kinetree_synth::SkeletonParams::default()
                 })
             }
@@ -477,7 +484,7 @@ impl SimulationRequest {
             other => {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
-                     skeleton-universal, skeleton-floating, gripper-parallel, gripper-angular, \
+                     skeleton-universal, skeleton-floating, skeleton-clinical, gripper-parallel, gripper-angular, \
                      hand, hidden-link, slender-planar or slender"
                 )));
             }

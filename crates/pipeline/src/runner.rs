@@ -273,10 +273,12 @@ pub(crate) fn grouping(
 /// # Errors
 /// [`Error::Shape`] when the two are not one partition.
 fn bodies_in(seg: &Segmentation, other: &Segmentation) -> Result<Vec<usize>> {
-    let order: Vec<usize> = seg
-        .members()
-        .iter()
-        .filter_map(|m| other.body_of(*m.first()?))
+    // Each body's first point of its own (a shared point's first body is another).
+    let order: Vec<usize> = (0..seg.n_bodies())
+        .filter_map(|b| {
+            let p = seg.labels().iter().position(|l| *l == Some(b))?;
+            other.body_of(p)
+        })
         .collect();
     let same = order.len() == seg.n_bodies()
         && seg.n_points() == other.n_points()
@@ -656,7 +658,8 @@ impl<'a> Runner<'a> {
                 draft.constraints.extend(&p.constraints);
                 edits.push((r, p.edit));
             }
-            let mut seg = Segmentation::from_raw(&labels, 1);
+            let mut seg =
+                Segmentation::from_raw(&labels, 1).with_shared_of(&draft.segmentation, &labels);
             seg.discarded_groups = draft.segmentation.discarded_groups.clone();
             let mut next = Draft::new(seg);
             next.constraints = draft.constraints.clone();

@@ -142,7 +142,7 @@ pub fn attach_unassigned(
         return (seg.clone(), attached);
     }
     // Every body keeps at least the three points it had, so no minimum size applies here.
-    let mut out = Segmentation::from_raw(&labels, 1);
+    let mut out = Segmentation::from_raw(&labels, 1).with_shared_of(seg, &labels);
     out.discarded_groups = seg.discarded_groups_without(&attached);
     (out, attached)
 }

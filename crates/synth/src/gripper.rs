@@ -79,6 +79,7 @@ fn body(name: &str, centre: [f64; 3], half_extents: [f64; 3], extra_points: usiz
         skip_corners: Vec::new(),
         extra_points,
         interior_points: 0,
+        marked_points: Vec::new(),
     }
 }
 
@@ -183,5 +184,6 @@ pub fn gripper_scenario(p: &GripperParams) -> Scenario {
         seed: p.seed,
         self_occlusion: true,
         partly_seen: Vec::new(),
+        soft_tissue_m: 0.0,
     }
 }

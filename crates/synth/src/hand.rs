@@ -94,6 +94,7 @@ pub fn hand_scenario(p: &HandParams) -> Scenario {
         skip_corners: (0..8).collect(),
         extra_points: points,
         interior_points: 0,
+        marked_points: Vec::new(),
     };
     let mut bodies = vec![link(
         "palm".into(),
@@ -189,6 +190,7 @@ pub fn hand_scenario(p: &HandParams) -> Scenario {
         seed: p.seed,
         self_occlusion: true,
         partly_seen: Vec::new(),
+        soft_tissue_m: 0.0,
     }
 }
 

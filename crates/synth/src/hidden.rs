@@ -99,6 +99,7 @@ pub fn hidden_link_arm(p: &HiddenLinkParams) -> Scenario {
             },
             extra_points: extra,
             interior_points: 0,
+            marked_points: Vec::new(),
         };
     let mut bodies = vec![body(
         "base".into(),
@@ -157,6 +158,7 @@ pub fn hidden_link_arm(p: &HiddenLinkParams) -> Scenario {
             fraction: p.hidden_fraction,
             windows: p.hidden_windows,
         }],
+        soft_tissue_m: 0.0,
     }
 }
 

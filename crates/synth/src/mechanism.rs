@@ -72,6 +72,10 @@ pub struct BodySpec {
     /// self-occlusion, which would always hide them).
     #[serde(default)]
     pub interior_points: usize,
+    /// Keypoints at given places (world coordinates at the zero configuration), after the
+    /// others: markers on a joint's axis or centre, rigid with both bodies it joins.
+    #[serde(default)]
+    pub marked_points: Vec<[f64; 3]>,
 }
 
 /// Joint type.

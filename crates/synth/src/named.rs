@@ -16,6 +16,7 @@ fn body(name: &str, centre: [f64; 3], half_extents: [f64; 3]) -> BodySpec {
         skip_corners: Vec::new(),
         extra_points: 0,
         interior_points: 0,
+        marked_points: Vec::new(),
     }
 }
 
@@ -64,6 +65,7 @@ pub fn paper_arm(seed: u64) -> Scenario {
         seed,
         self_occlusion: true,
         partly_seen: Vec::new(),
+        soft_tissue_m: 0.0,
     }
 }
 
@@ -243,5 +245,6 @@ pub fn random_scenario(p: &RandomParams) -> Scenario {
         seed: p.seed,
         self_occlusion: true,
         partly_seen: Vec::new(),
+        soft_tissue_m: 0.0,
     }
 }

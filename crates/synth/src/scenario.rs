@@ -117,6 +117,11 @@ pub struct Scenario {
     /// their windows, every keypoint of the body is hidden, on top of the other occlusion.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub partly_seen: Vec<PartlySeen>,
+    /// Soft-tissue artefact: every keypoint drifts from its place on its body by a slow
+    /// offset, each coordinate (in the body's frame) a sum of two sines of 0.1-0.5 Hz whose
+    /// amplitudes add up to this many metres (0: keypoints rigid with their bodies).
+    #[serde(default)]
+    pub soft_tissue_m: f64,
 }
 
 fn default_true() -> bool {
@@ -134,6 +139,43 @@ pub struct PartlySeen {
     /// Number of windows (at least 1): the recording is cut into this many equal spans, and
     /// each holds one window of `fraction` of its span at a random offset.
     pub windows: usize,
+}
+
+/// One coordinate's slow drift: two sines (amplitude, frequency in hertz, phase).
+type Drift = [(f64, f64, f64); 2];
+
+/// Each keypoint's soft-tissue drift per coordinate ([`Scenario::soft_tissue_m`]), empty
+/// without one. Its own random stream, so a scenario without soft tissue simulates as it
+/// would without the option.
+fn soft_tissue(s: &Scenario, n: usize) -> Vec<[Drift; 3]> {
+    if s.soft_tissue_m <= 0.0 {
+        return Vec::new();
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ 0x50F7_715E);
+    (0..n)
+        .map(|_| {
+            std::array::from_fn(|_| {
+                let share = rng.random_range(0.3..0.7);
+                let mut sine = |part: f64| {
+                    (
+                        s.soft_tissue_m * part,
+                        rng.random_range(0.1..0.5),
+                        rng.random_range(0.0..std::f64::consts::TAU),
+                    )
+                };
+                [sine(share), sine(1.0 - share)]
+            })
+        })
+        .collect()
+}
+
+/// A keypoint's drift at time `t`, seconds.
+fn drift_at(d: &[Drift; 3], t: f64) -> Vector3<f64> {
+    Vector3::from_fn(|a, _| {
+        d[a].iter()
+            .map(|(amp, f, ph)| amp * (std::f64::consts::TAU * f * t + ph).sin())
+            .sum()
+    })
 }
 
 /// Per body, whether it may be seen at each frame ([`Scenario::partly_seen`]); `None` for
@@ -276,6 +318,10 @@ fn keypoints(m: &Mechanism, rng: &mut ChaCha8Rng) -> (Vec<Point3<f64>>, Vec<usiz
             ));
             body.push(b);
         }
+        for p in &spec.marked_points {
+            pts.push(Point3::from(*p));
+            body.push(b);
+        }
     }
     (pts, body)
 }
@@ -302,9 +348,16 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
             "frame_rate_hz must be > 0, noise_sigma_m >= 0 and dropout in [0, 1)".into(),
         ));
     }
+    if !(s.soft_tissue_m.is_finite() && (0.0..=1.0).contains(&s.soft_tissue_m)) {
+        return Err(Error::Config(format!(
+            "soft_tissue_m must be in [0, 1] m, got {}",
+            s.soft_tissue_m
+        )));
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
     let (pts, point_body) = keypoints(&s.mechanism, &mut rng);
     let n = pts.len();
+    let drift = soft_tissue(s, n);
     let duration = (s.n_frames.max(2) - 1) as f64 / s.frame_rate_hz;
     let joint_positions: Vec<Vec<f64>> = s
         .trajectories
@@ -348,7 +401,9 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
                     dropped[i] = !dropped[i];
                 }
             }
-            let world = poses[point_body[i]] * pts[i];
+            let t = k as f64 / s.frame_rate_hz;
+            let moved = pts[i] + drift.get(i).map_or(Vector3::zeros(), |d| drift_at(d, t));
+            let world = poses[point_body[i]] * moved;
             let pc = cam * world;
             let in_view =
                 pc.z > 1e-6 && (pc.x / pc.z).abs() <= tan_h && (pc.y / pc.z).abs() <= tan_v;

@@ -35,6 +35,15 @@ pub struct SkeletonParams {
     /// The pelvis floats: it moves freely (a `Free` joint from an unseen world body, body 0),
     /// so no body is static, as in a recording of a walking person.
     pub floating_pelvis: bool,
+    /// A clinical marker set instead of `markers_per_segment` markers on every segment:
+    /// four markers on the pelvis, torso and head, two on each limb segment, and two on each
+    /// elbow's and knee's axis (the epicondyles, carried by the upper arm or thigh and rigid
+    /// with the forearm or shank too) and on each wrist's and ankle's first axis (the
+    /// styloids and malleoli, carried by the forearm or shank).
+    pub clinical_markers: bool,
+    /// Soft-tissue artefact, metres: each marker drifts from its place on its segment by a
+    /// slow offset of at most this much per coordinate ([`Scenario::soft_tissue_m`]).
+    pub soft_tissue_m: f64,
 }
 
 impl Default for SkeletonParams {
@@ -49,6 +58,8 @@ impl Default for SkeletonParams {
             seed: 0,
             universal_wrists_and_ankles: false,
             floating_pelvis: false,
+            clinical_markers: false,
+            soft_tissue_m: 0.0,
         }
     }
 }
@@ -56,7 +67,7 @@ impl Default for SkeletonParams {
 impl SkeletonParams {
     /// Checks the ranges: 3 to 1000 markers a segment, a motion range within 1-170 deg
     /// (least first), 2 to 1 000 000 frames, a positive frame rate, noise from 0 to 1 m, a
-    /// dropout in `[0, 1)`.
+    /// dropout in `[0, 1)`, a soft-tissue artefact from 0 to 0.1 m.
     ///
     /// # Errors
     /// [`kinetree_core::Error::InvalidParameter`] naming `data.<parameter>`.
@@ -78,7 +89,8 @@ impl SkeletonParams {
         check_count("data.n_frames", self.n_frames, 2, 1_000_000)?;
         check_within("data.frame_rate_hz", self.frame_rate_hz, 1e-3, 1e6)?;
         check_within("data.noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)?;
-        check_within("data.dropout", self.dropout, 0.0, 0.99)
+        check_within("data.dropout", self.dropout, 0.0, 0.99)?;
+        check_within("data.soft_tissue_m", self.soft_tissue_m, 0.0, 0.1)
     }
 }
 
@@ -254,14 +266,28 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
             half_extents: half,
         },
         skip_corners: (0..8).collect(),
-        extra_points: p.markers_per_segment,
+        extra_points: if p.clinical_markers {
+            2
+        } else {
+            p.markers_per_segment
+        },
         interior_points: 0,
+        marked_points: Vec::new(),
     };
     let pelvis_centre = [0.0, 0.0, 1.0];
-    let mut bodies = vec![BodySpec {
+    // The trunk's segments carry four markers in a clinical set.
+    let trunk = |b: BodySpec| BodySpec {
+        extra_points: if p.clinical_markers {
+            4
+        } else {
+            b.extra_points
+        },
+        ..b
+    };
+    let mut bodies = vec![trunk(BodySpec {
         name: "pelvis".into(),
         ..markers(pelvis_centre, [0.15, 0.1, 0.08])
-    }];
+    })];
     let mut joints = Vec::new();
     let mut trajectories = Vec::new();
     let [least, most] = p.motion_deg.map(f64::to_radians);
@@ -303,11 +329,26 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         }
     }
     for (k, s) in SEGMENTS.iter().enumerate() {
-        bodies.push(BodySpec {
+        let body = BodySpec {
             name: s.name.into(),
             ..markers(s.box_centre, s.half)
+        };
+        bodies.push(if s.name == "torso" || s.name == "head" {
+            trunk(body)
+        } else {
+            body
         });
         let distal = s.name.starts_with("hand") || s.name.starts_with("foot");
+        if p.clinical_markers && (s.joint == HINGE || distal) {
+            // Two markers on the joint's (first) axis, on the skin either side, carried by
+            // the parent segment.
+            let reach = s.half[0] + 0.01;
+            let on_axis =
+                |sign: f64| std::array::from_fn(|a| s.centre[a] + sign * reach * s.axis[a]);
+            bodies[s.parent + first - 1]
+                .marked_points
+                .extend([on_axis(-1.0), on_axis(1.0)]);
+        }
         let joint_type = if distal && p.universal_wrists_and_ankles {
             JointType::Universal
         } else {
@@ -353,5 +394,6 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         seed: p.seed,
         self_occlusion: false,
         partly_seen: Vec::new(),
+        soft_tissue_m: p.soft_tissue_m,
     }
 }

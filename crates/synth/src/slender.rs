@@ -80,6 +80,7 @@ pub fn slender_arm(p: &SlenderArmParams) -> Scenario {
         skip_corners: Vec::new(),
         extra_points: 0,
         interior_points: 0,
+        marked_points: Vec::new(),
     }];
     let mut joints = Vec::new();
     let mut trajectories = Vec::new();
@@ -98,6 +99,7 @@ pub fn slender_arm(p: &SlenderArmParams) -> Scenario {
             // third of them on its end caps, at the joints).
             extra_points: 0,
             interior_points: p.points_per_link,
+            marked_points: Vec::new(),
         });
         let axis = if p.planar {
             kinetree_core::nalgebra::Vector3::x()
@@ -133,6 +135,7 @@ pub fn slender_arm(p: &SlenderArmParams) -> Scenario {
         // every keypoint is seen except for the burst dropout.
         self_occlusion: false,
         partly_seen: Vec::new(),
+        soft_tissue_m: 0.0,
     }
 }
 

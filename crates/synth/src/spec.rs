@@ -76,6 +76,7 @@ impl MechanismSpec {
             skip_corners: Vec::new(),
             extra_points: 0,
             interior_points: 0,
+            marked_points: Vec::new(),
         }];
         let mut tips = vec![[0.0, 0.0, 0.0]];
         let mut joints = Vec::new();
@@ -117,6 +118,7 @@ impl MechanismSpec {
                 skip_corners: (0..8).collect(),
                 extra_points: 0,
                 interior_points: d.n_points.clamp(4, 12),
+                marked_points: Vec::new(),
             });
             tips.push(tip);
             let axis = Vector3::from(d.axis);
@@ -174,6 +176,7 @@ impl MechanismSpec {
             seed: self.seed,
             self_occlusion: false,
             partly_seen: Vec::new(),
+            soft_tissue_m: 0.0,
         }
     }
 

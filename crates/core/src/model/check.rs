@@ -169,6 +169,30 @@ impl Model {
                 ));
             }
         }
+        for (k, &[p, b]) in self.shared_points.iter().enumerate() {
+            let field = format!("shared_points[{k}]");
+            if k > 0 && self.shared_points[k - 1] >= [p, b] {
+                return Err(bad(field, "must be ascending without repeats"));
+            }
+            if p >= np || b >= nb {
+                return Err(bad(
+                    field,
+                    format!("is [{p}, {b}]; the model has {np} points and {nb} bodies"),
+                ));
+            }
+            if self.point_body[p] < 0 || self.point_body[p] == b as i64 {
+                return Err(bad(
+                    field,
+                    format!(
+                        "shares point {p} with body {b}, but point_body puts it in {}",
+                        self.point_body[p]
+                    ),
+                ));
+            }
+            if !self.bodies[b].points.contains(&p) {
+                return Err(bad(field, format!("body {b} does not list point {p}")));
+            }
+        }
         if !self.point_confidence.is_empty() && self.point_confidence.len() != np {
             return Err(bad(
                 "point_confidence",
@@ -252,7 +276,7 @@ impl Model {
                 if k > 0 && body.points[k - 1] >= p {
                     return Err(bad(field("points"), "must be ascending without repeats"));
                 }
-                if self.point_body[p] != i as i64 {
+                if self.point_body[p] != i as i64 && !self.shared_points.contains(&[p, i]) {
                     return Err(bad(
                         format!("bodies[{i}].points[{k}]"),
                         format!(

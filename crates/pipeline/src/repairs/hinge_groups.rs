@@ -146,9 +146,27 @@ impl Repair for HingeGroups {
             })
             .collect();
         let bounds = self.params.bounds();
-        let groups = accepted_groups(ctx, left, self.params.min_points, |group| {
-            Ok(best_hinge(&bounds, tracks, poses, group, None, sigma).is_some())
-        })?;
+        let turns = |group: &[usize]| best_hinge(&bounds, tracks, poses, group, None, sigma);
+        // The clusters discarded as too small for a pose first: rigid groups the clustering
+        // found, which halving the rest would not reach (its clusterer keeps no part under
+        // three keypoints). Two markers of a segment whose others sit on its joint's axis
+        // are one.
+        let mut groups = Vec::new();
+        let mut rest = left;
+        for g in &seg.discarded_groups {
+            let g: Vec<usize> = g.iter().copied().filter(|i| rest.contains(i)).collect();
+            if g.len() >= self.params.min_points && turns(&g).is_some() {
+                rest.retain(|i| !g.contains(i));
+                groups.push(g);
+            }
+        }
+        groups.extend(accepted_groups(
+            ctx,
+            rest,
+            self.params.min_points,
+            |group| Ok(turns(group).is_some()),
+        )?);
+        groups.sort();
         if groups.is_empty() {
             return Ok(None);
         }

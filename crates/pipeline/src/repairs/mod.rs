@@ -19,6 +19,7 @@ mod noise_refinement;
 mod readmit_joints;
 mod regroup;
 mod retest;
+mod share_points;
 mod sibling_ties;
 mod split;
 mod tree_ties;
@@ -38,6 +39,7 @@ pub use noise_refinement::{NoiseRefinement, NoiseRefinementParams};
 pub use readmit_joints::{ReadmitJoints, ReadmitJointsParams};
 pub use regroup::{Regroup, RegroupParams};
 pub use retest::{Retest, RetestParams};
+pub use share_points::{SharePoints, SharePointsParams};
 pub use sibling_ties::{SiblingTies, SiblingTiesParams};
 pub use split::{Split, SplitParams};
 pub use tree_ties::{TreeTies, TreeTiesParams};
@@ -111,6 +113,9 @@ repairs_config! {
     attach: AttachParams => Attach,
     /// Bodies: unassigned points that move as one rigid body made one.
     regroup: RegroupParams => Regroup,
+    /// Bodies: clusters too small for a pose made bodies with other bodies' points rigid
+    /// with them, which then belong to both.
+    share_points: SharePointsParams => SharePoints,
     /// Bodies: unassigned points that turn together on a hinge made a body.
     hinge_groups: HingeGroupsParams => HingeGroups,
     /// Bodies: bodies that move rigidly together merged.
@@ -337,7 +342,7 @@ pub(crate) fn with_new_bodies(seg: &Segmentation, groups: &[Vec<usize>]) -> Segm
         }
     }
     let grouped: Vec<usize> = groups.iter().flatten().copied().collect();
-    let mut out = Segmentation::from_raw(&labels, 1);
+    let mut out = Segmentation::from_raw(&labels, 1).with_shared_of(seg, &labels);
     out.discarded_groups = seg.discarded_groups_without(&grouped);
     out
 }

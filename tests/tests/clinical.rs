@@ -1,0 +1,155 @@
+//! Skeletons with a clinical marker set (`SkeletonParams::clinical_markers`): four markers on
+//! the pelvis, torso and head, two on each limb segment, and two on each elbow's and knee's
+//! axis (carried by the upper arm or thigh, rigid with the forearm or shank too) and on each
+//! wrist's and ankle's first axis (carried by the forearm or shank). The pelvis floats.
+
+use kinetree_core::Model;
+use kinetree_core::model::JointType;
+use kinetree_eval::body_map;
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_synth::{SkeletonParams, SynthData, simulate, skeleton_scenario};
+
+fn clinical(seed: u64, soft_tissue_m: f64) -> SynthData {
+    simulate(&skeleton_scenario(&SkeletonParams {
+        seed,
+        clinical_markers: true,
+        floating_pelvis: true,
+        soft_tissue_m,
+        ..SkeletonParams::default()
+    }))
+    .expect("simulate")
+}
+
+fn discover(data: &SynthData, cfg: &PipelineConfig) -> Model {
+    Pipeline::from_config(cfg)
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model
+}
+
+/// Per true joint whose two segments are both bodies of `model`: whether a joint of the
+/// model joins them, and whether its type is the truth's (a ball may come out universal, or
+/// revolute with a `joint_not_identifiable` warning naming the ball).
+fn judged_edges(model: &Model, data: &SynthData) -> Vec<(String, bool, bool)> {
+    let map = body_map(model, &data.truth);
+    let mech = &data.truth.mechanism;
+    let body_of = |segment: usize| map.iter().position(|&t| t == segment);
+    mech.joints
+        .iter()
+        .filter_map(|spec| {
+            let (p, c) = (body_of(spec.parent)?, body_of(spec.child)?);
+            let name = mech.bodies[spec.child].name.clone();
+            let joint = model
+                .joints
+                .iter()
+                .find(|j| (j.parent, j.child) == (p, c) || (j.parent, j.child) == (c, p));
+            let typed = joint.is_some_and(|j| match spec.joint_type {
+                kinetree_synth::JointType::Revolute => j.joint_type == JointType::Revolute,
+                kinetree_synth::JointType::Spherical => {
+                    matches!(j.joint_type, JointType::Spherical | JointType::Universal)
+                        || (j.joint_type == JointType::Revolute
+                            && kinetree_tests::warned(model, |w| {
+                                matches!(w, kinetree_core::Warning::JointNotIdentifiable {
+                                    child, alternatives, .. }
+                                    if *child == j.child
+                                        && alternatives.contains(&JointType::Spherical))
+                            }))
+                }
+                _ => false,
+            });
+            Some((name, joint.is_some(), typed))
+        })
+        .collect()
+}
+
+/// The upper arms and thighs show two markers of their own; their others sit on the elbow's
+/// and knee's axes, where the clustering puts them with the forearm or shank. Those axis
+/// markers are shared: they make a body with the two, and stay on the forearm or shank. So
+/// every segment but the hands and feet (two markers on a ball joint, which nothing poses
+/// yet) is a body, and the tree joins them as the skeleton does, with their types, with the
+/// motion-capture settings and with the defaults.
+#[test]
+fn two_marker_segments_share_the_markers_on_their_hinge_axis() {
+    let limbs = ["upper_arm_l", "upper_arm_r", "thigh_l", "thigh_r"];
+    for (settings, cfg) in [
+        ("motion-capture", PipelineConfig::motion_capture()),
+        ("default", PipelineConfig::default()),
+    ] {
+        let (mut edges, mut joined, mut typed, mut posed) = (0, 0, 0, 0);
+        for seed in 0..3 {
+            let data = clinical(seed, 0.0);
+            let model = discover(&data, &cfg);
+            let map = body_map(&model, &data.truth);
+            let names: Vec<&str> = map
+                .iter()
+                .map(|&t| data.truth.mechanism.bodies[t].name.as_str())
+                .collect();
+            for limb in limbs {
+                assert!(
+                    names.contains(&limb),
+                    "{settings}, seed {seed}: no body for the {limb}: {names:?}"
+                );
+            }
+            assert!(
+                model.bodies.len() >= 11,
+                "{settings}, seed {seed}: {names:?}"
+            );
+            // Each shared marker joins two segments a true joint joins, and both bodies list
+            // it (it sits on the joint's axis, or near enough to move with both).
+            for &[p, b] in &model.shared_points {
+                let own = usize::try_from(model.point_body[p]).expect("assigned");
+                let pair = [map[own], map[b]];
+                assert!(
+                    data.truth
+                        .mechanism
+                        .joints
+                        .iter()
+                        .any(|j| pair == [j.parent, j.child] || pair == [j.child, j.parent])
+                        && model.bodies[b].points.contains(&p),
+                    "{settings}, seed {seed}: point {p} shared by the {} and the {}",
+                    names[own],
+                    names[b]
+                );
+            }
+            posed += model.shared_points.len();
+            for (name, j, t) in judged_edges(&model, &data) {
+                edges += 1;
+                joined += usize::from(j);
+                typed += usize::from(t);
+                assert!(
+                    j,
+                    "{settings}, seed {seed}: the {name} is not joined to its parent"
+                );
+            }
+        }
+        assert!(posed >= 6, "{settings}: {posed} shared markers");
+        assert!(edges >= 30, "{settings}: {edges} edges judged");
+        assert!(
+            typed * 100 >= edges * 90,
+            "{settings}: {typed} of {edges} joints typed right ({joined} joined)"
+        );
+    }
+    // The class this guards: without shared markers some upper arms and thighs are lost.
+    let mut cfg = PipelineConfig::default();
+    cfg.repairs.share_points.enabled = false;
+    cfg.repairs.hinge_groups.enabled = false;
+    let lost: usize = (0..3)
+        .map(|seed| {
+            let data = clinical(seed, 0.0);
+            let model = discover(&data, &cfg);
+            let map = body_map(&model, &data.truth);
+            limbs
+                .iter()
+                .filter(|l| {
+                    !map.iter()
+                        .any(|&t| data.truth.mechanism.bodies[t].name == **l)
+                })
+                .count()
+        })
+        .sum();
+    assert!(
+        lost >= 3,
+        "{lost} upper arms and thighs lost without shared markers"
+    );
+}
