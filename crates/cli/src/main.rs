@@ -1012,10 +1012,7 @@ enum Preset {
 /// The pipeline of `preset` for the tracks file `tracks`; says so when `auto` took the
 /// motion-capture one.
 fn preset_config(preset: Preset, tracks: &Path) -> PipelineConfig {
-    let motion_capture = tracks
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("c3d") || e.eq_ignore_ascii_case("trc"));
+    let motion_capture = kinetree_pipeline::config::is_motion_capture_file(tracks);
     match preset {
         Preset::Default => PipelineConfig::default(),
         Preset::MotionCapture => PipelineConfig::motion_capture(),

@@ -357,6 +357,22 @@ pub enum DataConfig {
     File(FileData),
 }
 
+/// Whether `path` is a motion-capture file (`.c3d` or `.trc`, any case), for which
+/// `kinetree discover` and experiments without a `[pipeline]` take the motion-capture
+/// settings.
+pub fn is_motion_capture_file(path: &std::path::Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("c3d") || e.eq_ignore_ascii_case("trc"))
+}
+
+impl DataConfig {
+    /// Whether the data are a motion-capture file ([`is_motion_capture_file`]).
+    pub fn is_motion_capture_file(&self) -> bool {
+        matches!(self, Self::File(f) if is_motion_capture_file(&f.path))
+    }
+}
+
 /// A simulation named as `kinetree simulate` and the Python package's `simulate` take it: a
 /// mechanism by name and the options of both kinds.
 #[derive(Debug, Clone, PartialEq)]
@@ -580,19 +596,28 @@ pub struct ExperimentConfig {
     pub experiment: ExperimentMeta,
     /// Data source.
     pub data: DataConfig,
-    /// Pipeline.
+    /// Pipeline. Absent: the defaults, or the motion-capture settings
+    /// ([`PipelineConfig::motion_capture`]) for a C3D or TRC file, as `kinetree discover`
+    /// takes them.
     #[serde(default)]
     pub pipeline: PipelineConfig,
 }
 
 impl ExperimentConfig {
-    /// Parses a TOML config; unknown keys are errors.
+    /// Parses a TOML config; unknown keys are errors. Without a `[pipeline]` table, a C3D or
+    /// TRC file's experiment takes the motion-capture settings.
     ///
     /// # Errors
     /// [`Error::Config`] with the parser's message (line and key).
     pub fn from_toml(text: &str) -> Result<Self> {
-        let cfg: Self = parse_naming_key(text, "")?;
+        let mut cfg: Self = parse_naming_key(text, "")?;
         cfg.experiment.validate()?;
+        let has_pipeline = text
+            .parse::<toml::Table>()
+            .is_ok_and(|t| t.contains_key("pipeline"));
+        if !has_pipeline && cfg.data.is_motion_capture_file() {
+            cfg.pipeline = PipelineConfig::motion_capture();
+        }
         Ok(cfg)
     }
 
@@ -642,4 +667,26 @@ fn parse_naming_key<T: serde::de::DeserializeOwned>(text: &str, prefix: &str) ->
             None => Error::Config(e.to_string()),
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_motion_capture_file_without_a_pipeline_takes_the_motion_capture_settings() {
+        let exp = |path: &str, pipeline: &str| {
+            ExperimentConfig::from_toml(&format!(
+                "[experiment]\nname = \"x\"\n[data]\nkind = \"file\"\npath = \"{path}\"\n{pipeline}"
+            ))
+            .expect("config")
+            .pipeline
+        };
+        let mocap = PipelineConfig::motion_capture();
+        assert_eq!(exp("walk.c3d", ""), mocap);
+        assert_eq!(exp("walk.TRC", ""), mocap);
+        assert_eq!(exp("walk.npy", ""), PipelineConfig::default());
+        // An explicit table, even an empty one, is taken as written.
+        assert_eq!(exp("walk.c3d", "[pipeline]\n"), PipelineConfig::default());
+    }
 }
