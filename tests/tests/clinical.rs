@@ -153,3 +153,56 @@ fn two_marker_segments_share_the_markers_on_their_hinge_axis() {
         "{lost} upper arms and thighs lost without shared markers"
     );
 }
+
+/// Without soft tissue (the default settings) and with each marker drifting by up to 5 mm
+/// per coordinate (the motion-capture settings, meant for skin markers), the segments found
+/// are joined as the skeleton joins them in at least 95 % and 90 % of the edges, and the ball
+/// joints' centres among them are within 2 mm and 10 mm in at least 90 %.
+#[test]
+fn clinical_skeletons_keep_their_edges_and_centres_with_soft_tissue() {
+    for (settings, cfg, soft, edge_share, centre_bound) in [
+        ("default", PipelineConfig::default(), 0.0, 95, 0.002),
+        (
+            "motion-capture",
+            PipelineConfig::motion_capture(),
+            0.005,
+            90,
+            0.01,
+        ),
+    ] {
+        let (mut edges, mut joined, mut centres, mut near) = (0, 0, 0, 0);
+        let mut worst = 0.0f64;
+        for seed in 0..4 {
+            let data = clinical(seed, soft);
+            let model = discover(&data, &cfg);
+            for (_, j, _) in judged_edges(&model, &data) {
+                edges += 1;
+                joined += usize::from(j);
+            }
+            let e = kinetree_eval::evaluate(&model, &data.truth);
+            for c in e
+                .joints
+                .iter()
+                .filter(|j| j.found)
+                .filter_map(|j| j.centre_error_m)
+            {
+                centres += 1;
+                near += usize::from(c <= centre_bound);
+                worst = worst.max(c);
+            }
+        }
+        let what = format!("{settings}, soft tissue {soft} m");
+        assert!(
+            edges >= 20 && centres >= 10,
+            "{what}: {edges} edges, {centres} centres"
+        );
+        assert!(
+            joined * 100 >= edges * edge_share,
+            "{what}: {joined} of {edges} edges joined"
+        );
+        assert!(
+            near * 100 >= centres * 90,
+            "{what}: {near} of {centres} centres within {centre_bound} m (worst {worst})"
+        );
+    }
+}
