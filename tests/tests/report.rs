@@ -193,7 +193,7 @@ eight keypoints between 7 x 7 cm neighbours, is seen only in three windows of fr
 the given fraction of the recording (1.0: whenever the neighbours do not hide it). kinetree
 does not recover this class yet: with the link seen in a tenth to a half of the frames its
 keypoints join a neighbour, and the joint across it comes out multi-DoF or through the wrong
-body; even seen throughout, the buried link is exact in 7 of 10 arms. The mean ARI counts
+body; even seen throughout, the buried link is exact in 6 of 10 arms. The mean ARI counts
 keypoints never seen (the links' undersides) as misplaced.
 
 ### Slender rods (experiments/sweeps/slender.toml)
@@ -234,8 +234,8 @@ thigh two markers; the `share_points` repair gives those segments the axis marke
 yet, so no run is exact: of the 14 joints the 10 between the other segments are the ones to
 find. Without soft tissue 8 of 10 runs find all 11 other segments (10 in the
 other two), and the worst centre of the joints found is 0.68 mm against SCoRE's 1.84 mm
-(medians). The drift costs segments: 8-11 bodies at 5 mm and 8-12 at 10 mm, the worst centre
-6.3 and 17.5 mm against SCoRE's 13.1 and 24.4 mm on the true segmentation.
+(medians). The drift costs segments: 8-11 bodies at 5 mm and at 10 mm, the worst centre
+7.1 and 17.5 mm against SCoRE's 13.1 and 24.4 mm on the true segmentation.
 
 ## Real recordings (experiments/real)
 

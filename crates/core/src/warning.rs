@@ -81,13 +81,15 @@ pub enum Warning {
         /// Frames posed through the hinge.
         frames: usize,
     },
-    /// A cluster too small for a pose made a body with points of other bodies that are rigid
-    /// with it (`[pipeline.repairs.share_points]`): markers on a joint's axis, which now
-    /// belong to both bodies (the model's `shared_points`).
+    /// Points of other bodies rigid with a group of points were given to it as well
+    /// (`[pipeline.repairs.share_points]`): the group was a cluster too small for a pose,
+    /// which became a body with them, or a body of the fewest points a pose needs. They are
+    /// markers on a joint's axis, which now belong to both bodies (the model's
+    /// `shared_points`).
     PointsShared {
         /// The points that belong to two bodies.
         points: Vec<usize>,
-        /// The cluster's own points, which make the new body with them.
+        /// The group's own points.
         body: Vec<usize>,
     },
     /// Points of a body posed through a hinge that do not turn with it: left out, each lowered
@@ -320,7 +322,7 @@ impl std::fmt::Display for Warning {
             ),
             Warning::PointsShared { points, body } => write!(
                 f,
-                "point(s) {points:?}, rigid with their body and with the cluster of point(s) {body:?} (too small for a pose alone), belong to both: a body was made of them"
+                "point(s) {points:?}, rigid with their body and with the point(s) {body:?}, belong to both bodies"
             ),
             Warning::BodyPosedThroughHinge {
                 points,

@@ -6,7 +6,8 @@
 //! clustering, which gives each point one body, puts it with the neighbour; the segment's
 //! own two markers are then discarded, and every joint that touches the segment is lost.
 //! Such a marker is shared: it stays on its body and joins the two markers' body, and both
-//! poses use it. The cluster must move on the body it shares with (some other point of that
+//! poses use it. A body of the fewest points a pose needs takes such points too. The
+//! cluster must move on the body it shares with (some other point of that
 //! body is not rigid with it): a cluster rigid with a whole body is part of it, which the
 //! attachment handles.
 
@@ -31,10 +32,13 @@ pub struct SharePointsParams {
     pub bound_in_std: f64,
     /// ...times this slack (default 1.5; `docs/decisions.md`).
     pub slack: f64,
-    /// Fewest points a cluster must share (default 2: a hinge's axis, which two markers on
-    /// it fix; a single point near an axis can stay rigid with a neighbour's points over
-    /// the few frames they are seen together, and a wrong body follows).
+    /// Fewest points a group must share (default 2: a hinge's axis, which two markers on it
+    /// fix; a single point near an axis can stay rigid with a neighbour's points over the few
+    /// frames they are seen together, and a wrong body follows).
     pub min_shared: usize,
+    /// A body of at most this many points takes the points of other bodies rigid with it as
+    /// well (default 3, the fewest a pose needs).
+    pub max_own_points: usize,
 }
 
 impl Default for SharePointsParams {
@@ -45,6 +49,7 @@ impl Default for SharePointsParams {
             bound_in_std: 4.0,
             slack: 1.5,
             min_shared: 2,
+            max_own_points: 3,
         }
     }
 }
@@ -59,7 +64,8 @@ impl SharePointsParams {
         count_in_range(NAME, "min_frames", self.min_frames, 2, 1_000_000)?;
         in_range(NAME, "bound_in_std", self.bound_in_std, 0.0, 20.0)?;
         in_range(NAME, "slack", self.slack, 0.1, 100.0)?;
-        count_in_range(NAME, "min_shared", self.min_shared, 1, 1_000_000)
+        count_in_range(NAME, "min_shared", self.min_shared, 1, 1_000_000)?;
+        count_in_range(NAME, "max_own_points", self.max_own_points, 0, 1_000_000)
     }
 
     /// Whether every pair of `points` is seen together in at least `min_frames` frames.
@@ -75,6 +81,50 @@ impl SharePointsParams {
             .iter()
             .enumerate()
             .all(|(k, &a)| points[k + 1..].iter().all(|&b| seen_together(a, b)))
+    }
+
+    /// The points of `assigned` (on bodies of `seg`, none of `g`) that `g` can share: each
+    /// rigid with `g`, `g` moving on each of their bodies (another point of that body, seen
+    /// with `g`, is not rigid with it: a group rigid with a whole body is part of it, the
+    /// attachment's case), at least `min_shared` of them, and all rigid together with `g`.
+    fn shared_with(
+        &self,
+        tracks: &kinetree_core::Tracks,
+        seg: &kinetree_core::Segmentation,
+        assigned: &[usize],
+        g: &[usize],
+        sigma: f64,
+        min_shared: usize,
+    ) -> Option<Vec<usize>> {
+        if !self.rigid(tracks, g, sigma) {
+            return None;
+        }
+        let with_point = |q: usize| {
+            let mut set = g.to_vec();
+            set.push(q);
+            set
+        };
+        let with: Vec<usize> = assigned
+            .iter()
+            .copied()
+            .filter(|q| !g.contains(q) && self.rigid(tracks, &with_point(*q), sigma))
+            .collect();
+        if with.len() < min_shared {
+            return None;
+        }
+        let moves_on_each = with.iter().all(|&q| {
+            let own = seg.body_of(q);
+            assigned.iter().any(|&r| {
+                seg.body_of(r) == own
+                    && !with.contains(&r)
+                    && self.testable(tracks, &with_point(r))
+                    && !self.rigid(tracks, &with_point(r), sigma)
+            })
+        });
+        let mut all = g.to_vec();
+        all.extend(&with);
+        (moves_on_each && all.len() >= MIN_BODY_POINTS && self.rigid(tracks, &all, sigma))
+            .then_some(with)
     }
 
     /// Whether `points` move rigidly within noise `sigma`, every pair seen together in at
@@ -154,54 +204,43 @@ impl Repair for SharePoints {
         let mut groups: Vec<Vec<usize>> = Vec::new();
         let mut sharing: Vec<Vec<usize>> = Vec::new();
         for g in candidates {
-            if !self.params.rigid(tracks, &g, sigma) {
-                continue;
+            let least = self.params.min_shared;
+            if let Some(with) = self
+                .params
+                .shared_with(tracks, seg, &assigned, &g, sigma, least)
+            {
+                groups.push(g);
+                sharing.push(with);
             }
-            // Each candidate rigid with the group, then the whole set rigid together.
-            let with: Vec<usize> = assigned
+        }
+        // Bodies with the fewest points a pose needs take the points rigid with them too.
+        let members = seg.members();
+        let mut grown: Vec<(Vec<usize>, Vec<usize>)> = Vec::new();
+        for (b, points) in members.iter().enumerate() {
+            let own: Vec<usize> = points
                 .iter()
                 .copied()
-                .filter(|&q| {
-                    let mut set = g.clone();
-                    set.push(q);
-                    self.params.rigid(tracks, &set, sigma)
-                })
+                .filter(|&i| seg.body_of(i) == Some(b))
                 .collect();
-            // The group must move on each body it shares points with: some other point of
-            // that body, seen with it, is not rigid with it. A group rigid with a whole body
-            // is part of it (the attachment's case), not a segment of its own.
-            let moves_on_each = with.iter().all(|&q| {
-                let own = seg.body_of(q);
-                assigned.iter().any(|&r| {
-                    if seg.body_of(r) != own || with.contains(&r) {
-                        return false;
-                    }
-                    let mut set = g.clone();
-                    set.push(r);
-                    self.params.testable(tracks, &set) && !self.params.rigid(tracks, &set, sigma)
-                })
-            });
-            if !moves_on_each {
+            if own.len() != points.len() || own.len() > self.params.max_own_points {
                 continue;
             }
-            let mut all = g.clone();
-            all.extend(&with);
-            if with.len() < self.params.min_shared
-                || all.len() < MIN_BODY_POINTS
-                || !self.params.rigid(tracks, &all, sigma)
+            let least = self.params.min_shared;
+            if let Some(with) = self
+                .params
+                .shared_with(tracks, seg, &assigned, &own, sigma, least)
             {
-                continue;
+                grown.push((own, with));
             }
-            groups.push(g);
-            sharing.push(with);
         }
-        if groups.is_empty() {
+        if groups.is_empty() && grown.is_empty() {
             return Ok(None);
         }
         let made = with_new_bodies(seg, &groups);
         let pairs: Vec<(usize, usize)> = groups
             .iter()
             .zip(&sharing)
+            .chain(grown.iter().map(|(g, with)| (g, with)))
             .filter_map(|(g, with)| {
                 let b = made.body_of(g[0])?;
                 Some(with.iter().map(move |&q| (q, b)))
@@ -211,15 +250,16 @@ impl Repair for SharePoints {
         let mut p = Proposal::new(
             Edit::Segmentation(made.with_shared(&pairs)),
             format!(
-                "{} cluster(s) too small for a pose made bodies with {} point(s) of other bodies rigid with them",
+                "{} cluster(s) too small for a pose made bodies, and {} body(ies) of three points grown, with {} point(s) of other bodies rigid with them",
                 groups.len(),
+                grown.len(),
                 pairs.len()
             ),
         );
         p.points = groups.iter().chain(&sharing).flatten().copied().collect();
         p.points.sort_unstable();
         p.points.dedup();
-        for (g, with) in groups.into_iter().zip(sharing) {
+        for (g, with) in groups.into_iter().zip(sharing).chain(grown) {
             p.warnings.push(Warning::PointsShared {
                 points: with,
                 body: g,
