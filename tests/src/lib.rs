@@ -149,6 +149,20 @@ pub fn warned(
     model.warnings.iter().any(matches)
 }
 
+/// Whether `joint` of `model` is typed as a ball may be: spherical or universal, or revolute
+/// with a `joint_not_identifiable` warning that names the spherical type.
+pub fn typed_as_ball(model: &kinetree_core::Model, joint: &kinetree_core::model::Joint) -> bool {
+    use kinetree_core::model::JointType;
+    matches!(
+        joint.joint_type,
+        JointType::Spherical | JointType::Universal
+    ) || (joint.joint_type == JointType::Revolute
+        && warned(model, |w| {
+            matches!(w, kinetree_core::Warning::JointNotIdentifiable { child, alternatives, .. }
+                    if *child == joint.child && alternatives.contains(&JointType::Spherical))
+        }))
+}
+
 /// Hand-built mechanisms: box bodies, joints, sine trajectories, a fixed scene.
 pub mod build {
     /// A box body of `points` interior keypoints.

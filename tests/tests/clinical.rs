@@ -46,16 +46,7 @@ fn judged_edges(model: &Model, data: &SynthData) -> Vec<(String, bool, bool)> {
                 .find(|j| (j.parent, j.child) == (p, c) || (j.parent, j.child) == (c, p));
             let typed = joint.is_some_and(|j| match spec.joint_type {
                 kinetree_synth::JointType::Revolute => j.joint_type == JointType::Revolute,
-                kinetree_synth::JointType::Spherical => {
-                    matches!(j.joint_type, JointType::Spherical | JointType::Universal)
-                        || (j.joint_type == JointType::Revolute
-                            && kinetree_tests::warned(model, |w| {
-                                matches!(w, kinetree_core::Warning::JointNotIdentifiable {
-                                    child, alternatives, .. }
-                                    if *child == j.child
-                                        && alternatives.contains(&JointType::Spherical))
-                            }))
-                }
+                kinetree_synth::JointType::Spherical => kinetree_tests::typed_as_ball(model, j),
                 _ => false,
             });
             Some((name, joint.is_some(), typed))

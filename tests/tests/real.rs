@@ -145,13 +145,8 @@ fn real_recordings_segment_into_their_labelled_segments() {
                 continue;
             }
             judged += 1;
-            let ball_fits = o.model.warnings.iter().any(|w| {
-                matches!(w, kinetree_core::Warning::JointNotIdentifiable { child, alternatives, .. }
-                    if *child == j.child && alternatives.contains(&JointType::Spherical))
-            });
             assert!(
-                matches!(j.joint_type, JointType::Spherical | JointType::Universal)
-                    || (j.joint_type == JointType::Revolute && ball_fits),
+                kinetree_tests::typed_as_ball(&o.model, j),
                 "{folder}: the {} -> {} joint is {} with no verdict that a ball fits",
                 name[j.parent],
                 name[j.child],

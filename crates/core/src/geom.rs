@@ -94,6 +94,19 @@ pub fn centroid(p: &[Point3<f64>]) -> Point3<f64> {
     Point3::from(s / p.len() as f64)
 }
 
+/// Rotation-error covariance per unit noise variance for a Kabsch fit on `p`: `J^-1` with
+/// `J = sum (|q|^2 I - q q^T)` over the points centred on their centroid (the inverse Fisher
+/// information of the rotation, linearised). `None` when `J` is singular (collinear points).
+pub fn rotation_cov_per_sigma2(p: &[Point3<f64>]) -> Option<Matrix3<f64>> {
+    let c = centroid(p);
+    let mut j = Matrix3::zeros();
+    for q in p {
+        let d = q - c;
+        j += Matrix3::identity() * d.norm_squared() - d * d.transpose();
+    }
+    j.try_inverse()
+}
+
 /// The rigid transform `T` minimising `sum |T src_i - dst_i|^2` (rotation with det +1).
 ///
 /// Returns `None` with fewer than three pairs or when the SVD fails. Degenerate (collinear)

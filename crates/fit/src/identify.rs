@@ -128,8 +128,8 @@ fn hinge_turn_in_std(model: &Model, joint: &kinetree_core::model::Joint) -> Opti
 }
 
 /// The rotation of body `b` in `frame` (camera from body), its shape fitted to its visible
-/// placed keypoints, with that rotation's covariance per sigma^2 in the body frame: the
-/// inverse of `sum (|p|^2 I - p p^T)` over the visible shape points `p` about their centroid.
+/// placed keypoints, with that rotation's covariance per sigma^2 in the body frame
+/// ([`kinetree_core::geom::rotation_cov_per_sigma2`] of the visible shape points).
 /// `None` under three such keypoints or for a spread too thin to fix every rotation.
 fn body_rotation(
     model: &Model,
@@ -147,13 +147,7 @@ fn body_rotation(
     if src.len() < 3 {
         return None;
     }
-    let c = kinetree_core::geom::centroid(&src);
-    let mut info = Matrix3::zeros();
-    for p in &src {
-        let r = p - c;
-        info += Matrix3::identity() * r.norm_squared() - r * r.transpose();
-    }
-    let cov = info.try_inverse()?;
+    let cov = kinetree_core::geom::rotation_cov_per_sigma2(&src)?;
     let pose = kinetree_core::geom::kabsch(&src, &dst)?;
     Some((pose.rotation.to_rotation_matrix(), cov))
 }
