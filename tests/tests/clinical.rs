@@ -57,8 +57,8 @@ fn judged_edges(model: &Model, data: &SynthData) -> Vec<(String, bool, bool)> {
 /// The upper arms and thighs show two markers of their own; their others sit on the elbow's
 /// and knee's axes, where the clustering puts them with the forearm or shank. Those axis
 /// markers are shared: they make a body with the two, and stay on the forearm or shank. So
-/// every segment but the hands and feet (two markers on a ball joint, which nothing poses
-/// yet) is a body, and the tree joins them as the skeleton does, with their types, with the
+/// every segment but the hands and feet (two markers on a ball joint, posed through it by
+/// the `balls` repairs) is a body, and the tree joins them as the skeleton does, with their types, with the
 /// motion-capture settings and with the defaults.
 #[test]
 fn two_marker_segments_share_the_markers_on_their_hinge_axis() {
@@ -121,8 +121,9 @@ fn two_marker_segments_share_the_markers_on_their_hinge_axis() {
             "{settings}: {typed} of {edges} joints typed right ({joined} joined)"
         );
     }
-    // The class this guards: without shared markers some upper arms and thighs are lost.
-    let mut cfg = PipelineConfig::default();
+    // The class this guards: without shared markers some upper arms and thighs are lost
+    // (the ball repairs, off here, pose some of them through the shoulder or hip instead).
+    let mut cfg = PipelineConfig::default().with_balls(false);
     cfg.repairs.share_points.enabled = false;
     cfg.repairs.hinge_groups.enabled = false;
     let lost: usize = (0..3)
@@ -196,4 +197,70 @@ fn clinical_skeletons_keep_their_edges_and_centres_with_soft_tissue() {
             "{what}: {near} of {centres} centres within {centre_bound} m (worst {worst})"
         );
     }
+}
+
+/// The hands and feet show two markers each, and the markers on the wrists' and ankles' axes
+/// ride on the forearms and shanks; two markers give no pose, but with the centre of the ball
+/// joint they turn about they do. With the default settings and no soft tissue every hand and
+/// foot is a body, joined to its forearm or shank by a ball whose centre is within 2 mm.
+/// Without the `balls` and `ball_groups` repairs none is a body.
+#[test]
+fn hands_and_feet_seen_through_two_markers_are_posed_through_their_ball_joint() {
+    let distal = ["hand_l", "hand_r", "foot_l", "foot_r"];
+    let found = |cfg: &PipelineConfig, check: bool| -> usize {
+        let mut bodies = 0;
+        for seed in 0..3 {
+            let data = clinical(seed, 0.0);
+            let model = discover(&data, cfg);
+            let map = body_map(&model, &data.truth);
+            let mech = &data.truth.mechanism;
+            let e = kinetree_eval::evaluate(&model, &data.truth);
+            for name in distal {
+                let Some(segment) = mech.bodies.iter().position(|b| b.name == name) else {
+                    panic!("no segment {name}");
+                };
+                if !map.contains(&segment) {
+                    assert!(
+                        !check,
+                        "seed {seed}: no body for the {name}: {:?}",
+                        model.point_body
+                    );
+                    continue;
+                }
+                bodies += 1;
+                if !check {
+                    continue;
+                }
+                let (k, spec) = mech
+                    .joints
+                    .iter()
+                    .enumerate()
+                    .find(|(_, j)| j.child == segment)
+                    .expect("a joint");
+                let judged = judged_edges(&model, &data);
+                let (_, joined, typed) = judged.iter().find(|(n, _, _)| n == name).expect("judged");
+                assert!(
+                    *joined && *typed,
+                    "seed {seed}: the {name} joined {joined}, typed as a ball {typed}"
+                );
+                let centre = e
+                    .joints
+                    .iter()
+                    .find(|j| j.joint == k)
+                    .and_then(|j| j.centre_error_m)
+                    .expect("a centre");
+                assert!(
+                    centre <= 0.002,
+                    "seed {seed}: the {name}'s centre is {centre} m off (joint {:?})",
+                    spec.joint_type
+                );
+            }
+        }
+        bodies
+    };
+    assert_eq!(found(&PipelineConfig::default(), true), 12);
+    let mut off = PipelineConfig::default();
+    off.repairs.balls.enabled = false;
+    off.repairs.ball_groups.enabled = false;
+    assert_eq!(found(&off, false), 0);
 }

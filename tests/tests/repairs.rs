@@ -342,7 +342,7 @@ fn every_built_in_repair_conforms() {
     let repairs = RepairsConfig::default().build().expect("repairs");
     assert_eq!(
         repairs.len(),
-        19,
+        21,
         "one conformance line per built-in repair"
     );
     // Each repair answers to the name of its config section, in the config's order.
@@ -437,6 +437,26 @@ fn repair_parameter_rules_name_the_key() {
         (
             "[repairs.hinge_groups]\nmax_rms_in_sigma = -3.0",
             "pipeline.repairs.hinge_groups.max_rms_in_sigma",
+        ),
+        (
+            "[repairs.balls]\nmax_centre_std_in_sigma = -1.0",
+            "pipeline.repairs.balls.max_centre_std_in_sigma",
+        ),
+        (
+            "[repairs.balls]\nmin_fit_frames = 2",
+            "pipeline.repairs.balls.min_fit_frames",
+        ),
+        (
+            "[repairs.balls]\nmin_swing_in_sigma = inf",
+            "pipeline.repairs.balls.min_swing_in_sigma",
+        ),
+        (
+            "[repairs.ball_groups]\nmin_points = 1",
+            "pipeline.repairs.ball_groups.min_points",
+        ),
+        (
+            "[repairs.ball_groups]\nmin_lever_in_sigma = nan",
+            "pipeline.repairs.ball_groups.min_lever_in_sigma",
         ),
         (
             "[repairs.regroup]\nresidual_in_sigma = 0.0",

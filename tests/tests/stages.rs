@@ -630,3 +630,147 @@ fn a_hinge_on_bad_input_is_refused() {
     assert!(fit(Some(0), &[11, 15, data.tracks.n_points() + 7], 0.001).is_none());
     assert!(fit(Some(0), &[11], 0.001).is_none());
 }
+
+/// A clinical skeleton's hand shows two markers and turns about the wrist, a point of the
+/// forearm (posed from its own two markers and the two on the wrist's axis). The sphere fit
+/// puts the centre within 1 mm of the wrist and poses the hand in every frame that shows
+/// both markers, to the precision it states. The forearm's two markers, which turn about
+/// the elbow's axis, leave the centre free along it, and the hand against the upper arm,
+/// two joints away, is no ball.
+#[test]
+fn a_segment_seen_through_two_markers_is_posed_through_its_ball_joint() {
+    let data = simulate(&kinetree_synth::skeleton_scenario(
+        &kinetree_synth::SkeletonParams {
+            seed: 2,
+            clinical_markers: true,
+            floating_pelvis: true,
+            ..kinetree_synth::SkeletonParams::default()
+        },
+    ))
+    .expect("simulate");
+    let poses = true_body_poses(&data);
+    let mech = &data.truth.mechanism;
+    let body = |name: &str| mech.bodies.iter().position(|b| b.name == name).expect(name);
+    let markers = |b: usize| -> Vec<usize> {
+        (0..data.tracks.n_points())
+            .filter(|&i| data.truth.point_body[i] == b)
+            .collect()
+    };
+    // Bodies of the poses: the truth's with markers, in order (the world has none).
+    let posed = |b: usize| (0..b).filter(|&c| !markers(c).is_empty()).count();
+    let (upper, forearm, hand) = (body("upper_arm_l"), body("forearm_l"), body("hand_l"));
+    assert_eq!(markers(hand).len(), 2);
+    assert_eq!(
+        poses.bodies[posed(hand)].n_registered(),
+        0,
+        "the hand has no pose"
+    );
+    let (upper_pose, forearm_pose) = (posed(upper), posed(forearm));
+    let limits = kinetree_pose::BallLimits::default();
+    let sigma = 0.001;
+    let ball = kinetree_pose::balled_body(
+        &data.tracks,
+        &poses,
+        Some(forearm_pose),
+        &markers(hand),
+        sigma,
+        &limits,
+    )
+    .expect("a ball");
+    assert!(
+        (0.6..1.6).contains(&ball.chi2_per_dof) && ball.centre_std_in_sigma < 1.0,
+        "chi2/dof {}, centre std {} sigma",
+        ball.chi2_per_dof,
+        ball.centre_std_in_sigma
+    );
+    // The centre against the wrist's, carried by the forearm.
+    let wrist = mech.joints.iter().find(|j| j.child == hand).expect("wrist");
+    let cam = data.truth.cam_from_world;
+    let n_q: usize = data.truth.joint_positions.len();
+    let world_from = |t: Option<usize>| {
+        let q: Vec<f64> = data
+            .truth
+            .joint_positions
+            .iter()
+            .map(|p| t.map_or(0.0, |t| p[t]))
+            .collect();
+        assert_eq!(q.len(), n_q);
+        mech.forward(&q)
+    };
+    let rest_forearm = world_from(None)[forearm];
+    let t0 = ball.track.reference_frame;
+    // The wrist in the posed forearm's frame, averaged over the frames (the forearm's pose
+    // noise averages out).
+    let in_parent: Vec<Vector3<f64>> = (0..data.tracks.n_frames())
+        .filter_map(|t| {
+            let parent = poses.bodies[forearm_pose].cam_from_body[t]?;
+            let wrist_cam = cam
+                * world_from(Some(t))[forearm]
+                * rest_forearm.inverse()
+                * Point3::from(wrist.anchor);
+            Some(parent.inverse_transform_point(&wrist_cam).coords)
+        })
+        .collect();
+    let true_centre = in_parent.iter().sum::<Vector3<f64>>() / in_parent.len() as f64;
+    let off = (ball.centre.coords - true_centre).norm();
+    assert!(off < 1e-3, "centre {off} m off the wrist");
+    // Every frame that shows both markers is posed; each frame's rotation error against the
+    // truth, whitened by its stated covariance and the reference frame's, averages 3 (a
+    // chi-square with 3 degrees of freedom).
+    let both = (0..data.tracks.n_frames())
+        .filter(|&t| {
+            markers(hand)
+                .iter()
+                .all(|&i| data.tracks.get(t, i).is_some())
+                && poses.bodies[forearm_pose].cam_from_body[t].is_some()
+        })
+        .count();
+    let track = &ball.track;
+    assert_eq!(track.n_registered(), both);
+    let true_pose = |t: usize| cam * world_from(Some(t))[hand];
+    let offset0 = true_pose(t0).inverse() * track.cam_from_body[t0].expect("pose");
+    let cov0 = track.quality[t0].expect("quality").rot_cov_per_sigma2;
+    let whitened: Vec<f64> = (0..data.tracks.n_frames())
+        .filter(|&t| t != t0)
+        .filter_map(|t| {
+            let offset = true_pose(t).inverse() * track.cam_from_body[t]?;
+            let e = (offset0.rotation.inverse() * offset.rotation).scaled_axis();
+            let cov = (track.quality[t]?.rot_cov_per_sigma2 + cov0) * sigma * sigma;
+            Some(e.dot(&(cov.try_inverse()? * e)))
+        })
+        .collect();
+    let mean = whitened.iter().sum::<f64>() / whitened.len() as f64;
+    assert!(
+        (1.5..4.5).contains(&mean),
+        "whitened rotation errors average {mean} (3 expected)"
+    );
+    // The forearm turns about the elbow's axis: the centre is free along it but for the
+    // noise, beyond the repairs' default bound (3 std-devs).
+    let elbow = kinetree_pose::balled_body(
+        &data.tracks,
+        &poses,
+        Some(upper_pose),
+        &markers(forearm)[..2],
+        sigma,
+        &limits,
+    );
+    assert!(
+        elbow.as_ref().is_none_or(|b| b.centre_std_in_sigma > 3.0),
+        "a hinge's centre std {:?} sigma",
+        elbow.map(|b| b.centre_std_in_sigma)
+    );
+    // The hand against the upper arm turns about the elbow and the wrist.
+    let far = kinetree_pose::balled_body(
+        &data.tracks,
+        &poses,
+        Some(upper_pose),
+        &markers(hand),
+        sigma,
+        &limits,
+    );
+    assert!(
+        far.as_ref().is_none_or(|b| b.chi2_per_dof > 10.0),
+        "chi2/dof {:?} two joints away",
+        far.map(|b| b.chi2_per_dof)
+    );
+}

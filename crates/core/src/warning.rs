@@ -81,6 +81,19 @@ pub enum Warning {
         /// Frames posed through the hinge.
         frames: usize,
     },
+    /// A body seen too few points at a time for poses of its own in most frames (a cluster
+    /// of two points, typically two markers on a hand or foot) whose points stay at fixed
+    /// distances from a point of a posed body or of the camera frame: it was posed through
+    /// that ball joint, from the joint's centre and its points, in the frames where it had
+    /// no pose of its own and two of its points are visible.
+    BodyPosedThroughBall {
+        /// The body's points.
+        points: Vec<usize>,
+        /// The points of the body it turns on when it was posed (`None`: the camera frame).
+        parent: Option<Vec<usize>>,
+        /// Frames posed through the ball joint.
+        frames: usize,
+    },
     /// Points of other bodies rigid with a group of points were given to it as well
     /// (`[pipeline.repairs.share_points]`): the group was a cluster too small for a pose,
     /// which became a body with them, or a body of the fewest points a pose needs. They are
@@ -336,6 +349,20 @@ impl std::fmt::Display for Warning {
                 None => write!(
                     f,
                     "the body of point(s) {points:?}, seen too few points at a time, turns about one axis fixed in the camera frame and was posed through that hinge in {frames} frame(s)"
+                ),
+            },
+            Warning::BodyPosedThroughBall {
+                points,
+                parent,
+                frames,
+            } => match parent {
+                Some(b) => write!(
+                    f,
+                    "the body of point(s) {points:?}, seen too few points at a time, turns about a point of the body of points {b:?} and was posed through that ball joint in {frames} frame(s)"
+                ),
+                None => write!(
+                    f,
+                    "the body of point(s) {points:?}, seen too few points at a time, turns about a point fixed in the camera frame and was posed through that ball joint in {frames} frame(s)"
                 ),
             },
             Warning::PointsMakingJointsMultiDof { points } => write!(

@@ -333,6 +333,13 @@ impl PipelineConfig {
         self.repairs.hinge_groups.enabled = on;
         self
     }
+
+    /// The config with the ball-joint repairs (`balls` and `ball_groups`) on or off.
+    pub fn with_balls(mut self, on: bool) -> Self {
+        self.repairs.balls.enabled = on;
+        self.repairs.ball_groups.enabled = on;
+        self
+    }
 }
 
 /// Where an experiment's data come from.

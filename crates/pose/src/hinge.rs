@@ -673,7 +673,13 @@ pub fn hinged_body(
 /// within the noise (two links turning about axes 3 deg apart through one anchor), and its
 /// poses then bend the body's joints with every other body.
 pub fn filled_from_hinge(own: &BodyTrack, hinge: &Hinge) -> (BodyTrack, usize) {
-    let h = &hinge.track;
+    filled_from_track(own, &hinge.track)
+}
+
+/// `own` with the frames it lacks filled from `other`, a track of the same keypoints in
+/// another body frame (a hinge's or a ball joint's poses), as [`filled_from_hinge`] does.
+pub fn filled_from_track(own: &BodyTrack, other: &BodyTrack) -> (BodyTrack, usize) {
+    let h = other;
     let both: Vec<Isometry3<f64>> = own
         .cam_from_body
         .iter()

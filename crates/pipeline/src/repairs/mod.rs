@@ -6,6 +6,7 @@
 //! repair goes through [`crate::conformance::check_repair`] in `tests/tests/repairs.rs`.
 
 mod attach;
+mod balls;
 mod bundle_adjust;
 mod drop_unposed;
 mod eject_points;
@@ -26,6 +27,7 @@ mod tree_ties;
 mod type_by_fit;
 
 pub use attach::{Attach, AttachParams};
+pub use balls::{BallBounds, BallGroups, BallGroupsParams, Balls, BallsParams};
 pub use bundle_adjust::{BundleAdjust, BundleAdjustParams};
 pub use drop_unposed::{DropUnposed, DropUnposedParams};
 pub use eject_points::{EjectPoints, EjectPointsParams};
@@ -105,6 +107,8 @@ repairs_config! {
     noise_refinement: NoiseRefinementParams => NoiseRefinement,
     /// Bodies: bodies registered in few frames posed through a hinge.
     hinges: HingesParams => Hinges,
+    /// Bodies: bodies registered in few frames posed through a ball joint.
+    balls: BallsParams => Balls,
     /// Bodies: bodies registered in too few frames dropped.
     drop_unposed: DropUnposedParams => DropUnposed,
     /// Bodies: bodies that mix points of several bodies split in two.
@@ -118,6 +122,9 @@ repairs_config! {
     share_points: SharePointsParams => SharePoints,
     /// Bodies: unassigned points that turn together on a hinge made a body.
     hinge_groups: HingeGroupsParams => HingeGroups,
+    /// Bodies: clusters too small for a pose whose points turn about a point of a body made
+    /// bodies.
+    ball_groups: BallGroupsParams => BallGroups,
     /// Bodies: bodies that move rigidly together merged.
     merge: MergeParams => Merge,
     /// Tree: near-tied tree edges settled by whole-tree fits.
