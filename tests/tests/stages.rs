@@ -774,3 +774,30 @@ fn a_segment_seen_through_two_markers_is_posed_through_its_ball_joint() {
         far.map(|b| b.chi2_per_dof)
     );
 }
+
+/// A group's rigidity from the pair statistics equals the one from the tracks, for groups on
+/// one body and across bodies, with occlusion (every pair its own frames).
+#[test]
+fn rigidity_from_pair_statistics_matches_the_tracks() {
+    let data = simulate(&kinetree_synth::Scenario {
+        dropout: 0.2,
+        ..paper_arm(5)
+    })
+    .expect("simulate");
+    let stats = pair_stats(&data.tracks);
+    let n = data.tracks.n_points();
+    let groups: Vec<Vec<usize>> = vec![
+        (0..n).filter(|&i| data.truth.point_body[i] == 1).collect(),
+        vec![0, n / 2],
+        (0..n).step_by(3).collect(),
+    ];
+    for g in groups {
+        let (a, da) = kinetree_pose::group_rigidity(&data.tracks, &g, 0.001);
+        let (b, db) = stats.rigidity(&g, 0.001);
+        assert!(da > 0.0 && da == db, "dof {da} against {db}");
+        assert!(
+            ((a - b) / a).abs() <= 1e-9,
+            "group {g:?}: {a} from the tracks, {b} from the statistics"
+        );
+    }
+}

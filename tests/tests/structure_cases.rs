@@ -499,7 +499,10 @@ fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
         kinetree_core::Warning::BodyPosedThroughHinge { points, .. } if points == &[11, 15]
     )));
     let (_, without) = discover_hinged(&data, false);
-    assert!(!without.joints_exact, "found without the hinge and ball steps");
+    assert!(
+        !without.joints_exact,
+        "found without the hinge and ball steps"
+    );
 }
 
 /// Mechanisms sweep, 7-joint revolute tree, seed 3: links 2 and 3 show three keypoints at

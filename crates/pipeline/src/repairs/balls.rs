@@ -441,7 +441,7 @@ impl Repair for BallGroups {
             .filter(|i| free(i) && !candidates.iter().flatten().any(|j| j == i))
             .collect();
         let rigid = |g: &[usize]| {
-            let (chi2, dof) = kinetree_pose::group_rigidity(tracks, g, sigma);
+            let (chi2, dof) = ctx.stats.rigidity(g, sigma);
             dof > 0.0 && chi2 <= kinetree_pose::misfit_bound(dof, bounds.bound_in_std, bounds.slack)
         };
         if self.params.min_points <= 2 {

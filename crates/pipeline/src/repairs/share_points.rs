@@ -13,8 +13,8 @@
 
 use super::{count_in_range, in_range, with_new_bodies};
 use kinetree_core::{
-    Draft, Edit, MIN_BODY_POINTS, Proposal, Repair, RepairContext, RepairLimit, RepairPhase,
-    Result, Warning,
+    Draft, Edit, MIN_BODY_POINTS, PairStats, Proposal, Repair, RepairContext, RepairLimit,
+    RepairPhase, Result, Warning,
 };
 use serde::{Deserialize, Serialize};
 
@@ -69,18 +69,12 @@ impl SharePointsParams {
     }
 
     /// Whether every pair of `points` is seen together in at least `min_frames` frames.
-    fn testable(&self, tracks: &kinetree_core::Tracks, points: &[usize]) -> bool {
-        let seen_together = |a: usize, b: usize| {
-            (0..tracks.n_frames())
-                .filter(|&t| tracks.is_visible(t, a) && tracks.is_visible(t, b))
-                .take(self.min_frames)
-                .count()
-                >= self.min_frames
-        };
-        points
-            .iter()
-            .enumerate()
-            .all(|(k, &a)| points[k + 1..].iter().all(|&b| seen_together(a, b)))
+    fn testable(&self, stats: &PairStats, points: &[usize]) -> bool {
+        points.iter().enumerate().all(|(k, &a)| {
+            points[k + 1..]
+                .iter()
+                .all(|&b| a != b && stats.count(a, b) as usize >= self.min_frames)
+        })
     }
 
     /// The points of `assigned` (on bodies of `seg`, none of `g`) that `g` can share: each
@@ -89,14 +83,14 @@ impl SharePointsParams {
     /// attachment's case), at least `min_shared` of them, and all rigid together with `g`.
     fn shared_with(
         &self,
-        tracks: &kinetree_core::Tracks,
+        stats: &PairStats,
         seg: &kinetree_core::Segmentation,
         assigned: &[usize],
         g: &[usize],
         sigma: f64,
         min_shared: usize,
     ) -> Option<Vec<usize>> {
-        if !self.rigid(tracks, g, sigma) {
+        if !self.rigid(stats, g, sigma) {
             return None;
         }
         let with_point = |q: usize| {
@@ -107,7 +101,7 @@ impl SharePointsParams {
         let with: Vec<usize> = assigned
             .iter()
             .copied()
-            .filter(|q| !g.contains(q) && self.rigid(tracks, &with_point(*q), sigma))
+            .filter(|q| !g.contains(q) && self.rigid(stats, &with_point(*q), sigma))
             .collect();
         if with.len() < min_shared {
             return None;
@@ -117,23 +111,23 @@ impl SharePointsParams {
             assigned.iter().any(|&r| {
                 seg.body_of(r) == own
                     && !with.contains(&r)
-                    && self.testable(tracks, &with_point(r))
-                    && !self.rigid(tracks, &with_point(r), sigma)
+                    && self.testable(stats, &with_point(r))
+                    && !self.rigid(stats, &with_point(r), sigma)
             })
         });
         let mut all = g.to_vec();
         all.extend(&with);
-        (moves_on_each && all.len() >= MIN_BODY_POINTS && self.rigid(tracks, &all, sigma))
+        (moves_on_each && all.len() >= MIN_BODY_POINTS && self.rigid(stats, &all, sigma))
             .then_some(with)
     }
 
     /// Whether `points` move rigidly within noise `sigma`, every pair seen together in at
     /// least `min_frames` frames.
-    fn rigid(&self, tracks: &kinetree_core::Tracks, points: &[usize], sigma: f64) -> bool {
-        if !self.testable(tracks, points) {
+    fn rigid(&self, stats: &PairStats, points: &[usize], sigma: f64) -> bool {
+        if !self.testable(stats, points) {
             return false;
         }
-        let (chi2, dof) = kinetree_pose::group_rigidity(tracks, points, sigma);
+        let (chi2, dof) = stats.rigidity(points, sigma);
         dof > 0.0 && chi2 <= kinetree_pose::misfit_bound(dof, self.bound_in_std, self.slack)
     }
 }
@@ -196,7 +190,7 @@ impl Repair for SharePoints {
             rest.remove(0);
             if let Some(k) = rest
                 .iter()
-                .position(|&b| self.params.rigid(tracks, &[a, b], sigma))
+                .position(|&b| self.params.rigid(ctx.stats, &[a, b], sigma))
             {
                 candidates.push(vec![a, rest.remove(k)]);
             }
@@ -207,7 +201,7 @@ impl Repair for SharePoints {
             let least = self.params.min_shared;
             if let Some(with) = self
                 .params
-                .shared_with(tracks, seg, &assigned, &g, sigma, least)
+                .shared_with(ctx.stats, seg, &assigned, &g, sigma, least)
             {
                 groups.push(g);
                 sharing.push(with);
@@ -228,7 +222,7 @@ impl Repair for SharePoints {
             let least = self.params.min_shared;
             if let Some(with) = self
                 .params
-                .shared_with(tracks, seg, &assigned, &own, sigma, least)
+                .shared_with(ctx.stats, seg, &assigned, &own, sigma, least)
             {
                 grown.push((own, with));
             }
