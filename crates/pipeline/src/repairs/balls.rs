@@ -261,13 +261,11 @@ impl Repair for Balls {
         let mut out = poses.clone();
         let (mut warnings, mut points) = (Vec::new(), Vec::new());
         for (b, track) in poses.bodies.iter().enumerate() {
-            let shown = (0..poses.n_frames)
-                .filter(|&t| track.points.iter().any(|&i| tracks.get(t, i).is_some()))
-                .count();
-            let own = track.n_registered();
-            if own as f64 > self.params.max_reposed_share * shown as f64 {
+            let Some(own) =
+                super::sparsely_registered(tracks, track, self.params.max_reposed_share)
+            else {
                 continue;
-            }
+            };
             let Some(ball) = best_ball(&bounds, tracks, poses, &track.points, Some(b), sigma)
             else {
                 continue;

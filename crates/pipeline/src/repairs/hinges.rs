@@ -176,13 +176,7 @@ impl Hinges {
         (0..poses.bodies.len())
             .filter_map(|b| {
                 let track = &poses.bodies[b];
-                let shown = (0..poses.n_frames)
-                    .filter(|&t| track.points.iter().any(|&i| tracks.get(t, i).is_some()))
-                    .count();
-                let own = track.n_registered();
-                if own as f64 > self.params.max_reposed_share * shown as f64 {
-                    return None;
-                }
+                let own = super::sparsely_registered(tracks, track, self.params.max_reposed_share)?;
                 let h = best_hinge(
                     &self.params.bounds(),
                     tracks,

@@ -514,3 +514,17 @@ pub(crate) fn not_followed(model: &Model) -> Vec<(usize, usize)> {
 pub(crate) fn doubtful_joints(m: &Model) -> usize {
     multi_dof_joints(m) + not_followed(m).len() + typed_by_fit(m)
 }
+
+/// The frames `track` is registered in, when that is at most `max_share` of the frames that
+/// show one of its keypoints: a body the `hinges` and `balls` repairs may pose through a joint.
+pub(crate) fn sparsely_registered(
+    tracks: &Tracks,
+    track: &BodyTrack,
+    max_share: f64,
+) -> Option<usize> {
+    let shown = (0..tracks.n_frames())
+        .filter(|&t| track.points.iter().any(|&i| tracks.get(t, i).is_some()))
+        .count();
+    let own = track.n_registered();
+    (own as f64 <= max_share * shown as f64).then_some(own)
+}
