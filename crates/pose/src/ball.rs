@@ -179,8 +179,9 @@ fn second_spread(points: &[Point3<f64>]) -> f64 {
 /// keypoints, a keypoint with under 3 frames or under [`BallLimits::min_frames`] frames
 /// with the parent posed and two keypoints visible, a singular sphere fit, or no frame in
 /// which the centre and the visible keypoints spread. Whether the ball *holds* is the
-/// caller's decision, from [`Ball::chi2_per_dof`], [`Ball::rms_residual_m`] and
-/// [`Ball::centre_std_in_sigma`], and from `group_rigidity` (the same for every parent).
+/// caller's decision, from [`Ball::chi2_per_dof`], [`Ball::rms_residual_m`],
+/// [`Ball::centre_std_in_sigma`] and [`Ball::swing_in_sigma`], and from `group_rigidity` (the
+/// same for every parent).
 ///
 /// Method: in the parent's frame every keypoint stays on a sphere about the centre, so the
 /// centre is the common centre of spheres with one radius per keypoint (`sphere_centre`).
