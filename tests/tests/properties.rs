@@ -223,9 +223,9 @@ proptest! {
 }
 
 /// The model's structure holds together: labels name existing bodies, bodies partition the
-/// labelled points, parents form a tree rooted at `root_body`, every joint has one position
-/// slot per frame and, for a joint of more than one coordinate, as many per frame as its
-/// type has.
+/// labelled points (a shared point is listed by its second body too), parents form a tree
+/// rooted at `root_body`, every joint has one position slot per frame and, for a joint of
+/// more than one coordinate, as many per frame as its type has.
 fn consistent(m: &kinetree_core::Model) -> Result<(), TestCaseError> {
     let nb = m.bodies.len();
     for (i, &b) in m.point_body.iter().enumerate() {
@@ -234,9 +234,14 @@ fn consistent(m: &kinetree_core::Model) -> Result<(), TestCaseError> {
             prop_assert!(m.bodies[b as usize].points.contains(&i));
         }
     }
+    // A shared point is listed by its second body as well, on a body other than its first.
+    for &[p, b] in &m.shared_points {
+        prop_assert!(b < nb && m.bodies[b].points.contains(&p));
+        prop_assert!(m.point_body[p] >= 0 && m.point_body[p] != b as i64);
+    }
     prop_assert_eq!(
         m.bodies.iter().map(|b| b.points.len()).sum::<usize>(),
-        m.point_body.iter().filter(|&&b| b >= 0).count()
+        m.point_body.iter().filter(|&&b| b >= 0).count() + m.shared_points.len()
     );
     prop_assert!(m.bodies[m.root_body].parent.is_none());
     prop_assert_eq!(
