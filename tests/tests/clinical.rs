@@ -217,6 +217,7 @@ fn hands_and_feet_seen_through_two_markers_are_posed_through_their_ball_joint() 
             let map = body_map(&model, &data.truth);
             let mech = &data.truth.mechanism;
             let e = kinetree_eval::evaluate(&model, &data.truth);
+            let judged = judged_edges(&model, &data);
             for name in distal {
                 let Some(segment) = mech.bodies.iter().position(|b| b.name == name) else {
                     panic!("no segment {name}");
@@ -239,7 +240,6 @@ fn hands_and_feet_seen_through_two_markers_are_posed_through_their_ball_joint() 
                     .enumerate()
                     .find(|(_, j)| j.child == segment)
                     .expect("a joint");
-                let judged = judged_edges(&model, &data);
                 let (_, joined, typed) = judged.iter().find(|(n, _, _)| n == name).expect("judged");
                 assert!(
                     *joined && *typed,

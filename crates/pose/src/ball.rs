@@ -7,7 +7,7 @@
 //! fixed distance from that point in the posed body's frame: a sphere fit over the frames
 //! gives the centre, and the centre with two markers off its line fixes the pose.
 
-use kinetree_core::geom::{cam_from, centroid, kabsch};
+use kinetree_core::geom::{centroid, kabsch};
 use kinetree_core::nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, Vector3};
 use kinetree_core::{BodyPoses, BodyTrack, PoseQuality, Tracks};
 
@@ -160,18 +160,6 @@ fn kabsch_covariances(points: &[Point3<f64>], var: &[f64]) -> Option<(Matrix3<f6
     Some((rot, origin))
 }
 
-/// RMS spread of `points` along their second principal direction.
-fn second_spread(points: &[Point3<f64>]) -> f64 {
-    let g = centroid(points);
-    let mut s = Matrix3::zeros();
-    for p in points {
-        let d = p - g;
-        s += d * d.transpose();
-    }
-    let ev = kinetree_core::geom::symmetric_eigenvalues_3x3(&s);
-    (ev[1].max(0.0) / points.len() as f64).sqrt()
-}
-
 /// Fits a ball joint between `parent`'s poses (`None`: the camera frame) and the keypoints
 /// `points`, and poses them through it. Returns `None` for a parent that is not a body of
 /// `poses`, a noise level that is not a positive number, tracks and poses of different
@@ -207,10 +195,11 @@ pub fn balled_body(
     {
         return None;
     }
-    let parent_pose = |t: usize| -> Option<(Isometry3<f64>, Option<PoseQuality>)> {
-        let quality = parent.and_then(|b| poses.bodies[b].quality[t]);
-        cam_from(poses, parent, t).map(|p| (p, quality))
-    };
+    // The parent's pose in every frame, read once.
+    let parent_at: Vec<Option<(Isometry3<f64>, Option<PoseQuality>)>> = (0..nt)
+        .map(|t| crate::hinge::parent_pose(poses, parent, t))
+        .collect();
+    let parent_pose = |t: usize| parent_at[t];
     // Samples in the parent's frame, in the frames that show two keypoints.
     let frames: Vec<usize> = (0..nt)
         .filter(|&t| {
@@ -219,7 +208,7 @@ pub fn balled_body(
                 .filter(|&&i| tracks.get(t, i).is_some())
                 .count()
                 >= 2
-                && parent_pose(t).is_some()
+                && parent_at[t].is_some()
         })
         .collect();
     let mut z: Vec<Vec<Option<Point3<f64>>>> = vec![vec![None; nt]; m];
@@ -290,7 +279,7 @@ pub fn balled_body(
             .map(|k| shape[k])
             .chain(std::iter::once(shape[m]))
             .collect();
-        second_spread(&pts) >= limits.min_lever_in_sigma * sigma
+        crate::spread(&pts)[1] >= limits.min_lever_in_sigma * sigma
     };
     let relative = |shape: &[Point3<f64>], t: usize| -> Option<Isometry3<f64>> {
         let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = (0..m)

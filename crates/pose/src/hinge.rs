@@ -86,6 +86,17 @@ fn turn(axis: &Unit<Vector3<f64>>, pivot: &Point3<f64>, angle: f64) -> Isometry3
     Isometry3::from_parts(Translation3::from(pivot.coords - r * pivot.coords), r)
 }
 
+/// `parent`'s pose in frame `t` (`None`: the camera frame, exact) with its fit quality, as the
+/// hinge and ball fits read it; `None` where the parent is not posed.
+pub(crate) fn parent_pose(
+    poses: &BodyPoses,
+    parent: Option<usize>,
+    t: usize,
+) -> Option<(Isometry3<f64>, Option<PoseQuality>)> {
+    let quality = parent.and_then(|b| poses.bodies[b].quality[t]);
+    cam_from(poses, parent, t).map(|p| (p, quality))
+}
+
 /// Distance of `p` from the line through `pivot` along unit `a`.
 fn distance_from_axis(p: &Point3<f64>, pivot: &Point3<f64>, a: &Vector3<f64>) -> f64 {
     let d = p - pivot;
@@ -351,10 +362,7 @@ pub fn hinged_body(
     {
         return None;
     }
-    let parent_pose = |t: usize| -> Option<(Isometry3<f64>, Option<PoseQuality>)> {
-        let quality = parent.and_then(|b| poses.bodies[b].quality[t]);
-        cam_from(poses, parent, t).map(|p| (p, quality))
-    };
+    let parent_pose = |t: usize| parent_pose(poses, parent, t);
     // Samples in the parent's frame.
     let mut z: Vec<Vec<Option<Point3<f64>>>> = vec![vec![None; nt]; m];
     let mut frames = Vec::new();

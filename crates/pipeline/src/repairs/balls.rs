@@ -417,12 +417,15 @@ impl Repair for BallGroups {
             self.params.explained_bound_in_std,
             self.params.explained_slack,
         );
-        let left = super::unassigned_points(tracks, seg, self.params.min_frames);
-        let free = |i: &usize| {
-            left.contains(i)
-                && !(0..poses.bodies.len())
-                    .any(|b| kinetree_pose::explains_point(tracks, poses, b, *i, sigma, explained))
-        };
+        // Points on no body that no body's poses explain, ascending; each tested once.
+        let free: Vec<usize> = super::unassigned_points(tracks, seg, self.params.min_frames)
+            .into_iter()
+            .filter(|&i| {
+                !(0..poses.bodies.len())
+                    .any(|b| kinetree_pose::explains_point(tracks, poses, b, i, sigma, explained))
+            })
+            .collect();
+        let is_free = |i: &usize| free.binary_search(i).is_ok();
         let bounds = self.params.bounds();
         // The candidates: the clusters discarded as too small, then pairs of the other free
         // points that are rigid together (the clustering may leave a segment's two markers
@@ -430,25 +433,20 @@ impl Repair for BallGroups {
         let mut candidates: Vec<Vec<usize>> = seg
             .discarded_groups
             .iter()
-            .map(|g| g.iter().copied().filter(free).collect::<Vec<usize>>())
+            .map(|g| g.iter().copied().filter(is_free).collect::<Vec<usize>>())
             .filter(|g| g.len() >= self.params.min_points)
             .collect();
-        let mut rest: Vec<usize> = left
+        let rest: Vec<usize> = free
             .iter()
             .copied()
-            .filter(|i| free(i) && !candidates.iter().flatten().any(|j| j == i))
+            .filter(|i| !candidates.iter().flatten().any(|j| j == i))
             .collect();
         let rigid = |g: &[usize]| {
             let (chi2, dof) = ctx.stats.rigidity(g, sigma);
             dof > 0.0 && chi2 <= kinetree_pose::misfit_bound(dof, bounds.bound_in_std, bounds.slack)
         };
         if self.params.min_points <= 2 {
-            while let Some(a) = rest.first().copied() {
-                rest.remove(0);
-                if let Some(k) = rest.iter().position(|&b| rigid(&[a, b])) {
-                    candidates.push(vec![a, rest.remove(k)]);
-                }
-            }
+            candidates.extend(super::rigid_pairs(rest, |a, b| rigid(&[a, b])));
         }
         let mut groups: Vec<Vec<usize>> = candidates
             .into_iter()

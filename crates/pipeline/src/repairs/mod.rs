@@ -528,3 +528,19 @@ pub(crate) fn sparsely_registered(
     let own = track.n_registered();
     (own as f64 <= max_share * shown as f64).then_some(own)
 }
+
+/// `points` paired greedily in order: each with the first later point `rigid` with it, the
+/// two then taken out. Two markers of a segment the clustering left apart become a pair.
+pub(crate) fn rigid_pairs(
+    mut points: Vec<usize>,
+    rigid: impl Fn(usize, usize) -> bool,
+) -> Vec<Vec<usize>> {
+    let mut pairs = Vec::new();
+    while !points.is_empty() {
+        let a = points.remove(0);
+        if let Some(k) = points.iter().position(|&b| rigid(a, b)) {
+            pairs.push(vec![a, points.remove(k)]);
+        }
+    }
+    pairs
+}

@@ -182,19 +182,13 @@ impl Repair for SharePoints {
             })
             .filter(|g| !g.is_empty() && g.len() < MIN_BODY_POINTS)
             .collect();
-        let mut rest: Vec<usize> = (0..tracks.n_points())
+        let rest: Vec<usize> = (0..tracks.n_points())
             .filter(|&i| seg.body_of(i).is_none() && seen(i))
             .filter(|i| !candidates.iter().flatten().any(|j| j == i))
             .collect();
-        while let Some(a) = rest.first().copied() {
-            rest.remove(0);
-            if let Some(k) = rest
-                .iter()
-                .position(|&b| self.params.rigid(ctx.stats, &[a, b], sigma))
-            {
-                candidates.push(vec![a, rest.remove(k)]);
-            }
-        }
+        candidates.extend(super::rigid_pairs(rest, |a, b| {
+            self.params.rigid(ctx.stats, &[a, b], sigma)
+        }));
         let mut groups: Vec<Vec<usize>> = Vec::new();
         let mut sharing: Vec<Vec<usize>> = Vec::new();
         for g in candidates {
