@@ -173,7 +173,7 @@ proptest! {
                 pairs.push(pair(Some(a), b, if kind == 0 { 3 } else { kind }, fit));
             }
         }
-        let tree = kinetree_structure::spanning_tree(n, &pairs).expect("tree");
+        let tree = kinetree_structure::spanning_tree(n, &pairs, &kinetree_core::TreeCosts::default()).expect("tree");
         let edges = tree.parent.iter().filter(|p| p.is_some()).count();
         prop_assert_eq!(edges, n - 1);
         prop_assert!(tree.parent[tree.root].is_none());

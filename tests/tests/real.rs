@@ -27,12 +27,16 @@ struct Outcome {
 }
 
 fn run(folder: &'static str) -> Outcome {
+    run_with(folder, "")
+}
+
+/// [`run`] with `extra` (TOML of the `[pipeline]` table) appended to the pipeline.
+fn run_with(folder: &'static str, extra: &str) -> Outcome {
     let dir = kinetree_tests::real_data(folder);
     let tracks = kinetree_io::read_c3d(&kinetree_tests::real_c3d(folder)).expect("read");
-    let cfg = kinetree_pipeline::config::pipeline_from_toml(
-        &std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml"),
-    )
-    .expect("config");
+    let text = std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml");
+    let cfg =
+        kinetree_pipeline::config::pipeline_from_toml(&format!("{text}\n{extra}")).expect("config");
     let model = Pipeline::from_config(&cfg)
         .expect("pipeline")
         .run(&tracks)
@@ -219,6 +223,23 @@ fn real_recordings_segment_into_their_labelled_segments() {
             o.folder
         );
     }
+}
+
+/// The tree's preference for near pairs is what hangs the triads' thighs on the pelvis: with
+/// `[pipeline.tree] adjacency_weight = 0` the same bodies give fewer anatomical edges.
+#[test]
+fn without_the_adjacency_term_the_triads_lose_anatomical_edges() {
+    let with = run("c3dorg-fullbody-triads");
+    let without = run_with("c3dorg-fullbody-triads", "[tree]\nadjacency_weight = 0.0\n");
+    assert_eq!(with.model.bodies.len(), without.model.bodies.len());
+    let (a, b) = (
+        anatomical_edges(&with, TRIADS_EDGES),
+        anatomical_edges(&without, TRIADS_EDGES),
+    );
+    assert!(
+        b + 2 <= a,
+        "{a} anatomical edges with the term, {b} without"
+    );
 }
 
 /// The full-body triads' anatomical tree, by the segment names of `segments.json`.

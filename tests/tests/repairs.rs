@@ -572,6 +572,15 @@ fn repair_parameter_rules_name_the_key() {
             "pipeline.positions.min_smoothed_frames",
         ),
         ("[positions]\nbogus = 1", "pipeline.positions"),
+        (
+            "[tree]\nadjacency_weight = -1.0",
+            "pipeline.tree.adjacency_weight",
+        ),
+        (
+            "[tree]\ntie_fit_margin = inf",
+            "pipeline.tree.tie_fit_margin",
+        ),
+        ("[tree]\nbogus = 1", "pipeline.tree"),
     ];
     for (text, key) in rows {
         let err = pipeline_from_toml(text)

@@ -121,7 +121,7 @@ fn dof_graph_and_tree_on_the_paper_arm() {
     // Camera-link1, base-link1, link1-link2 (nodes are body + 1).
     assert_eq!(single_dof, vec![(0, 2), (1, 2), (2, 3)]);
     assert_eq!(paper_chain(3, pairs), Some(vec![0, 1, 2]));
-    let tree = spanning_tree(3, pairs).expect("tree");
+    let tree = spanning_tree(3, pairs, &kinetree_core::TreeCosts::default()).expect("tree");
     assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
     assert!(tree.root_is_static);
 }

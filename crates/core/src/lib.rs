@@ -14,6 +14,7 @@ mod segmentation;
 mod stage;
 pub mod stats;
 mod tracks;
+mod tree;
 mod warning;
 
 pub use error::{Error, Result};
@@ -31,4 +32,5 @@ pub use stage::{
     PoseEstimator, PoseInput,
 };
 pub use tracks::{MAX_COORDINATE, MIN_FRAMES, MIN_POINTS, Tracks};
+pub use tree::TreeCosts;
 pub use warning::{NotIdentifiableBasis, Warning};

@@ -90,6 +90,8 @@ pub struct RepairContext<'a> {
     pub models: Option<&'a dyn ModelMaker>,
     /// Seed for any random choice.
     pub seed: u64,
+    /// The spanning tree's preferences, for repairs that build trees.
+    pub tree: crate::TreeCosts,
 }
 
 /// Decisions the repairs have made that later steps must respect. They are typed here, not

@@ -31,7 +31,7 @@ pub(crate) fn assemble(
     excluded: &[(usize, usize)],
 ) -> Result<ModelDraft> {
     let nb = seg.n_bodies();
-    let tree = kinetree_structure::spanning_tree_without(nb, &pairs, excluded)
+    let tree = kinetree_structure::spanning_tree_without(nb, &pairs, excluded, &pipeline.tree)
         .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
     // Model numbering: tree (breadth-first) order.
     let order = tree.order.clone();

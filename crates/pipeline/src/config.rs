@@ -221,6 +221,9 @@ pub struct PipelineConfig {
     /// When the whole-tree fit reports a joint position unknown, and when it smooths one
     /// (`[pipeline.positions]`; the model carries them for later observations).
     pub positions: PositionLimits,
+    /// How the spanning tree weighs pairs beyond their DoF test: the bodies' distance and
+    /// the exact ties' fit margin (`[pipeline.tree]`).
+    pub tree: kinetree_core::TreeCosts,
     /// Which samples are impossible and dropped before anything else (`[pipeline.outliers]`).
     pub outliers: crate::outliers::OutlierParams,
     /// Memory a run may use, GiB (default
@@ -252,6 +255,7 @@ impl Default for PipelineConfig {
             repairs: RepairsConfig::default(),
             runner: RunnerParams::default(),
             positions: PositionLimits::default(),
+            tree: kinetree_core::TreeCosts::default(),
             outliers: crate::outliers::OutlierParams::default(),
             max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
             max_minutes: kinetree_core::limits::DEFAULT_MAX_MINUTES,
@@ -284,7 +288,7 @@ impl PipelineConfig {
     }
 
     /// Checks what the stages' and repairs' constructors do not: the noise level, the
-    /// `halves` slot's cluster count, the repairs', runner's and positions' ranges.
+    /// `halves` slot's cluster count, the repairs', runner's, tree's and positions' ranges.
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] naming the key.
@@ -324,6 +328,7 @@ impl PipelineConfig {
         kinetree_core::limits::validate_limit("pipeline.max_memory_gib", self.max_memory_gib)?;
         kinetree_core::limits::validate_minutes("pipeline.max_minutes", self.max_minutes)?;
         self.outliers.validate()?;
+        self.tree.validate("pipeline.tree")?;
         self.positions.validate("pipeline.positions")
     }
 

@@ -33,6 +33,8 @@ pub struct Pipeline {
     /// When a joint position is reported unknown, and when positions are smoothed; written
     /// into the model.
     pub positions: kinetree_core::model::PositionLimits,
+    /// The spanning tree's preferences ([`PipelineConfig::tree`]).
+    pub tree: kinetree_core::TreeCosts,
     /// Per-coordinate noise, metres; estimated when `None`.
     pub noise_sigma_m: Option<f64>,
     /// How the noise is estimated when `noise_sigma_m` is `None`.
@@ -112,6 +114,7 @@ impl Pipeline {
             repairs: c.repairs.build()?,
             runner: c.runner,
             positions: c.positions,
+            tree: c.tree,
             noise_sigma_m: c.noise_sigma_m,
             noise_estimator: c.noise_estimator,
             seed: c.seed,

@@ -236,6 +236,7 @@ pub(crate) fn grouping(
                 stages: slots(p),
                 models: None,
                 seed: p.seed,
+                tree: p.tree,
             };
             let Some(proposal) = r.propose(&ctx, &Draft::new(seg.clone()))? else {
                 continue;
@@ -389,6 +390,7 @@ impl<'a> Runner<'a> {
             stages: slots(self.pipeline),
             models: Some(self),
             seed: self.pipeline.seed,
+            tree: self.pipeline.tree,
         }
     }
 

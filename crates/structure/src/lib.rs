@@ -5,7 +5,7 @@ use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{
     Isometry3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3, Vector4,
 };
-use kinetree_core::{BodyPoses, JointKind, PairDof, RankTest};
+use kinetree_core::{BodyPoses, JointKind, PairDof, RankTest, TreeCosts};
 use petgraph::graph::{NodeIndex, UnGraph};
 
 /// A node of the DoF graph.
@@ -132,10 +132,10 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 /// without a static body, at a body on a single-DoF joint with the camera (an arm's first link
 /// on an unseen base), else at a centre of the largest tree (fewest edges to its farthest
 /// body), the one that turns least among several.
-/// Prefers single-DoF edges with the best fit (minimum spanning tree on `edge_cost`-style
-/// costs, computed by petgraph's Kruskal).
-pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof]) -> Option<Tree> {
-    spanning_tree_without(n_bodies, pairs, &[])
+/// Prefers single-DoF edges with the best fit, then near pairs, as `costs` weighs them
+/// (minimum spanning tree on `edge_cost`-style costs, computed by petgraph's Kruskal).
+pub fn spanning_tree(n_bodies: usize, pairs: &[PairDof], costs: &TreeCosts) -> Option<Tree> {
+    spanning_tree_without(n_bodies, pairs, &[], costs)
 }
 
 /// [`spanning_tree`] with the edges between the body pairs in `excluded` (either order) left
@@ -144,6 +144,7 @@ pub fn spanning_tree_without(
     n_bodies: usize,
     pairs: &[PairDof],
     excluded: &[(usize, usize)],
+    tree_costs: &TreeCosts,
 ) -> Option<Tree> {
     if n_bodies == 0 {
         return None;
@@ -156,7 +157,7 @@ pub fn spanning_tree_without(
         .iter()
         .copied()
         .max_by_key(|&s| (posed[s], std::cmp::Reverse(s)));
-    let costs = edge_costs(n_bodies, pairs);
+    let costs = edge_costs(n_bodies, pairs, tree_costs);
     let mut g: UnGraph<usize, f64> = UnGraph::with_capacity(n_bodies, pairs.len());
     for b in 0..n_bodies {
         g.add_node(b);
@@ -203,7 +204,13 @@ pub fn spanning_tree_without(
         }
         i += 1;
     }
-    if hoist_ties(&mut parent, &order, pairs, excluded) {
+    if hoist_ties(
+        &mut parent,
+        &order,
+        pairs,
+        excluded,
+        tree_costs.tie_fit_margin,
+    ) {
         order = breadth_first(root, &parent);
     }
     order.extend((0..n_bodies).filter(|&b| !seen[b]));
@@ -214,12 +221,6 @@ pub fn spanning_tree_without(
         order,
     })
 }
-
-/// How much worse (in fit ratio, the largest rejected singular value over its threshold) a
-/// body's single-DoF pair with its grandparent may fit than its pair with its parent for the
-/// two to count as tied (`docs/decisions.md`). Ties beyond it ([`fit_margin_ties`]) are left
-/// to a whole-tree fit (the pipeline's `sibling_ties` repair).
-pub const TIE_FIT_MARGIN: f64 = 0.3;
 
 /// The kinds of joint between which a tree can tie: about a fixed centre (spherical or
 /// universal), a hinge, a slide.
@@ -239,8 +240,9 @@ enum TieKind {
 /// - the parent's own joint, the child's joint with it and the child's pair with the
 ///   grandparent are all hinges, or all slides: two fingers sliding along one axis, or two
 ///   jaws turning on one pin, move relative to each other by a joint of the same type. The
-///   child carries no other body and its pair with the grandparent fits within
-///   [`TIE_FIT_MARGIN`] of its pair with the parent: two serial joints whose axes are a few
+///   child carries no other body and its pair with the grandparent fits within `margin`
+///   ([`TreeCosts::tie_fit_margin`], in fit ratio: the largest rejected singular value over
+///   its threshold) of its pair with the parent: two serial joints whose axes are a few
 ///   degrees apart pass a single-DoF test across both marginally, and a link that carries
 ///   others is no gripper's finger.
 ///
@@ -252,6 +254,7 @@ fn hoist_ties(
     order: &[usize],
     pairs: &[PairDof],
     excluded: &[(usize, usize)],
+    margin: f64,
 ) -> bool {
     let fit =
         |a: usize, b: usize| find_pair(pairs, Some(a), b).map_or(f64::INFINITY, |p| p.fit_ratio);
@@ -261,7 +264,7 @@ fn hoist_ties(
         Some(TieKind::Centred) => tie_kind(pairs, excluded, w, v) == Some(TieKind::Centred),
         Some(_) => {
             single_dof_triangle(pairs, excluded, w, u, v)
-                && fit(w, v) <= fit(u, v) + TIE_FIT_MARGIN
+                && fit(w, v) <= fit(u, v) + margin
                 && !carries_others
         }
         None => false,
@@ -412,24 +415,16 @@ fn posed_frames(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
         .collect()
 }
 
-/// Weight of a pair's distance in the spanning tree's edge cost: the distance between the
-/// two bodies' centroids over the median of every body pair's, at most [`ADJACENCY_CAP`],
-/// times this. A joint joins neighbours: on skin markers many far pairs pass a loose test as
-/// hinges (`docs/decisions.md`).
-pub const ADJACENCY_WEIGHT: f64 = 0.2;
-
-/// Largest relative distance [`ADJACENCY_WEIGHT`] counts.
-pub const ADJACENCY_CAP: f64 = 2.0;
-
-/// What the spanning tree's edge costs share: each body's posed frames ([`posed_frames`]) and
-/// the median distance between two bodies' centroids over every body pair.
+/// What the spanning tree's edge costs share: each body's posed frames ([`posed_frames`]),
+/// the median distance between two bodies' centroids over every body pair, and the weights.
 struct CostScale {
     posed: Vec<usize>,
     distance: Option<f64>,
+    costs: TreeCosts,
 }
 
 impl CostScale {
-    fn of(n_bodies: usize, pairs: &[PairDof]) -> Self {
+    fn of(n_bodies: usize, pairs: &[PairDof], costs: &TreeCosts) -> Self {
         let mut d: Vec<f64> = pairs
             .iter()
             .filter(|p| p.a.is_some())
@@ -440,15 +435,18 @@ impl CostScale {
         Self {
             posed: posed_frames(n_bodies, pairs),
             distance: d.get(d.len() / 2).copied().filter(|&m| m > 0.0),
+            costs: *costs,
         }
     }
 
     /// The spanning tree's cost of a pair between bodies `a` and `p.b`: [`edge_cost`] with
     /// its [`missed_share`], and the pair's distance (adjacent bodies first: a joint joins
-    /// neighbours).
+    /// neighbours; [`TreeCosts::adjacency_weight`]).
     fn cost(&self, p: &PairDof, a: usize) -> f64 {
         let near = match (p.distance_m, self.distance) {
-            (Some(d), Some(m)) if d.is_finite() => ADJACENCY_WEIGHT * (d / m).min(ADJACENCY_CAP),
+            (Some(d), Some(m)) if d.is_finite() => {
+                self.costs.adjacency_weight * (d / m).min(self.costs.adjacency_cap)
+            }
             _ => 0.0,
         };
         edge_cost(p, missed_share(p, self.posed[a].min(self.posed[p.b]))) + near
@@ -456,8 +454,8 @@ impl CostScale {
 }
 
 /// [`CostScale::cost`] of every pair between two bodies; `None` for pairs with the camera.
-fn edge_costs(n_bodies: usize, pairs: &[PairDof]) -> Vec<Option<f64>> {
-    let scale = CostScale::of(n_bodies, pairs);
+fn edge_costs(n_bodies: usize, pairs: &[PairDof], costs: &TreeCosts) -> Vec<Option<f64>> {
+    let scale = CostScale::of(n_bodies, pairs, costs);
     pairs.iter().map(|p| Some(scale.cost(p, p.a?))).collect()
 }
 
@@ -469,8 +467,9 @@ pub fn near_tied_edges(
     pairs: &[PairDof],
     tree: &Tree,
     margin: f64,
+    costs: &TreeCosts,
 ) -> Vec<(usize, usize)> {
-    let scale = CostScale::of(n_bodies, pairs);
+    let scale = CostScale::of(n_bodies, pairs, costs);
     let cost_of = |a: usize, b: usize| {
         let p = find_pair(pairs, Some(a), b).filter(|p| p.joint.is_single_dof())?;
         Some(scale.cost(p, p.a?))
@@ -660,7 +659,7 @@ mod tests {
             pair(Some(0), 2, ball(), 0.9),
             pair(Some(1), 2, ball(), 0.1),
         ];
-        let tree = spanning_tree(3, &pairs).expect("tree");
+        let tree = spanning_tree(3, &pairs, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
         assert_eq!(tree.order, vec![0, 1, 2]);
         // A parent turning on a hinge through the centre ties the same way.
@@ -674,15 +673,16 @@ mod tests {
             },
             0.5,
         );
-        let tree = spanning_tree(3, &hinge).expect("tree");
+        let tree = spanning_tree(3, &hinge, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
         // Without a ball joint to the grandparent, the body stays where the tree hung it.
         let mut chain = pairs.clone();
         chain[4] = pair(Some(0), 2, JointKind::MultiDof, 0.0);
-        let tree = spanning_tree(3, &chain).expect("tree");
+        let tree = spanning_tree(3, &chain, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
         // Excluded edges are not taken back by the hoisting.
-        let tree = spanning_tree_without(3, &pairs, &[(0, 2)]).expect("tree");
+        let tree =
+            spanning_tree_without(3, &pairs, &[(0, 2)], &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
     }
 
@@ -712,16 +712,30 @@ mod tests {
                 at(pair(Some(1), 2, JointKind::MultiDof, 0.0), 0.4),
             ]
         };
-        let tree = spanning_tree(4, &pairs(0.3)).expect("tree");
+        let tree = spanning_tree(4, &pairs(0.3), &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent[3], Some(2));
-        let tree = spanning_tree(4, &pairs(0.0)).expect("tree");
+        let tree = spanning_tree(4, &pairs(0.0), &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent[3], Some(2));
+        // With the distance weighed at zero, or capped at the median's, the better fit wins.
+        for costs in [
+            TreeCosts {
+                adjacency_weight: 0.0,
+                ..TreeCosts::default()
+            },
+            TreeCosts {
+                adjacency_cap: 0.0,
+                ..TreeCosts::default()
+            },
+        ] {
+            let tree = spanning_tree(4, &pairs(0.0), &costs).expect("tree");
+            assert_eq!(tree.parent[3], Some(1));
+        }
         // Without distances the better fit wins.
         let mut bare = pairs(0.0);
         for p in &mut bare {
             p.distance_m = None;
         }
-        let tree = spanning_tree(4, &bare).expect("tree");
+        let tree = spanning_tree(4, &bare, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent[3], Some(1));
     }
 
@@ -730,6 +744,8 @@ mod tests {
     /// nothing; a body that carries another, or a pair of another type, is no tie.
     #[test]
     fn slides_beyond_the_fit_margin_are_listed_as_ties() {
+        const TIE_FIT_MARGIN: f64 = 0.3;
+        assert_eq!(TreeCosts::default().tie_fit_margin, TIE_FIT_MARGIN);
         let slide = || JointKind::Prismatic { axis: Vector3::x() };
         let pairs = |grandparent_fit: f64| {
             vec![
@@ -742,11 +758,18 @@ mod tests {
             ]
         };
         let far = pairs(0.3 + TIE_FIT_MARGIN + 0.2);
-        let tree = spanning_tree(3, &far).expect("tree");
+        let tree = spanning_tree(3, &far, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
         assert_eq!(fit_margin_ties(&far, &tree), vec![(0, 1, 2)]);
+        // A wider margin takes the same pairs for an exact tie.
+        let wide = TreeCosts {
+            tie_fit_margin: TIE_FIT_MARGIN + 0.3,
+            ..TreeCosts::default()
+        };
+        let tree = spanning_tree(3, &far, &wide).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
         let near = pairs(0.3 + TIE_FIT_MARGIN / 2.0);
-        let tree = spanning_tree(3, &near).expect("tree");
+        let tree = spanning_tree(3, &near, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(0)]);
         assert!(fit_margin_ties(&near, &tree).is_empty());
         // A hinge among the three pairs: no tie.
@@ -760,7 +783,7 @@ mod tests {
             },
             0.3,
         );
-        let tree = spanning_tree(3, &mixed).expect("tree");
+        let tree = spanning_tree(3, &mixed, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
         assert!(fit_margin_ties(&mixed, &tree).is_empty());
         // The middle body's child carries a body of its own: not a finger.

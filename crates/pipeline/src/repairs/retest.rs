@@ -107,8 +107,9 @@ impl Repair for Retest {
         let pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m)?;
         // The rebuilt model costs as much as the first: build it only if its tree has fewer
         // multi-DoF edges or gives a joint the fit did not follow another parent.
-        let tree = kinetree_structure::spanning_tree(draft.segmentation.n_bodies(), &pairs)
-            .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
+        let tree =
+            kinetree_structure::spanning_tree(draft.segmentation.n_bodies(), &pairs, &ctx.tree)
+                .ok_or_else(|| Error::Degenerate("no bodies".into()))?;
         let multi_edges = (0..tree.parent.len())
             .filter_map(|child| Some((tree.parent[child]?, child)))
             .filter(|&(p, c)| {

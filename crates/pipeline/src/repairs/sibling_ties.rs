@@ -93,7 +93,7 @@ impl Repair for SiblingTies {
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
         let (models, first, poses, pairs) = tree_inputs(self.name(), ctx, draft)?;
         let nb = draft.segmentation.n_bodies();
-        let Some(tree) = kinetree_structure::spanning_tree(nb, pairs) else {
+        let Some(tree) = kinetree_structure::spanning_tree(nb, pairs, &ctx.tree) else {
             return Ok(None);
         };
         let ties = kinetree_structure::fit_margin_ties(pairs, &tree);
@@ -105,7 +105,7 @@ impl Repair for SiblingTies {
         let mut best: Option<((usize, usize), f64)> = None;
         for (w, u, v) in ties.into_iter().take(self.params.max_alternatives) {
             let edge = (u, v);
-            let hoisted = kinetree_structure::spanning_tree_without(nb, pairs, &[edge]);
+            let hoisted = kinetree_structure::spanning_tree_without(nb, pairs, &[edge], &ctx.tree);
             if hoisted.is_none_or(|t| t.parent[v] != Some(w)) {
                 continue;
             }

@@ -90,10 +90,11 @@ impl Repair for TreeTies {
         if nb > self.params.max_bodies {
             return Ok(None);
         }
-        let Some(tree) = kinetree_structure::spanning_tree(nb, pairs) else {
+        let Some(tree) = kinetree_structure::spanning_tree(nb, pairs, &ctx.tree) else {
             return Ok(None);
         };
-        let ties = kinetree_structure::near_tied_edges(nb, pairs, &tree, self.params.margin);
+        let ties =
+            kinetree_structure::near_tied_edges(nb, pairs, &tree, self.params.margin, &ctx.tree);
         if ties.is_empty() {
             return Ok(None);
         }

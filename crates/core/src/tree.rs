@@ -1,0 +1,80 @@
+//! The spanning tree's preferences among pairs that pass the DoF test equally
+//! (`[pipeline.tree]`).
+
+use serde::{Deserialize, Serialize};
+
+/// How the spanning tree weighs a pair beyond its DoF test: the distance between the two
+/// bodies, and how close a grandparent's pair must fit for an exact tie (`docs/decisions.md`
+/// has the measurements behind each default).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TreeCosts {
+    /// Weight of a pair's distance in its edge cost: the distance between the two bodies'
+    /// centroids over the median of every body pair's, capped at `adjacency_cap`, times this
+    /// (default 0.2). A joint joins neighbours: on skin markers many far pairs pass a loose
+    /// test as hinges. 0 leaves the distance out.
+    pub adjacency_weight: f64,
+    /// Largest relative distance the weight counts (default 2), so a far pair costs at most
+    /// `adjacency_weight * adjacency_cap` more: less than a single-DoF edge's lead over a
+    /// multi-DoF one (1).
+    pub adjacency_cap: f64,
+    /// How much worse, in fit ratio, a body's single-DoF pair with its grandparent may fit than
+    /// its pair with its parent for the two to count as an exact tie (three hinges or three
+    /// slides), which hangs it on the grandparent (default 0.3). Ties beyond it are left to a
+    /// whole-tree fit (the `sibling_ties` repair).
+    pub tie_fit_margin: f64,
+}
+
+impl Default for TreeCosts {
+    fn default() -> Self {
+        Self {
+            adjacency_weight: 0.2,
+            adjacency_cap: 2.0,
+            tie_fit_margin: 0.3,
+        }
+    }
+}
+
+impl TreeCosts {
+    /// Checks the ranges; `section` names the config section in the error.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidParameter`] naming `<section>.<parameter>`.
+    pub fn validate(&self, section: &str) -> crate::Result<()> {
+        for (field, v, max) in [
+            ("adjacency_weight", self.adjacency_weight, 1e3),
+            ("adjacency_cap", self.adjacency_cap, 1e6),
+            ("tie_fit_margin", self.tie_fit_margin, 1e3),
+        ] {
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                return Err(crate::Error::InvalidParameter {
+                    name: format!("{section}.{field}"),
+                    message: format!("must be within [0, {max}], got {v}"),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn out_of_range_costs_are_named() {
+        assert!(TreeCosts::default().validate("pipeline.tree").is_ok());
+        let bad = TreeCosts {
+            adjacency_weight: -0.1,
+            ..TreeCosts::default()
+        };
+        let e = bad.validate("pipeline.tree").unwrap_err().to_string();
+        assert!(e.contains("pipeline.tree.adjacency_weight"), "{e}");
+        let bad = TreeCosts {
+            tie_fit_margin: f64::NAN,
+            ..TreeCosts::default()
+        };
+        let e = bad.validate("pipeline.tree").unwrap_err().to_string();
+        assert!(e.contains("pipeline.tree.tie_fit_margin"), "{e}");
+    }
+}
