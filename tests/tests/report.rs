@@ -242,6 +242,17 @@ centre of the joints found is 1.04 mm against SCoRE's 1.84 mm (medians). The dri
 segments: 11-15 bodies at 5 mm and 9-13 at 10 mm, the worst centre 8.3 and 17.5 mm against
 SCoRE's 13.1 and 24.4 mm on the true segmentation.
 
+### A subject and a static scene (experiments/sweeps/scene.toml)
+
+{scene}
+The floating skeletons of skeleton-floating.toml walking past a box with six markers on the
+floor. The box is static and becomes the root. No joint holds the person to it: every
+segment's pair with the box is multi-DoF, and the cheapest of those edges joins whichever
+segment's motion tested nearest a joint (a shank in the draws looked at), so the tree ran
+from it back through the knee and the hip. The tree hangs such a subject by the body it
+would root the subject at with nothing static, its pelvis (`[pipeline.tree] min_free_dof`,
+the rows with `{{}}`); the rows with the rule off show the trees it replaces.
+
 ## Real recordings (experiments/real)
 
 Five motion-capture recordings by others: full-body triads, gait clusters, wheelchair racing
@@ -288,6 +299,7 @@ error absorbed.
         slender = body("experiments/sweeps/results/slender/table.md"),
         universal = body("experiments/sweeps/results/universal/table.md"),
         clinical = body("experiments/sweeps/results/clinical/table.md"),
+        scene = body("experiments/sweeps/results/scene/table.md"),
         real = body("experiments/real/results.md"),
     )
 }

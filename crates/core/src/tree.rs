@@ -1,5 +1,5 @@
-//! The spanning tree's preferences among pairs that pass the DoF test equally
-//! (`[pipeline.tree]`).
+//! The spanning tree's preferences among pairs that pass the DoF test equally, and where it
+//! hangs a subject that moves freely past a static scene (`[pipeline.tree]`).
 
 use serde::{Deserialize, Serialize};
 
@@ -23,6 +23,11 @@ pub struct TreeCosts {
     /// slides), which hangs it on the grandparent (default 0.3). Ties beyond it are left to a
     /// whole-tree fit (the `sibling_ties` repair).
     pub tie_fit_margin: f64,
+    /// A body's pair with the static root of no joint type and at least this many DoF makes
+    /// the body's side of the tree a subject moving freely past the scene, which the tree
+    /// hangs by its own root, as it would with nothing static (default 4: more than any joint
+    /// the tests type has). Above 6 turns the rule off.
+    pub min_free_dof: usize,
 }
 
 impl Default for TreeCosts {
@@ -31,6 +36,7 @@ impl Default for TreeCosts {
             adjacency_weight: 0.2,
             adjacency_cap: 2.0,
             tie_fit_margin: 0.3,
+            min_free_dof: 4,
         }
     }
 }
@@ -53,7 +59,7 @@ impl TreeCosts {
                 });
             }
         }
-        Ok(())
+        crate::limits::check_count(&format!("{section}.min_free_dof"), self.min_free_dof, 1, 7)
     }
 }
 

@@ -128,7 +128,8 @@ fn missed_share(p: &PairDof, seen: usize) -> f64 {
 }
 
 /// Spanning tree over bodies rooted at the static body (the one posed in the most frames if
-/// several, then the lowest-numbered);
+/// several, then the lowest-numbered), a subject moving freely past it hung by the subject's
+/// own root (`hang_subjects_by_their_root`);
 /// without a static body, at a body on a single-DoF joint with the camera (an arm's first link
 /// on an unseen base), else at a centre of the largest tree (fewest edges to its farthest
 /// body), the one that turns least among several.
@@ -185,7 +186,10 @@ pub fn spanning_tree_without(
         a.sort_unstable();
     }
     let (root, root_is_static) = match most_posed {
-        Some(s) => (s, true),
+        Some(s) => {
+            hang_subjects_by_their_root(&mut adj, s, pairs, excluded, tree_costs.min_free_dof);
+            (s, true)
+        }
         None => (floating_root(pairs, &adj)?, false),
     };
     let mut parent = vec![None; n_bodies];
@@ -349,6 +353,11 @@ fn breadth_first(root: usize, parent: &[Option<usize>]) -> Vec<usize> {
 /// skeletons a shank turned less than the pelvis, so the least turn alone is only the
 /// tie-break.
 fn floating_root(pairs: &[PairDof], adj: &[Vec<usize>]) -> Option<usize> {
+    root_among(pairs, adj, &vec![true; adj.len()])
+}
+
+/// [`floating_root`]'s rule among the bodies `among` marks.
+fn root_among(pairs: &[PairDof], adj: &[Vec<usize>], among: &[bool]) -> Option<usize> {
     let n = adj.len();
     let rms = |t: &RankTest| {
         let sum: f64 = t.singular_values.iter().map(|v| v * v).sum();
@@ -371,6 +380,7 @@ fn floating_root(pairs: &[PairDof], adj: &[Vec<usize>]) -> Option<usize> {
         tx.total_cmp(&ty).then(dx.total_cmp(&dy)).then(x.cmp(y))
     };
     let on_the_world: Vec<usize> = (0..n)
+        .filter(|&b| among[b])
         .filter(|&b| find_pair(pairs, None, b).is_some_and(|p| p.joint.is_single_dof()))
         .collect();
     if !on_the_world.is_empty() {
@@ -393,12 +403,15 @@ fn floating_root(pairs: &[PairDof], adj: &[Vec<usize>]) -> Option<usize> {
     };
     let (size, eccentricity): (Vec<usize>, Vec<usize>) = (0..n)
         .map(|b| {
+            if !among[b] {
+                return (0, usize::MAX);
+            }
             let d = hops(b);
             let reached = d.iter().filter(|&&h| h != usize::MAX);
             (reached.clone().count(), reached.copied().max().unwrap_or(0))
         })
         .unzip();
-    let largest = size.iter().copied().max()?;
+    let largest = size.iter().copied().max().filter(|&l| l > 0)?;
     let centre = (0..n)
         .filter(|&b| size[b] == largest)
         .map(|b| eccentricity[b])
@@ -406,6 +419,65 @@ fn floating_root(pairs: &[PairDof], adj: &[Vec<usize>]) -> Option<usize> {
     (0..n)
         .filter(|&b| size[b] == largest && eccentricity[b] == centre)
         .min_by(least)
+}
+
+/// Hangs each subject that moves freely relative to the static `root` by its own root: where
+/// the tree joins a body `c` to the root by a multi-DoF pair of at least `min_dof` DoF (no
+/// joint: a person walking past a static object), the bodies on `c`'s side are a subject, and
+/// the one
+/// [`floating_root`]'s rule picks among them (a body hinged or sliding on the unseen world,
+/// else a centre of the subject: the pelvis, not the foot that happened to fit best) takes
+/// the edge, when its pair with the root is as free and not `excluded`. A free
+/// subject's edge to the scene is no joint, so any of its bodies could carry it, and the
+/// subject's tree is then drawn as it would be with nothing static. `adj` is the tree's
+/// undirected edges.
+fn hang_subjects_by_their_root(
+    adj: &mut [Vec<usize>],
+    root: usize,
+    pairs: &[PairDof],
+    excluded: &[(usize, usize)],
+    min_dof: usize,
+) {
+    let free = |b: usize| {
+        !excluded.contains(&(root, b))
+            && !excluded.contains(&(b, root))
+            && find_pair(pairs, Some(root), b)
+                .is_some_and(|p| matches!(p.joint, JointKind::MultiDof) && p.dof >= min_dof)
+    };
+    for c in adj[root].clone() {
+        if !free(c) {
+            continue;
+        }
+        // The subject: the bodies reached from `c` without passing the root.
+        let mut among = vec![false; adj.len()];
+        among[c] = true;
+        let mut stack = vec![c];
+        while let Some(u) = stack.pop() {
+            for &v in &adj[u] {
+                if v != root && !among[v] {
+                    among[v] = true;
+                    stack.push(v);
+                }
+            }
+        }
+        let mut without_root: Vec<Vec<usize>> = adj.to_vec();
+        without_root[root].clear();
+        for a in &mut without_root {
+            a.retain(|&v| v != root);
+        }
+        let Some(r) = root_among(pairs, &without_root, &among) else {
+            continue;
+        };
+        if r == c || !free(r) {
+            continue;
+        }
+        adj[root].retain(|&v| v != c);
+        adj[c].retain(|&v| v != root);
+        adj[root].push(r);
+        adj[r].push(root);
+        adj[root].sort_unstable();
+        adj[r].sort_unstable();
+    }
 }
 
 /// Frames each body is posed in (its test against the camera's columns).
@@ -737,6 +809,34 @@ mod tests {
         }
         let tree = spanning_tree(4, &bare, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent[3], Some(1));
+    }
+
+    /// A subject moving freely past a static body: every pair with the static body has six
+    /// DoF and the tree's cheapest one reaches the subject at an end of its chain; the subject
+    /// is hung by its centre instead, unless the rule is off.
+    #[test]
+    fn a_subject_moving_past_a_static_body_hangs_by_its_centre() {
+        let free = |b: usize, extra: f64| {
+            let mut p = pair(Some(0), b, JointKind::MultiDof, 0.0);
+            p.translation.whitened = vec![100.0, extra];
+            p
+        };
+        let ball = |a: usize, b: usize| pair(Some(a), b, ball(), 0.2);
+        let mut pairs = vec![pair(None, 0, JointKind::Rigid, 0.1)];
+        for b in 1..4 {
+            pairs.push(pair(None, b, JointKind::MultiDof, 0.0));
+        }
+        // Body 3 ends the chain 1-2-3 and fits the scene best.
+        pairs.extend([free(1, 5.0), free(2, 5.0), free(3, 0.1)]);
+        pairs.extend([ball(1, 2), ball(2, 3)]);
+        let tree = spanning_tree(4, &pairs, &TreeCosts::default()).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(2), Some(0), Some(2)]);
+        let off = TreeCosts {
+            min_free_dof: 7,
+            ..TreeCosts::default()
+        };
+        let tree = spanning_tree(4, &pairs, &off).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(2), Some(3), Some(0)]);
     }
 
     /// Three slides whose grandparent pair fits beyond the margin: the tree keeps the chain

@@ -44,6 +44,11 @@ pub struct SkeletonParams {
     /// Soft-tissue artefact, metres: each marker drifts from its place on its segment by a
     /// slow offset of at most this much per coordinate ([`Scenario::soft_tissue_m`]).
     pub soft_tissue_m: f64,
+    /// Markers on a static object beside a floating subject (a box on the floor, as the
+    /// blocks of a sprint start or a force plate's corners): the world (body 0) then carries
+    /// them and is seen and static, while the pelvis still moves freely in it. 0 (default)
+    /// leaves the world unseen; more needs `floating_pelvis`.
+    pub scene_markers: usize,
 }
 
 impl Default for SkeletonParams {
@@ -60,6 +65,7 @@ impl Default for SkeletonParams {
             floating_pelvis: false,
             clinical_markers: false,
             soft_tissue_m: 0.0,
+            scene_markers: 0,
         }
     }
 }
@@ -67,7 +73,8 @@ impl Default for SkeletonParams {
 impl SkeletonParams {
     /// Checks the ranges: 3 to 1000 markers a segment, a motion range within 1-170 deg
     /// (least first), 2 to 1 000 000 frames, a positive frame rate, noise from 0 to 1 m, a
-    /// dropout in `[0, 1)`, a soft-tissue artefact from 0 to 0.1 m.
+    /// dropout in `[0, 1)`, a soft-tissue artefact from 0 to 0.1 m, at most 1000 scene
+    /// markers and only with a floating pelvis.
     ///
     /// # Errors
     /// [`kinetree_core::Error::InvalidParameter`] naming `data.<parameter>`.
@@ -90,7 +97,16 @@ impl SkeletonParams {
         check_within("data.frame_rate_hz", self.frame_rate_hz, 1e-3, 1e6)?;
         check_within("data.noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)?;
         check_within("data.dropout", self.dropout, 0.0, 0.99)?;
-        check_within("data.soft_tissue_m", self.soft_tissue_m, 0.0, 0.1)
+        check_within("data.soft_tissue_m", self.soft_tissue_m, 0.0, 0.1)?;
+        check_count("data.scene_markers", self.scene_markers, 0, 1000)?;
+        if self.scene_markers > 0 && !self.floating_pelvis {
+            return Err(kinetree_core::Error::InvalidParameter {
+                name: "data.scene_markers".into(),
+                message: "needs data.floating_pelvis: the scene is the world the pelvis moves in"
+                    .into(),
+            });
+        }
+        Ok(())
     }
 }
 
@@ -256,7 +272,8 @@ const SEGMENTS: [Segment; 14] = [
 /// a ball joint's rotation vector, and each of a universal joint's angles, has each component
 /// swing through such a range about zero. A floating pelvis turns about the vertical through
 /// such a range and tilts through a third of one, and it moves 0.2-1 m forward and sideways
-/// and 2-10 cm up and down; the world it moves in (body 0) has no markers.
+/// and 2-10 cm up and down; the world it moves in (body 0) has no markers, or
+/// `scene_markers` on a 30 x 20 x 10 cm box on the floor 0.8 m ahead and to the left.
 pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
     let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
     let markers = |centre: [f64; 3], half: [f64; 3]| BodySpec {
@@ -296,10 +313,18 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
     if p.floating_pelvis {
         bodies.insert(
             0,
-            BodySpec {
-                name: "world".into(),
-                extra_points: 0,
-                ..markers([0.0; 3], [0.01; 3])
+            if p.scene_markers > 0 {
+                BodySpec {
+                    name: "scene".into(),
+                    extra_points: p.scene_markers,
+                    ..markers([0.8, -0.8, 0.05], [0.15, 0.1, 0.05])
+                }
+            } else {
+                BodySpec {
+                    name: "world".into(),
+                    extra_points: 0,
+                    ..markers([0.0; 3], [0.01; 3])
+                }
             },
         );
         joints.push(JointSpec {
