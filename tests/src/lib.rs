@@ -134,7 +134,15 @@ pub fn random_tree(
 
 /// The default pipeline's model of `tracks`.
 pub fn discover_default(tracks: &kinetree_core::Tracks) -> kinetree_core::Model {
-    kinetree_pipeline::Pipeline::from_config(&kinetree_pipeline::PipelineConfig::default())
+    discover_with(tracks, &kinetree_pipeline::PipelineConfig::default())
+}
+
+/// The model of `tracks` by the pipeline of `config`.
+pub fn discover_with(
+    tracks: &kinetree_core::Tracks,
+    config: &kinetree_pipeline::PipelineConfig,
+) -> kinetree_core::Model {
+    kinetree_pipeline::Pipeline::from_config(config)
         .expect("pipeline")
         .run(tracks)
         .expect("discover")

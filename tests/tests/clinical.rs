@@ -6,7 +6,7 @@
 use kinetree_core::Model;
 use kinetree_core::model::JointType;
 use kinetree_eval::body_map;
-use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_pipeline::PipelineConfig;
 use kinetree_synth::{SkeletonParams, SynthData, simulate, skeleton_scenario};
 
 fn clinical(seed: u64, soft_tissue_m: f64) -> SynthData {
@@ -21,11 +21,7 @@ fn clinical(seed: u64, soft_tissue_m: f64) -> SynthData {
 }
 
 fn discover(data: &SynthData, cfg: &PipelineConfig) -> Model {
-    Pipeline::from_config(cfg)
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover")
-        .model
+    kinetree_tests::discover_with(&data.tracks, cfg)
 }
 
 /// Per true joint whose two segments are both bodies of `model`: whether a joint of the

@@ -7,7 +7,7 @@
 use kinetree_core::Model;
 use kinetree_core::model::JointType;
 use kinetree_eval::{body_map, evaluate};
-use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_pipeline::PipelineConfig;
 use kinetree_synth::{SkeletonParams, SynthData, simulate, skeleton_scenario};
 
 fn scene(seed: u64) -> SynthData {
@@ -21,11 +21,7 @@ fn scene(seed: u64) -> SynthData {
 }
 
 fn discover(data: &SynthData, cfg: &PipelineConfig) -> Model {
-    Pipeline::from_config(cfg)
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover")
-        .model
+    kinetree_tests::discover_with(&data.tracks, cfg)
 }
 
 /// The true segment (0 the scene, 1 the pelvis) of the one body the static scene carries,

@@ -23,10 +23,10 @@ pub struct TreeCosts {
     /// slides), which hangs it on the grandparent (default 0.3). Ties beyond it are left to a
     /// whole-tree fit (the `sibling_ties` repair).
     pub tie_fit_margin: f64,
-    /// A body's pair with the static root of no joint type and at least this many DoF makes
-    /// the body's side of the tree a subject moving freely past the scene, which the tree
-    /// hangs by its own root, as it would with nothing static (default 4: more than any joint
-    /// the tests type has). Above 6 turns the rule off.
+    /// Bodies whose pairs with the static root are all of no joint type and of at least this
+    /// many DoF are a subject moving freely past the scene, which the tree hangs by its own
+    /// root, as it would with nothing static (default 5: a noisy arm's first link can test at
+    /// four DoF against its base, a walking pelvis at five). Above 6 turns the rule off.
     pub min_free_dof: usize,
 }
 
@@ -36,7 +36,7 @@ impl Default for TreeCosts {
             adjacency_weight: 0.2,
             adjacency_cap: 2.0,
             tie_fit_margin: 0.3,
-            min_free_dof: 4,
+            min_free_dof: 5,
         }
     }
 }

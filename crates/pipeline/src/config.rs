@@ -221,8 +221,9 @@ pub struct PipelineConfig {
     /// When the whole-tree fit reports a joint position unknown, and when it smooths one
     /// (`[pipeline.positions]`; the model carries them for later observations).
     pub positions: PositionLimits,
-    /// How the spanning tree weighs pairs beyond their DoF test: the bodies' distance and
-    /// the exact ties' fit margin (`[pipeline.tree]`).
+    /// How the spanning tree weighs pairs beyond their DoF test (the bodies' distance, the
+    /// exact ties' fit margin) and when it hangs a subject moving past the static body by
+    /// the subject's own root (`[pipeline.tree]`).
     pub tree: kinetree_core::TreeCosts,
     /// Which samples are impossible and dropped before anything else (`[pipeline.outliers]`).
     pub outliers: crate::outliers::OutlierParams,

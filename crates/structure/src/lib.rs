@@ -423,14 +423,13 @@ fn root_among(pairs: &[PairDof], adj: &[Vec<usize>], among: &[bool]) -> Option<u
 
 /// Hangs each subject that moves freely relative to the static `root` by its own root: where
 /// the tree joins a body `c` to the root by a multi-DoF pair of at least `min_dof` DoF (no
-/// joint: a person walking past a static object), the bodies on `c`'s side are a subject, and
-/// the one
+/// joint: a person walking past a static object), and every body on `c`'s side has such a
+/// pair with the root (none is jointed to it), those bodies are a subject. The one
 /// [`floating_root`]'s rule picks among them (a body hinged or sliding on the unseen world,
-/// else a centre of the subject: the pelvis, not the foot that happened to fit best) takes
-/// the edge, when its pair with the root is as free and not `excluded`. A free
-/// subject's edge to the scene is no joint, so any of its bodies could carry it, and the
-/// subject's tree is then drawn as it would be with nothing static. `adj` is the tree's
-/// undirected edges.
+/// else a centre of the subject: the pelvis, not the shank whose pair happened to test
+/// nearest a joint) takes the edge, unless it is `excluded`. A free subject's edge to the
+/// scene is no joint, so any of its bodies could carry it, and the subject's tree is then
+/// drawn as it would be with nothing static. `adj` is the tree's undirected edges.
 fn hang_subjects_by_their_root(
     adj: &mut [Vec<usize>],
     root: usize,
@@ -460,6 +459,11 @@ fn hang_subjects_by_their_root(
                 }
             }
         }
+        // Free as a whole: a body held by the scene through fewer DoF is jointed to it, as a
+        // robot's links are to their base, and its side of the tree is left as it is.
+        if (0..adj.len()).any(|b| among[b] && !free(b)) {
+            continue;
+        }
         let mut without_root: Vec<Vec<usize>> = adj.to_vec();
         without_root[root].clear();
         for a in &mut without_root {
@@ -468,7 +472,7 @@ fn hang_subjects_by_their_root(
         let Some(r) = root_among(pairs, &without_root, &among) else {
             continue;
         };
-        if r == c || !free(r) {
+        if r == c {
             continue;
         }
         adj[root].retain(|&v| v != c);
@@ -813,7 +817,8 @@ mod tests {
 
     /// A subject moving freely past a static body: every pair with the static body has six
     /// DoF and the tree's cheapest one reaches the subject at an end of its chain; the subject
-    /// is hung by its centre instead, unless the rule is off.
+    /// is hung by its centre instead, unless the rule is off or a body of the subject is
+    /// jointed to the scene or never tested against it.
     #[test]
     fn a_subject_moving_past_a_static_body_hangs_by_its_centre() {
         let free = |b: usize, extra: f64| {
@@ -836,6 +841,19 @@ mod tests {
             ..TreeCosts::default()
         };
         let tree = spanning_tree(4, &pairs, &off).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(2), Some(3), Some(0)]);
+        // A body the scene holds by four DoF is jointed to it and carries the subject.
+        let mut jointed = pairs.clone();
+        jointed[4].dof = 4;
+        let tree = spanning_tree(4, &jointed, &TreeCosts::default()).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(1), Some(2)]);
+        // A body never tested against the scene leaves the subject as the tree drew it.
+        let unseen: Vec<PairDof> = pairs
+            .iter()
+            .filter(|p| !(p.a == Some(0) && p.b == 1))
+            .cloned()
+            .collect();
+        let tree = spanning_tree(4, &unseen, &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(2), Some(3), Some(0)]);
     }
 
