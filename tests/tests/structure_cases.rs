@@ -312,8 +312,16 @@ fn a_hinge_below_a_small_slider_gets_its_axis_from_the_tree_fit() {
 /// The default pipeline on a drawn mechanism, its model's warnings, and the true joints it
 /// gets wrong (not found or wrongly typed).
 fn wrong_joints(spec: &kinetree_synth::MechanismSpec) -> (Vec<kinetree_core::Warning>, Vec<usize>) {
+    wrong_joints_with(spec, &PipelineConfig::default())
+}
+
+/// [`wrong_joints`] with the pipeline of `config`.
+fn wrong_joints_with(
+    spec: &kinetree_synth::MechanismSpec,
+    config: &PipelineConfig,
+) -> (Vec<kinetree_core::Warning>, Vec<usize>) {
     let data = simulate(&spec.scenario()).expect("simulate");
-    let d = Pipeline::from_config(&PipelineConfig::default())
+    let d = Pipeline::from_config(config)
         .expect("pipeline")
         .run(&data.tracks)
         .expect("discover");
@@ -376,6 +384,18 @@ fn hinges_the_pair_test_mistyped_are_typed_by_the_fit() {
             kinetree_core::Warning::JointTypedByFit { joint_type, .. } if *joint_type == kinetree_core::model::JointType::Revolute
         )),
         "no joint typed by the fit: {warnings:?}"
+    );
+    // A candidate over `max_excess_to_adjust` before its bundle adjustment is dropped: with
+    // the bound at zero no candidate is kept, and the hinge stays multi-DoF.
+    let mut strict = PipelineConfig::default();
+    strict.repairs.type_by_fit.max_excess_to_adjust = 0.0;
+    let (warnings, wrong) = wrong_joints_with(&specs[536], &strict);
+    assert!(!wrong.is_empty(), "every joint right without the typing");
+    assert!(
+        !warnings
+            .iter()
+            .any(|w| matches!(w, kinetree_core::Warning::JointTypedByFit { .. })),
+        "{warnings:?}"
     );
 }
 

@@ -358,6 +358,11 @@ pub struct TypeByFitLimits {
     /// skeletons gained 0.83-1.23 per frame, balls typed universal 1.5 and more, the bound
     /// is 1.41; see [`type_joints_by_fit`]).
     pub min_ball_gain_in_std: f64,
+    /// A candidate whose excess, refined but before the bundle adjustment, is above this is
+    /// not adjusted and not kept (default 1000): over every sweep the adjustment cut a
+    /// candidate's excess at most 178-fold, so such a candidate cannot reach `max_excess`,
+    /// and its adjustment is most of a typing trial's cost (`docs/decisions.md`).
+    pub max_excess_to_adjust: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
 }
@@ -371,6 +376,7 @@ impl Default for TypeByFitLimits {
             max_translation_rank: 2,
             max_ball_off_axis_in_std: BALL_OFF_AXIS,
             min_ball_gain_in_std: BALL_GAIN_IN_STD,
+            max_excess_to_adjust: TYPE_EXCESS_TO_ADJUST,
             bundle: BundleLimits::default(),
         }
     }
@@ -954,6 +960,10 @@ fn type_by_fit(
         }
         let mut trial = Observer::new(model)?;
         let mut trial_fits = trial.fit_sequence(tracks)?;
+        let unadjusted = trial.joint_excess(tracks, &trial_fits)?;
+        if unadjusted[k].is_some_and(|e| e > limits.max_excess_to_adjust) {
+            continue;
+        }
         if let Some(adjusted) = adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
             (trial, trial_fits) = adjusted;
         }
@@ -1042,6 +1052,10 @@ fn candidate_joint(
 /// Default of [`TypeByFitLimits::max_excess`] (`docs/decisions.md`,
 /// `type_by_fit.max_excess`).
 const TYPE_EXCESS: f64 = 3.0;
+
+/// Default of [`TypeByFitLimits::max_excess_to_adjust`] (`docs/decisions.md`,
+/// `type_by_fit.max_excess_to_adjust`).
+const TYPE_EXCESS_TO_ADJUST: f64 = 1000.0;
 
 /// Default of [`TypeByFitLimits::max_ball_off_axis_in_std`] (`docs/decisions.md`,
 /// `type_by_fit.max_ball_off_axis_in_std`).

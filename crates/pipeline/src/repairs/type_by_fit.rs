@@ -33,6 +33,9 @@ pub struct TypeByFitParams {
     /// `sqrt(2 K)` (a chance gain's standard deviation), or, freed, when the fit follows the
     /// ball (default 5).
     pub min_ball_gain_in_std: f64,
+    /// A candidate whose excess before its bundle adjustment is above this is dropped
+    /// unadjusted (default 1000; `docs/decisions.md`).
+    pub max_excess_to_adjust: f64,
     /// Most bundle-adjustment steps on each candidate type (default 20, as
     /// `bundle_adjust.max_steps`).
     pub bundle_max_steps: usize,
@@ -52,6 +55,7 @@ impl Default for TypeByFitParams {
             max_translation_rank: l.max_translation_rank,
             max_ball_off_axis_in_std: l.max_ball_off_axis_in_std,
             min_ball_gain_in_std: l.min_ball_gain_in_std,
+            max_excess_to_adjust: l.max_excess_to_adjust,
             bundle_max_steps: l.bundle.max_steps,
             bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
         }
@@ -88,6 +92,13 @@ impl TypeByFitParams {
             self.min_ball_gain_in_std,
             0.0,
             1e6,
+        )?;
+        in_range(
+            NAME,
+            "max_excess_to_adjust",
+            self.max_excess_to_adjust,
+            0.0,
+            1e300,
         )?;
         count_in_range(NAME, "bundle_max_steps", self.bundle_max_steps, 1, 1000)?;
         in_range(
@@ -135,6 +146,7 @@ impl Repair for TypeByFit {
             max_translation_rank: p.max_translation_rank,
             max_ball_off_axis_in_std: p.max_ball_off_axis_in_std,
             min_ball_gain_in_std: p.min_ball_gain_in_std,
+            max_excess_to_adjust: p.max_excess_to_adjust,
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
                 min_gain_in_variances: p.bundle_min_gain_in_variances,
