@@ -74,13 +74,19 @@ mod tests {
             adjacency_weight: -0.1,
             ..TreeCosts::default()
         };
-        let e = bad.validate("pipeline.tree").unwrap_err().to_string();
+        let e = bad
+            .validate("pipeline.tree")
+            .expect_err("invalid")
+            .to_string();
         assert!(e.contains("pipeline.tree.adjacency_weight"), "{e}");
         let bad = TreeCosts {
             tie_fit_margin: f64::NAN,
             ..TreeCosts::default()
         };
-        let e = bad.validate("pipeline.tree").unwrap_err().to_string();
+        let e = bad
+            .validate("pipeline.tree")
+            .expect_err("invalid")
+            .to_string();
         assert!(e.contains("pipeline.tree.tie_fit_margin"), "{e}");
     }
 }
