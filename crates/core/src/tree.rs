@@ -70,23 +70,23 @@ mod tests {
     #[test]
     fn out_of_range_costs_are_named() {
         assert!(TreeCosts::default().validate("pipeline.tree").is_ok());
-        let bad = TreeCosts {
+        let weight = TreeCosts {
             adjacency_weight: -0.1,
             ..TreeCosts::default()
         };
-        let e = bad
-            .validate("pipeline.tree")
-            .expect_err("invalid")
-            .to_string();
-        assert!(e.contains("pipeline.tree.adjacency_weight"), "{e}");
-        let bad = TreeCosts {
+        let margin = TreeCosts {
             tie_fit_margin: f64::NAN,
             ..TreeCosts::default()
         };
-        let e = bad
-            .validate("pipeline.tree")
-            .expect_err("invalid")
-            .to_string();
-        assert!(e.contains("pipeline.tree.tie_fit_margin"), "{e}");
+        for (bad, key) in [
+            (weight, "pipeline.tree.adjacency_weight"),
+            (margin, "pipeline.tree.tie_fit_margin"),
+        ] {
+            let e = bad
+                .validate("pipeline.tree")
+                .expect_err("invalid")
+                .to_string();
+            assert!(e.contains(key), "{e}");
+        }
     }
 }

@@ -964,10 +964,13 @@ fn type_by_fit(
         if unadjusted[k].is_some_and(|e| e > limits.max_excess_to_adjust) {
             continue;
         }
-        if let Some(adjusted) = adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
-            (trial, trial_fits) = adjusted;
-        }
-        let excess = trial.joint_excess(tracks, &trial_fits)?;
+        let excess = match adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
+            Some(adjusted) => {
+                (trial, trial_fits) = adjusted;
+                trial.joint_excess(tracks, &trial_fits)?
+            }
+            None => unadjusted,
+        };
         let Some(own) = excess[k].filter(|&e| e <= limits.max_excess) else {
             continue;
         };

@@ -443,6 +443,13 @@ fn hang_subjects_by_their_root(
             && find_pair(pairs, Some(root), b)
                 .is_some_and(|p| matches!(p.joint, JointKind::MultiDof) && p.dof >= min_dof)
     };
+    // The tree without the root's edges, for the subjects' own centres; the moves below only
+    // change the root's edges, so it holds for every subject.
+    let mut without_root: Vec<Vec<usize>> = adj.to_vec();
+    without_root[root].clear();
+    for a in &mut without_root {
+        a.retain(|&v| v != root);
+    }
     for c in adj[root].clone() {
         if !free(c) {
             continue;
@@ -463,11 +470,6 @@ fn hang_subjects_by_their_root(
         // robot's links are to their base, and its side of the tree is left as it is.
         if (0..adj.len()).any(|b| among[b] && !free(b)) {
             continue;
-        }
-        let mut without_root: Vec<Vec<usize>> = adj.to_vec();
-        without_root[root].clear();
-        for a in &mut without_root {
-            a.retain(|&v| v != root);
         }
         let Some(r) = root_among(pairs, &without_root, &among) else {
             continue;
