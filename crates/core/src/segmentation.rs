@@ -212,6 +212,55 @@ impl Segmentation {
         }
     }
 
+    /// The same partition, its numbering kept, on `n_points` points: point `k` of `self`
+    /// becomes point `index[k]` (its discarded groups and shared points with it), and each
+    /// `(point, body)` of `extra` joins `body`. Points named by neither are on no body.
+    /// `index` must hold distinct points below `n_points`, `extra` others, and every body
+    /// of `extra` must exist; `None` otherwise.
+    pub fn on_points(
+        &self,
+        n_points: usize,
+        index: &[usize],
+        extra: &[(usize, usize)],
+    ) -> Option<Self> {
+        if index.len() != self.labels.len() {
+            return None;
+        }
+        let mut labels: Vec<Option<usize>> = vec![None; n_points];
+        let mut named = vec![false; n_points];
+        for (&i, &l) in index.iter().zip(&self.labels) {
+            if std::mem::replace(named.get_mut(i)?, true) {
+                return None;
+            }
+            labels[i] = l;
+        }
+        for &(i, b) in extra {
+            if b >= self.n_bodies || std::mem::replace(named.get_mut(i)?, true) {
+                return None;
+            }
+            labels[i] = Some(b);
+        }
+        let mut shared: Vec<(usize, usize)> =
+            self.shared.iter().map(|&(p, b)| (index[p], b)).collect();
+        shared.sort_unstable();
+        let mut discarded_groups: Vec<Vec<usize>> = self
+            .discarded_groups
+            .iter()
+            .map(|g| {
+                let mut g: Vec<usize> = g.iter().map(|&p| index[p]).collect();
+                g.sort_unstable();
+                g
+            })
+            .collect();
+        discarded_groups.sort();
+        Some(Self {
+            labels,
+            n_bodies: self.n_bodies,
+            discarded_groups,
+            shared,
+        })
+    }
+
     /// `self.discarded_groups` without `points` (now assigned), empty groups removed.
     pub fn discarded_groups_without(&self, points: &[usize]) -> Vec<Vec<usize>> {
         self.discarded_groups
@@ -268,6 +317,47 @@ impl Segmentation {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_partition_spread_over_more_points_keeps_its_numbering() {
+        let mut seg = Segmentation::from_raw(&[Some(1), Some(0), Some(1), None], 1);
+        seg.discarded_groups = vec![vec![3]];
+        let seg = seg.with_shared(&[(2, 1)]);
+        let wide = seg
+            .on_points(8, &[6, 1, 3, 0], &[(5, 0), (7, 1)])
+            .expect("fits");
+        assert_eq!(
+            wide.labels(),
+            &[
+                None,
+                Some(1),
+                None,
+                Some(0),
+                None,
+                Some(0),
+                Some(0),
+                Some(1)
+            ]
+        );
+        assert_eq!(wide.shared(), &[(3, 1)]);
+        assert_eq!(wide.discarded_groups, vec![vec![0]]);
+        assert!(
+            seg.on_points(8, &[6, 1, 3], &[]).is_none(),
+            "index too short"
+        );
+        assert!(
+            seg.on_points(8, &[6, 1, 3, 0], &[(6, 0)]).is_none(),
+            "named twice"
+        );
+        assert!(
+            seg.on_points(8, &[6, 1, 3, 0], &[(5, 2)]).is_none(),
+            "no body 2"
+        );
+        assert!(
+            seg.on_points(4, &[6, 1, 3, 0], &[]).is_none(),
+            "out of range"
+        );
+    }
 
     #[test]
     fn points_and_bodies_are_taken_off_and_the_rest_renumbered() {

@@ -254,6 +254,35 @@ impl Tracks {
         Ok(self.described(Self::new(frames.len(), self.n_points, xyz)?))
     }
 
+    /// The same tracks restricted to `points` (in the given order), their labels with them;
+    /// the reader's warnings stay with the whole tracks.
+    ///
+    /// # Errors
+    /// As [`Tracks::new`] (too few points, no visible data), or [`Error::InvalidParameter`]
+    /// for an index out of range.
+    pub fn select_points(&self, points: &[usize]) -> Result<Self> {
+        if let Some(&i) = points.iter().find(|&&i| i >= self.n_points) {
+            return Err(Error::InvalidParameter {
+                name: "points".into(),
+                message: format!("point {i} out of range (N = {})", self.n_points),
+            });
+        }
+        let mut xyz = Vec::with_capacity(self.n_frames * points.len() * 3);
+        for t in 0..self.n_frames {
+            let frame = self.frame_raw(t);
+            for &i in points {
+                xyz.extend_from_slice(&frame[3 * i..3 * i + 3]);
+            }
+        }
+        let mut out = Self::new(self.n_frames, points.len(), xyz)?;
+        out.labels = self
+            .labels
+            .as_ref()
+            .map(|l| points.iter().map(|&i| l[i].clone()).collect());
+        out.frame_rate_hz = self.frame_rate_hz;
+        Ok(out)
+    }
+
     /// The same tracks with the (frame, point) `samples` made occluded.
     ///
     /// # Errors
@@ -302,6 +331,31 @@ mod tests {
         let mut xyz: Vec<f64> = (0..4 * 3 * 3).map(|k| k as f64 * 0.01).collect();
         xyz[(3 + 2) * 3..(3 + 2) * 3 + 3].copy_from_slice(&[f64::NAN; 3]); // frame 1, point 2
         Tracks::new(4, 3, xyz).expect("valid")
+    }
+
+    #[test]
+    fn selected_points_keep_their_tracks_and_labels_in_the_given_order() {
+        let t = sample()
+            .with_labels(vec!["a".into(), "b".into(), "c".into()])
+            .expect("labels");
+        let s = t.select_points(&[2, 0, 1]).expect("select");
+        assert_eq!(s.n_points(), 3);
+        assert_eq!(
+            s.labels(),
+            Some(&["c".to_string(), "a".into(), "b".into()][..])
+        );
+        for f in 0..4 {
+            assert_eq!(s.get(f, 0), t.get(f, 2));
+            assert_eq!(s.get(f, 1), t.get(f, 0));
+        }
+        assert!(matches!(
+            t.select_points(&[0, 1, 3]),
+            Err(Error::InvalidParameter { .. })
+        ));
+        assert!(matches!(
+            t.select_points(&[0, 1]),
+            Err(Error::TooFewPoints { .. })
+        ));
     }
 
     #[test]

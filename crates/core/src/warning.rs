@@ -247,6 +247,21 @@ pub enum Warning {
         /// The same count in the rebuilt one.
         multi_dof_after: usize,
     },
+    /// The tracks had more points than `[pipeline.sampling] max_points`: the bodies, joints
+    /// and pair tests were found on `sampled` of them, chosen to cover the scene, and every
+    /// other point was tested against each body's poses and given to the body that explains
+    /// it best; `unexplained` fitted no body's motion and were left on no body.
+    TracksSampled {
+        /// Points the discovery ran on.
+        sampled: usize,
+        /// Points given to a body afterwards.
+        assigned: usize,
+        /// Points no body's poses explain, ascending.
+        unexplained: Vec<usize>,
+        /// Discoveries run: more than one when points no body explained were added to the
+        /// sample and the discovery run again.
+        rounds: usize,
+    },
     /// The noise level was estimated from the data.
     NoiseEstimated {
         /// The estimate, per-coordinate std-dev in metres.
@@ -278,9 +293,60 @@ impl Warning {
             Warning::ClusterDiscarded { points }
             | Warning::PointsUnassigned { points }
             | Warning::PointsMakingJointsMultiDof { points }
-            | Warning::BodyDropped { points, .. } => points,
+            | Warning::BodyDropped { points, .. }
+            | Warning::TracksSampled {
+                unexplained: points,
+                ..
+            } => points,
             _ => &[],
         }
+    }
+}
+
+impl Warning {
+    /// The warning with every point index `i` it holds replaced by `f(i)`: for a warning
+    /// made on a subset of the tracks' points, named back in the whole tracks' numbering.
+    pub fn map_points(mut self, f: impl Fn(usize) -> usize) -> Self {
+        let all = |v: &mut Vec<usize>| v.iter_mut().for_each(|i| *i = f(*i));
+        match &mut self {
+            Warning::ImpossibleSamplesDropped {
+                points, samples, ..
+            } => {
+                all(points);
+                samples.iter_mut().for_each(|s| s[1] = f(s[1]));
+            }
+            Warning::PointNeverVisible { point } | Warning::PointUnpaired { point } => {
+                *point = f(*point);
+            }
+            Warning::ClusterDiscarded { points }
+            | Warning::PointsAttached { points }
+            | Warning::PointsOffHinge { points }
+            | Warning::PointsUnassigned { points }
+            | Warning::PointsMakingJointsMultiDof { points }
+            | Warning::PointsReassigned { points }
+            | Warning::BodySplit { points, .. }
+            | Warning::BodyDropped { points, .. }
+            | Warning::TracksSampled {
+                unexplained: points,
+                ..
+            } => all(points),
+            Warning::UnassignedPointsGrouped { groups } | Warning::BodiesMerged { groups } => {
+                groups.iter_mut().for_each(all);
+            }
+            Warning::BodyPosedThroughHinge { points, parent, .. }
+            | Warning::BodyPosedThroughBall { points, parent, .. } => {
+                all(points);
+                if let Some(p) = parent {
+                    all(p);
+                }
+            }
+            Warning::PointsShared { points, body } => {
+                all(points);
+                all(body);
+            }
+            _ => {}
+        }
+        self
     }
 }
 
@@ -460,11 +526,91 @@ impl std::fmt::Display for Warning {
                 f,
                 "pairs tested again on the whole-tree fit's poses: {multi_dof_before} multi-DoF or unfollowed joint(s) became {multi_dof_after}"
             ),
+            Warning::TracksSampled {
+                sampled,
+                assigned,
+                unexplained,
+                rounds,
+            } => {
+                write!(
+                    f,
+                    "bodies and joints found on {sampled} sampled point(s) ({rounds} discovery run(s)); {assigned} other point(s) given to the body whose poses explain them"
+                )?;
+                if !unexplained.is_empty() {
+                    write!(
+                        f,
+                        "; {} fitted no body and were left on none: {unexplained:?}",
+                        unexplained.len()
+                    )?;
+                }
+                Ok(())
+            }
             Warning::NoiseEstimated { sigma_m } => write!(
                 f,
                 "noise level estimated from the data: sigma = {:.3} mm per coordinate",
                 sigma_m * 1e3
             ),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_point_a_warning_holds_is_renamed() {
+        let twice = |i: usize| 2 * i + 1;
+        let w = Warning::BodyPosedThroughHinge {
+            points: vec![0, 2],
+            parent: Some(vec![3]),
+            frames: 7,
+        }
+        .map_points(twice);
+        assert_eq!(
+            w,
+            Warning::BodyPosedThroughHinge {
+                points: vec![1, 5],
+                parent: Some(vec![7]),
+                frames: 7,
+            }
+        );
+        let w = Warning::ImpossibleSamplesDropped {
+            count: 1,
+            points: vec![4],
+            samples: vec![[10, 4]],
+        }
+        .map_points(twice);
+        assert_eq!(w.points_left_out(), &[] as &[usize]);
+        assert!(
+            matches!(w, Warning::ImpossibleSamplesDropped { points, samples, .. }
+            if points == vec![9] && samples == vec![[10, 9]])
+        );
+        let w = Warning::PointsShared {
+            points: vec![1],
+            body: vec![2, 3],
+        }
+        .map_points(twice);
+        assert_eq!(
+            w,
+            Warning::PointsShared {
+                points: vec![3],
+                body: vec![5, 7],
+            }
+        );
+        let w = Warning::BodiesMerged {
+            groups: vec![vec![0], vec![1, 2]],
+        }
+        .map_points(twice);
+        assert_eq!(
+            w,
+            Warning::BodiesMerged {
+                groups: vec![vec![1], vec![3, 5]],
+            }
+        );
+        let w = Warning::PointNeverVisible { point: 3 }.map_points(twice);
+        assert_eq!(w.points_left_out(), &[7]);
+        let w = Warning::NoiseEstimated { sigma_m: 0.001 };
+        assert_eq!(w.clone().map_points(twice), w);
     }
 }

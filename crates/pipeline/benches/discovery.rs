@@ -163,3 +163,22 @@ fn discover_rrpr_1000_points_frames(bencher: divan::Bencher, n_frames: usize) {
     let config = sigma_given();
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
+
+/// The scale scenario at N = T = 1000 discovered on a sample of `max_points` points
+/// (`[pipeline.sampling]`), the rest assigned to its bodies; 1000 runs on every point.
+#[divan::bench(args = [300, 500, 1000], sample_count = 5)]
+fn discover_rrpr_1000_points_1000_frames_sampled(bencher: divan::Bencher, max_points: usize) {
+    let tracks = scale_tracks(1000, 1000);
+    let mut config = sigma_given();
+    config.sampling.max_points = max_points;
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
+
+/// Dense tracks: the scale scenario with 20 000 keypoints over 1000 frames, default
+/// sampling.
+#[divan::bench(sample_count = 2)]
+fn discover_rrpr_20000_points_1000_frames(bencher: divan::Bencher) {
+    let tracks = scale_tracks(20_000, 1000);
+    let config = sigma_given();
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}

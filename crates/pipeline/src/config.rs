@@ -227,6 +227,9 @@ pub struct PipelineConfig {
     pub tree: kinetree_core::TreeCosts,
     /// Which samples are impossible and dropped before anything else (`[pipeline.outliers]`).
     pub outliers: crate::outliers::OutlierParams,
+    /// When a discovery runs on a sample of the points and assigns the others to its bodies
+    /// afterwards (`[pipeline.sampling]`: tracks with more than 1000 points).
+    pub sampling: crate::sampling::SamplingParams,
     /// Memory a run may use, GiB (default
     /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose
     /// estimate exceeds it is refused before it allocates.
@@ -258,6 +261,7 @@ impl Default for PipelineConfig {
             positions: PositionLimits::default(),
             tree: kinetree_core::TreeCosts::default(),
             outliers: crate::outliers::OutlierParams::default(),
+            sampling: crate::sampling::SamplingParams::default(),
             max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
             max_minutes: kinetree_core::limits::DEFAULT_MAX_MINUTES,
             hinged_bodies: (),
@@ -329,6 +333,7 @@ impl PipelineConfig {
         kinetree_core::limits::validate_limit("pipeline.max_memory_gib", self.max_memory_gib)?;
         kinetree_core::limits::validate_minutes("pipeline.max_minutes", self.max_minutes)?;
         self.outliers.validate()?;
+        self.sampling.validate()?;
         self.tree.validate("pipeline.tree")?;
         self.positions.validate("pipeline.positions")
     }
@@ -366,6 +371,9 @@ pub enum DataConfig {
     HiddenLink(kinetree_synth::HiddenLinkParams),
     /// An arm of slender rods ([`kinetree_synth::slender_arm`]).
     SlenderArm(kinetree_synth::SlenderArmParams),
+    /// The scale scenario that speed is measured on, with any number of keypoints and
+    /// frames ([`kinetree_synth::scale_scenario`]).
+    Scale(kinetree_synth::ScaleParams),
     /// A tracks file (`.npy`, `.npz`, `.csv`, `.c3d` or `.trc`), relative to the config file.
     File(FileData),
 }

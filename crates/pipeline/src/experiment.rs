@@ -63,6 +63,10 @@ pub fn scenario(data: &DataConfig) -> Result<Option<Scenario>> {
             p.validate()?;
             Some(kinetree_synth::slender_arm(p))
         }
+        DataConfig::Scale(p) => {
+            p.validate()?;
+            Some(kinetree_synth::scale_scenario(p))
+        }
         DataConfig::File(_) => None,
     })
 }
@@ -185,7 +189,19 @@ pub fn write_results(
 /// The experiment's figures under `dir/figures`.
 #[cfg(feature = "figures")]
 fn write_figures(outcome: &ExperimentOutcome, dir: &Path) -> Result<()> {
-    let model = &outcome.discovery.model;
+    // The pair statistics of a sampled discovery cover its sample alone: its figures show
+    // the sample's points, renumbered as the statistics number them.
+    let sampled = match &outcome.discovery.sampled {
+        Some(sample) => Some((
+            outcome.tracks.select_points(sample)?,
+            sample_model(&outcome.discovery.model, sample),
+        )),
+        None => None,
+    };
+    let (tracks, model) = match &sampled {
+        Some((t, m)) => (t, m),
+        None => (&outcome.tracks, &outcome.discovery.model),
+    };
     let std_m: Vec<f64> = outcome
         .discovery
         .stats
@@ -208,7 +224,7 @@ fn write_figures(outcome: &ExperimentOutcome, dir: &Path) -> Result<()> {
     kinetree_figures::write_figures(
         &dir.join("figures"),
         &kinetree_figures::FigureInput {
-            tracks: &outcome.tracks,
+            tracks,
             model,
             distance_std_m: &std_m,
             dissimilarity: &outcome.discovery.dissimilarity.values,
@@ -217,6 +233,29 @@ fn write_figures(outcome: &ExperimentOutcome, dir: &Path) -> Result<()> {
         },
     )?;
     Ok(())
+}
+
+/// `model` on the points of `sample` alone, point `sample[k]` renumbered `k`.
+#[cfg(feature = "figures")]
+fn sample_model(model: &kinetree_core::Model, sample: &[usize]) -> kinetree_core::Model {
+    let mut m = model.clone();
+    let mut index = vec![None; model.n_points];
+    for (k, &i) in sample.iter().enumerate() {
+        index[i] = Some(k);
+    }
+    m.n_points = sample.len();
+    m.point_body = sample.iter().map(|&i| model.point_body[i]).collect();
+    for b in &mut m.bodies {
+        let kept: Vec<(usize, Option<[f64; 3]>)> = b
+            .points
+            .iter()
+            .enumerate()
+            .filter_map(|(j, &i)| Some((index[i]?, b.shape.get(j).copied().flatten())))
+            .collect();
+        b.points = kept.iter().map(|e| e.0).collect();
+        b.shape = kept.into_iter().map(|e| e.1).collect();
+    }
+    m
 }
 
 #[cfg(feature = "figures")]

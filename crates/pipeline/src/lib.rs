@@ -13,6 +13,7 @@ pub mod repairs;
 pub mod report;
 mod run;
 pub mod runner;
+pub mod sampling;
 pub mod sweep;
 
 pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};

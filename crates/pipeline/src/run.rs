@@ -47,6 +47,8 @@ pub struct Pipeline {
     pub max_minutes: f64,
     /// Which samples are impossible ([`PipelineConfig::outliers`]).
     pub outliers: crate::outliers::OutlierParams,
+    /// When the discovery runs on a sample of the points ([`PipelineConfig::sampling`]).
+    pub sampling: crate::sampling::SamplingParams,
 }
 
 /// Everything a run produces: the model and the intermediate results behind it.
@@ -62,6 +64,10 @@ pub struct Discovery {
     pub segmentation: Segmentation,
     /// Poses per body, in the model's body numbering.
     pub poses: BodyPoses,
+    /// The points the pair statistics and the dissimilarity are over, ascending, when the
+    /// tracks had more than `[pipeline.sampling] max_points` (their entry `k` is this
+    /// list's point `k`); `None` when they are over every point.
+    pub sampled: Option<Vec<usize>>,
 }
 
 /// Stage 1's results ([`Pipeline::group`]): what [`Pipeline::run`] builds the bodies from.
@@ -121,6 +127,7 @@ impl Pipeline {
             max_memory_gib: c.max_memory_gib,
             max_minutes: c.max_minutes,
             outliers: c.outliers,
+            sampling: c.sampling,
         })
     }
 
@@ -277,6 +284,20 @@ impl Pipeline {
     ) -> Result<Discovery> {
         let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
         let tracks = cleaned.as_ref().unwrap_or(tracks);
+        if let Some(d) = crate::sampling::discover_sampled(self, tracks, &warnings, observer)? {
+            return Ok(d);
+        }
+        self.discover_clean(tracks, warnings, observer)
+    }
+
+    /// The discovery of `tracks`, their impossible samples dropped, on every point;
+    /// `warnings` come first in the model's.
+    pub(crate) fn discover_clean(
+        &self,
+        tracks: &Tracks,
+        warnings: Vec<Warning>,
+        observer: &dyn DiscoveryObserver,
+    ) -> Result<Discovery> {
         let g = self.group_clean(tracks, warnings, observer)?;
         for e in &g.trace {
             observer.trace(e);
@@ -306,6 +327,7 @@ impl Pipeline {
             dissimilarity: g.dissimilarity,
             segmentation: draft.segmentation,
             poses,
+            sampled: None,
         })
     }
 }

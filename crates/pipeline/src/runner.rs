@@ -330,6 +330,33 @@ impl DiscoveryObserver for TraceOnly<'_> {
     }
 }
 
+/// Writes what the whole-tree fit `state` of `model` on `tracks` gives into the model: the
+/// joints' precision, their positions and the re-prediction, and the identifiability
+/// warnings in place of the model's.
+///
+/// # Errors
+/// As [`kinetree_fit::write_joint_precision`] and [`kinetree_fit::write_positions`].
+pub(crate) fn write_fit(
+    pipeline: &Pipeline,
+    model: &mut kinetree_core::Model,
+    state: &kinetree_fit::FitState,
+    tracks: &Tracks,
+) -> Result<()> {
+    kinetree_fit::write_joint_precision(model, state, tracks)?;
+    model.reprediction_rms_in_sigma = kinetree_fit::write_positions(model, state)?;
+    model
+        .warnings
+        .retain(|w| !matches!(w, Warning::JointNotIdentifiable { .. }));
+    let verdicts = kinetree_fit::identifiability_warnings(
+        model,
+        tracks,
+        &model.position_limits,
+        pipeline.dof.model_error_rad(),
+    );
+    model.warnings.extend(verdicts);
+    Ok(())
+}
+
 /// One discovery's state shared by the phases after the grouping.
 pub(crate) struct Runner<'a> {
     pipeline: &'a Pipeline,
@@ -711,18 +738,7 @@ impl<'a> Runner<'a> {
         let state = crate::repairs::fit_state(&ctx, &m)?;
         m.cache = None;
         m.body_order = order;
-        kinetree_fit::write_joint_precision(&mut m.model, &state, ctx.tracks)?;
-        m.model.reprediction_rms_in_sigma = kinetree_fit::write_positions(&mut m.model, &state)?;
-        m.model
-            .warnings
-            .retain(|w| !matches!(w, Warning::JointNotIdentifiable { .. }));
-        let verdicts = kinetree_fit::identifiability_warnings(
-            &m.model,
-            ctx.tracks,
-            &m.model.position_limits,
-            self.pipeline.dof.model_error_rad(),
-        );
-        m.model.warnings.extend(verdicts);
+        write_fit(self.pipeline, &mut m.model, &state, ctx.tracks)?;
         m.model.trace = entries;
         Ok(m)
     }

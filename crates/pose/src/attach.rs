@@ -6,14 +6,19 @@ use kinetree_core::{BodyPoses, Segmentation, Tracks};
 /// Fewest frames a point must share with a body to be scored against it.
 pub const MIN_SHARED_FRAMES: usize = 3;
 
-/// How well body `body`'s poses explain `point` as a rigid part of it: `(chi^2 / k, k)`.
-///
-/// The point's observations are mapped into the body frame, `z_t = cam_from_body(t)^-1 p(t)`,
-/// and scattered about their weighted mean. The unit is the predicted variance
-/// `sigma^2 (1 + trans^2 + (rot |z_t|)^2)`: the point's own noise, plus the pose's translation
-/// and rotation noise at the point's lever arm. For a rigidly attached point `chi^2 / k` is
-/// about 1, with `k = 3 (frames - 1)` degrees of freedom. Returns `None` with fewer than
-/// [`MIN_SHARED_FRAMES`] shared frames.
+/// A point's track seen from a body's frame ([`point_fit`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointFit {
+    /// `chi^2 / k`: about 1 for a point rigidly attached to the body.
+    pub misfit: f64,
+    /// Degrees of freedom `k = 3 (frames - 1)`.
+    pub dof: f64,
+    /// The point's place in the body frame: the weighted mean of its observations there.
+    pub local: Point3<f64>,
+}
+
+/// How well body `body`'s poses explain `point` as a rigid part of it: `(chi^2 / k, k)`
+/// ([`point_fit`]).
 pub fn point_misfit(
     tracks: &Tracks,
     poses: &BodyPoses,
@@ -21,6 +26,24 @@ pub fn point_misfit(
     point: usize,
     sigma: f64,
 ) -> Option<(f64, f64)> {
+    point_fit(tracks, poses, body, point, sigma).map(|f| (f.misfit, f.dof))
+}
+
+/// How well body `body`'s poses explain `point` as a rigid part of it, and where it sits.
+///
+/// The point's observations are mapped into the body frame, `z_t = cam_from_body(t)^-1 p(t)`,
+/// and scattered about their weighted mean. The unit is the predicted variance
+/// `sigma^2 (1 + trans^2 + (rot |z_t|)^2)`: the point's own noise, plus the pose's translation
+/// and rotation noise at the point's lever arm. For a rigidly attached point `chi^2 / k` is
+/// about 1, with `k = 3 (frames - 1)` degrees of freedom. Returns `None` with fewer than
+/// [`MIN_SHARED_FRAMES`] shared frames.
+pub fn point_fit(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    body: usize,
+    point: usize,
+    sigma: f64,
+) -> Option<PointFit> {
     let track = &poses.bodies[body];
     let mut z: Vec<(Point3<f64>, f64)> = Vec::new();
     for t in 0..poses.n_frames {
@@ -48,7 +71,11 @@ pub fn point_misfit(
         .map(|(p, v)| (p.coords - mean).norm_squared() / v)
         .sum();
     let k = 3.0 * (z.len() - 1) as f64;
-    Some((chi2 / k, k))
+    Some(PointFit {
+        misfit: chi2 / k,
+        dof: k,
+        local: Point3::from(mean),
+    })
 }
 
 /// Upper bound on `chi^2_k / k` for a rigidly attached point: the Wilson-Hilferty quantile at

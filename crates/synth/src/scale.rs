@@ -2,9 +2,11 @@
 //! revolute, prismatic, revolute, in a chain, with any number of keypoints and frames.
 
 use crate::{JointDraw, MechanismSpec, Scenario};
+use serde::{Deserialize, Serialize};
 
 /// Sizes and observation of the scale scenario ([`scale_scenario`]).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct ScaleParams {
     /// Keypoints in all, split evenly over the five bodies (the base takes the remainder);
     /// at least 20.
@@ -29,6 +31,21 @@ impl Default for ScaleParams {
             dropout: 0.15,
             seed: 0,
         }
+    }
+}
+
+impl ScaleParams {
+    /// Checks the ranges: 20 to 10^7 keypoints, 2 to 10^7 frames, noise from 0 to 1 m, a
+    /// dropout in `[0, 0.9]`.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming `data.<parameter>`.
+    pub fn validate(&self) -> kinetree_core::Result<()> {
+        use kinetree_core::limits::{check_count, check_within};
+        check_count("data.n_points", self.n_points, 20, 10_000_000)?;
+        check_count("data.n_frames", self.n_frames, 2, 10_000_000)?;
+        check_within("data.noise_sigma_m", self.noise_sigma_m, 0.0, 1.0)?;
+        check_within("data.dropout", self.dropout, 0.0, 0.9)
     }
 }
 
