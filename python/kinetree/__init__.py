@@ -524,6 +524,7 @@ def simulate(
     noise_sigma: float = 0.001,
     dropout: float = 0.0,
     frames: Optional[int] = None,
+    points: Optional[int] = None,
 ) -> Tuple[np.ndarray, Optional[Dict[str, Any]]]:
     """Simulates tracks of a mechanism, as ``kinetree simulate`` does.
 
@@ -537,7 +538,8 @@ def simulate(
             one axis), ``"hand"`` (a palm with four fingers and a thumb), ``"hidden-link"``
             (an arm whose wrist link is seen in part of the frames), ``"slender-planar"`` or
             ``"slender"`` (an arm of rods a few millimetres thick turning about parallel, or
-            random, axes).
+            random, axes), or ``"scale"`` (a base and four links R-R-P-R with ``points``
+            keypoints inside them, as dense tracks).
         seed: Seed of every random choice.
         joints, tree, prismatic_fraction, spherical_fraction: For random mechanisms: the
             number of joints (also of a slender arm), whether bodies attach as a tree rather than a chain, the chance
@@ -545,6 +547,7 @@ def simulate(
         noise_sigma: Per-coordinate noise, metres.
         dropout: Extra random occlusion fraction.
         frames: Number of frames (default 100 for the paper arm, 200 for random ones).
+        points: Number of keypoints of ``"scale"`` (default 1000).
 
     Returns:
         ``(tracks, truth)``: the ``(T, N, 3)`` tracks, NaN where hidden, and the ground truth
@@ -560,6 +563,7 @@ def simulate(
         noise_sigma=noise_sigma,
         dropout=dropout,
         frames=frames,
+        points=points,
     )
     return tracks, None if truth is None else json.loads(truth)
 

@@ -46,6 +46,7 @@ def simulate(
     noise_sigma: float = 0.001,
     dropout: float = 0.0,
     frames: Optional[int] = None,
+    points: Optional[int] = None,
 ) -> Tuple[npt.NDArray[np.float64], Optional[str]]: ...
 def read_tracks(
     path: str,

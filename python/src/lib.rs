@@ -292,7 +292,7 @@ fn observe<'py>(
 
 /// Simulates a mechanism; returns the tracks (T, N, 3) and the truth JSON.
 #[pyfunction]
-#[pyo3(signature = (mechanism="paper-arm", seed=0, joints=3, tree=false, prismatic_fraction=0.3, spherical_fraction=0.0, noise_sigma=0.001, dropout=0.0, frames=None))]
+#[pyo3(signature = (mechanism="paper-arm", seed=0, joints=3, tree=false, prismatic_fraction=0.3, spherical_fraction=0.0, noise_sigma=0.001, dropout=0.0, frames=None, points=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -305,6 +305,7 @@ fn simulate<'py>(
     noise_sigma: f64,
     dropout: f64,
     frames: Option<usize>,
+    points: Option<usize>,
 ) -> PyResult<(Bound<'py, PyAny>, Option<String>)> {
     let data = kinetree_pipeline::config::SimulationRequest {
         mechanism: mechanism.to_string(),
@@ -316,6 +317,7 @@ fn simulate<'py>(
         noise_sigma_m: noise_sigma,
         dropout,
         n_frames: frames,
+        n_points: points,
     }
     .data()
     .map_err(to_py)?;

@@ -45,6 +45,10 @@ def test_simulate_gives_tracks_and_truth(arm):
     assert len(random_truth["mechanism"]["joints"]) == 4
     with pytest.raises(kinetree.ConfigError, match="unknown mechanism"):
         kinetree.simulate("gantry")
+    dense, _ = kinetree.simulate("scale", points=120, frames=20)
+    assert dense.shape == (20, 120, 3)
+    with pytest.raises(kinetree.ConfigError, match="n_points"):
+        kinetree.simulate("paper-arm", points=120)
 
 
 def test_discover_finds_the_paper_arm(arm):

@@ -394,7 +394,9 @@ enum Command {
         /// or turn about, one axis), `hand` (a palm with four fingers and a thumb),
         /// `hidden-link` (an arm whose wrist link is seen in part of the frames),
         /// `slender-planar` or `slender` (an arm of rods a few millimetres thick turning about
-        /// parallel, or random, axes; `--joints` of them), or `random` with the options below.
+        /// parallel, or random, axes; `--joints` of them), `scale` (a base and four links
+        /// R-R-P-R with `--points` keypoints inside them, as dense tracks), or `random` with
+        /// the options below.
         #[arg(long, default_value = "paper-arm")]
         mechanism: String,
         /// Seed.
@@ -421,6 +423,9 @@ enum Command {
         /// Number of frames (default: 100 for the paper arm, 200 for random mechanisms).
         #[arg(long)]
         frames: Option<usize>,
+        /// Number of keypoints (the scale scenario; default 1000).
+        #[arg(long)]
+        points: Option<usize>,
     },
 }
 
@@ -829,6 +834,7 @@ fn run_command() -> Result<()> {
             noise_sigma,
             dropout,
             frames,
+            points,
         } => {
             let data = kinetree_pipeline::config::SimulationRequest {
                 mechanism,
@@ -840,6 +846,7 @@ fn run_command() -> Result<()> {
                 noise_sigma_m: noise_sigma,
                 dropout,
                 n_frames: frames,
+                n_points: points,
             }
             .data()
             .map_err(simulate_flag)?;
@@ -871,6 +878,7 @@ fn simulate_flag(e: kinetree_core::Error) -> kinetree_core::Error {
         kinetree_core::Error::InvalidParameter { name, message } => {
             let flag = match name.as_str() {
                 "data.n_frames" => "--frames",
+                "data.n_points" => "--points",
                 "data.n_joints" => "--joints",
                 "data.prismatic_fraction" => "--prismatic-fraction",
                 "data.spherical_fraction" => "--spherical-fraction",

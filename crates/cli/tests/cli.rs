@@ -768,3 +768,52 @@ fn discover_reads_trc_files() {
         b["joints"].as_array().map(Vec::len)
     );
 }
+
+#[test]
+fn dense_tracks_are_discovered_on_a_sample_and_every_point_gets_its_body() {
+    let dir = tmp("dense");
+    run_ok(
+        kinetree()
+            .args([
+                "simulate",
+                "--mechanism",
+                "scale",
+                "--points",
+                "1200",
+                "--frames",
+                "120",
+                "-o",
+            ])
+            .arg(&dir),
+    );
+    let model_path = dir.join("model.json");
+    run_ok(
+        kinetree()
+            .arg("discover")
+            .arg(dir.join("tracks.npy"))
+            .args(["--noise-sigma", "0.001", "-q", "-o"])
+            .arg(&model_path),
+    );
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&model_path).expect("model")).expect("json");
+    let point_body = model["point_body"].as_array().expect("point_body");
+    assert_eq!(point_body.len(), 1200);
+    assert_eq!(model["bodies"].as_array().map(Vec::len), Some(5));
+    let sampled = model["warnings"]
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .find(|w| w["kind"] == "tracks_sampled")
+        .expect("a tracks_sampled warning");
+    assert_eq!(sampled["sampled"], 1000);
+    let on_bodies = point_body.iter().filter(|b| b.as_i64() >= Some(0)).count();
+    assert!(on_bodies >= 1190, "{on_bodies} of 1200 points on bodies");
+    // Only the scale scenario takes a number of keypoints.
+    let out = kinetree()
+        .args(["simulate", "--points", "50", "-o"])
+        .arg(dir.join("arm"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--points"));
+}

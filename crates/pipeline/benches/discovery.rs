@@ -148,8 +148,9 @@ fn discover_rrpr_1000_points_1000_frames(bencher: divan::Bencher) {
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 
-/// The scale scenario against the number of keypoints, over 1000 frames.
-#[divan::bench(args = [250, 500, 2000], sample_count = 3)]
+/// The scale scenario against the number of keypoints, over 1000 frames; beyond 1000 the
+/// default pipeline discovers on a sample of 1000 and assigns the rest (dense tracks).
+#[divan::bench(args = [250, 500, 2000, 5000, 20000], sample_count = 2)]
 fn discover_rrpr_points_1000_frames(bencher: divan::Bencher, n_points: usize) {
     let tracks = scale_tracks(n_points, 1000);
     let config = sigma_given();
@@ -171,14 +172,5 @@ fn discover_rrpr_1000_points_1000_frames_sampled(bencher: divan::Bencher, max_po
     let tracks = scale_tracks(1000, 1000);
     let mut config = sigma_given();
     config.sampling.max_points = max_points;
-    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
-}
-
-/// Dense tracks: the scale scenario with 20 000 keypoints over 1000 frames, default
-/// sampling.
-#[divan::bench(sample_count = 2)]
-fn discover_rrpr_20000_points_1000_frames(bencher: divan::Bencher) {
-    let tracks = scale_tracks(20_000, 1000);
-    let config = sigma_given();
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }

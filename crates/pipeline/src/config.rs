@@ -405,8 +405,10 @@ pub struct SimulationRequest {
     /// ankle axis),
     /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
     /// about, one axis), `hand` (a palm with four fingers and a thumb), `hidden-link` (an
-    /// arm whose wrist link is seen in part of the frames), or `slender-planar` or `slender`
-    /// (an arm of rods a few millimetres thick turning about parallel, or random, axes).
+    /// arm whose wrist link is seen in part of the frames), `slender-planar` or `slender`
+    /// (an arm of rods a few millimetres thick turning about parallel, or random, axes), or
+    /// `scale` (a base and four links R-R-P-R with any number of keypoints inside them, the
+    /// scenario speed is measured on).
     pub mechanism: String,
     /// Seed of every random choice.
     pub seed: u64,
@@ -425,6 +427,8 @@ pub struct SimulationRequest {
     /// Number of frames; `None` for the mechanism's default (100 for the paper arm, 200 for
     /// random mechanisms).
     pub n_frames: Option<usize>,
+    /// Number of keypoints of the scale scenario; `None` for its default (1000).
+    pub n_points: Option<usize>,
 }
 
 /// Frames of a random mechanism's simulation when none are asked for.
@@ -434,8 +438,18 @@ impl SimulationRequest {
     /// The experiment data of the request.
     ///
     /// # Errors
-    /// [`Error::Config`] for an unknown mechanism.
+    /// [`Error::Config`] for an unknown mechanism; [`Error::InvalidParameter`] naming
+    /// `data.n_points` when a mechanism other than `scale` is given a number of keypoints.
     pub fn data(&self) -> Result<DataConfig> {
+        if self.n_points.is_some() && self.mechanism != "scale" {
+            return Err(Error::InvalidParameter {
+                name: "data.n_points".into(),
+                message: format!(
+                    "only the scale mechanism takes a number of keypoints, not `{}`",
+                    self.mechanism
+                ),
+            });
+        }
         Ok(match self.mechanism.as_str() {
             "paper-arm" => DataConfig::PaperArm(PaperArmData {
                 seed: self.seed,
@@ -518,11 +532,22 @@ impl SimulationRequest {
                     ..kinetree_synth::SlenderArmParams::default()
                 })
             }
+            "scale" => DataConfig::Scale(kinetree_synth::ScaleParams {
+                n_points: self
+                    .n_points
+                    .unwrap_or(kinetree_synth::ScaleParams::default().n_points),
+                n_frames: self
+                    .n_frames
+                    .unwrap_or(kinetree_synth::ScaleParams::default().n_frames),
+                noise_sigma_m: self.noise_sigma_m,
+                dropout: self.dropout,
+                seed: self.seed,
+            }),
             other => {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
                      skeleton-universal, skeleton-floating, skeleton-clinical, gripper-parallel, gripper-angular, \
-                     hand, hidden-link, slender-planar or slender"
+                     hand, hidden-link, slender-planar, slender or scale"
                 )));
             }
         })

@@ -312,7 +312,9 @@ pub type Progress<'a> = &'a (dyn Fn(&TraceEntry) + Sync);
 /// in the pipeline prints): each stage as it starts, and every trace entry as it is made.
 pub trait DiscoveryObserver: Sync {
     /// A stage starts: `pair statistics`, `noise level`, `clustering`, then per model pass
-    /// `bodies`, `tree`, `whole-tree fit`, `points` and `model checks`.
+    /// `bodies`, `tree`, `whole-tree fit`, `points` and `model checks`; in a sampled
+    /// discovery ([`crate::sampling`]) all of them once per discovery, each followed by
+    /// `assigning the other points`.
     fn stage(&self, _name: &str) {}
     /// A repair made a change (the entry the model's `trace` will hold).
     fn trace(&self, _entry: &TraceEntry) {}
