@@ -223,6 +223,11 @@ pub struct BundleLimits {
     /// last two, is; the prediction saves the last linearisation (default 0.1;
     /// `docs/decisions.md`, `kinetree_fit::MIN_GAIN_IN_VARIANCES`).
     pub min_gain_in_variances: f64,
+    /// Most frames the adjustment works on: over more, it takes this many evenly spaced
+    /// (default 20 000; their joints' parameters are then about `sqrt(T / max_frames)`
+    /// times less precise than every frame would make them, far below the keypoint noise's
+    /// effect on the positions; `docs/decisions.md`, `bundle_adjust.max_frames`).
+    pub max_frames: usize,
 }
 
 impl Default for BundleLimits {
@@ -230,6 +235,7 @@ impl Default for BundleLimits {
         Self {
             max_steps: 20,
             min_gain_in_variances: 0.1,
+            max_frames: 20_000,
         }
     }
 }
@@ -241,9 +247,10 @@ struct Frame {
 }
 
 /// Bundle-adjusts the joints `observer` follows (freed joints and multi-DoF ones are left
-/// alone) against every frame of `tracks`, starting from `known`, the
-/// observer's own fit of them ([`Observer::fit_sequence`]): the observer with the adjusted
-/// joints, or `None` when there is no such joint or no step lowered the residual.
+/// alone) against every frame of `tracks` (at most [`BundleLimits::max_frames`] of them,
+/// evenly spaced), starting from `known`, the observer's own fit of them
+/// ([`Observer::fit_sequence`]): the observer with the adjusted joints, or `None` when there
+/// is no such joint or no step lowered the residual.
 ///
 /// # Errors
 /// [`kinetree_core::Error::Shape`] when the tracks do not match the observer's model.
@@ -257,8 +264,19 @@ pub(crate) fn adjust(
     if blocks.is_empty() {
         return Ok(None);
     }
-    let mut frames: Vec<Frame> = observer
-        .replay_sequence(tracks, known)?
+    let t = tracks.n_frames();
+    let replayed = if t > limits.max_frames.max(1) && known.len() == t {
+        // Evenly spaced frames, each fitted again from its own known fit (the frames before
+        // it in the subset are not its neighbours).
+        let m = limits.max_frames.max(1);
+        let picked: Vec<usize> = (0..m).map(|j| j * t / m).collect();
+        let subset = tracks.select_frames(&picked)?;
+        let subset_known: Vec<crate::FrameFit> = picked.iter().map(|&f| known[f].clone()).collect();
+        observer.settle_sequence(&subset, &subset_known)?
+    } else {
+        observer.replay_sequence(tracks, known)?
+    };
+    let mut frames: Vec<Frame> = replayed
         .into_iter()
         .map(|(descent, visible)| Frame { visible, descent })
         .collect();

@@ -17,6 +17,9 @@ pub struct BundleAdjustParams {
     /// The adjustment stops below this gain in noise variances
     /// ([`kinetree_fit::BundleLimits::min_gain_in_variances`], default 0.1).
     pub min_gain_in_variances: f64,
+    /// Most frames the adjustment works on, evenly spaced over longer recordings
+    /// ([`kinetree_fit::BundleLimits::max_frames`], default 20 000).
+    pub max_frames: usize,
 }
 
 impl Default for BundleAdjustParams {
@@ -26,6 +29,7 @@ impl Default for BundleAdjustParams {
             enabled: true,
             max_steps: b.max_steps,
             min_gain_in_variances: b.min_gain_in_variances,
+            max_frames: b.max_frames,
         }
     }
 }
@@ -39,6 +43,7 @@ impl BundleAdjustParams {
     pub fn validate(&self) -> Result<()> {
         const NAME: &str = "bundle_adjust";
         super::count_in_range(NAME, "max_steps", self.max_steps, 1, 1000)?;
+        super::count_in_range(NAME, "max_frames", self.max_frames, 2, usize::MAX)?;
         super::in_range(
             NAME,
             "min_gain_in_variances",
@@ -53,6 +58,7 @@ impl BundleAdjustParams {
         kinetree_fit::BundleLimits {
             max_steps: self.max_steps,
             min_gain_in_variances: self.min_gain_in_variances,
+            max_frames: self.max_frames,
         }
     }
 }

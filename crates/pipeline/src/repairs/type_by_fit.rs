@@ -150,6 +150,7 @@ impl Repair for TypeByFit {
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
                 min_gain_in_variances: p.bundle_min_gain_in_variances,
+                ..kinetree_fit::BundleLimits::default()
             },
         };
         refit(
