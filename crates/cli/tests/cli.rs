@@ -805,7 +805,7 @@ fn dense_tracks_are_discovered_on_a_sample_and_every_point_gets_its_body() {
         .iter()
         .find(|w| w["kind"] == "tracks_sampled")
         .expect("a tracks_sampled warning");
-    assert_eq!(sampled["sampled"], 1000);
+    assert_eq!(sampled["sampled"], 500);
     let on_bodies = point_body.iter().filter(|b| b.as_i64() >= Some(0)).count();
     assert!(on_bodies >= 1190, "{on_bodies} of 1200 points on bodies");
     // Only the scale scenario takes a number of keypoints.

@@ -148,8 +148,8 @@ fn discover_rrpr_1000_points_1000_frames(bencher: divan::Bencher) {
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 
-/// The scale scenario against the number of keypoints, over 1000 frames; beyond 1000 the
-/// default pipeline discovers on a sample of 1000 and assigns the rest (dense tracks).
+/// The scale scenario against the number of keypoints, over 1000 frames; beyond 500 the
+/// default pipeline discovers on a sample of 500 and assigns the rest (dense tracks).
 #[divan::bench(args = [250, 500, 2000, 5000, 20000], sample_count = 2)]
 fn discover_rrpr_points_1000_frames(bencher: divan::Bencher, n_points: usize) {
     let tracks = scale_tracks(n_points, 1000);

@@ -228,7 +228,7 @@ pub struct PipelineConfig {
     /// Which samples are impossible and dropped before anything else (`[pipeline.outliers]`).
     pub outliers: crate::outliers::OutlierParams,
     /// When a discovery runs on a sample of the points and assigns the others to its bodies
-    /// afterwards (`[pipeline.sampling]`: tracks with more than 1000 points).
+    /// afterwards (`[pipeline.sampling]`: tracks with more than 500 points).
     pub sampling: crate::sampling::SamplingParams,
     /// Memory a run may use, GiB (default
     /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose

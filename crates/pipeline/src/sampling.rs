@@ -20,10 +20,11 @@ use serde::{Deserialize, Serialize};
 #[serde(deny_unknown_fields, default)]
 pub struct SamplingParams {
     /// Tracks with more points seen in any frame than this are discovered on a sample of
-    /// this many (default 1000), half chosen to cover the scene and half drawn at random
-    /// (with the pipeline's `seed`): the pair statistics and the clustering, quadratic in
-    /// the points, stay within what 1000 points cost (`docs/decisions.md`,
-    /// `[pipeline.sampling]`).
+    /// this many (default 500), half chosen to cover the scene, preferring well-seen points,
+    /// and half drawn at random (with the pipeline's `seed`): the pair statistics and the
+    /// clustering, quadratic in the points, stay within what 500 points cost, and dense
+    /// keypoints that turn in and out of view are clustered on their best-seen ones
+    /// (`docs/decisions.md`, `[pipeline.sampling]`).
     pub max_points: usize,
     /// Most discoveries a run makes (default 2). After one, when at least
     /// `min_unexplained` points fit no body (a body too small or too briefly seen to be
@@ -44,7 +45,7 @@ pub struct SamplingParams {
 impl Default for SamplingParams {
     fn default() -> Self {
         Self {
-            max_points: 1000,
+            max_points: 500,
             max_rounds: 2,
             min_unexplained: 12,
             misfit_z: kinetree_pose::ATTACH_BOUND.0,
