@@ -27,9 +27,9 @@ pub struct SamplingParams {
     /// (`docs/decisions.md`, `[pipeline.sampling]`).
     pub max_points: usize,
     /// Most discoveries a run makes (default 2). After one, when at least
-    /// `min_unexplained` points fit no body (a body too small or too briefly seen to be
-    /// sampled well), up to `max_points / 2` of them join the sample and the discovery runs
-    /// again; 1 never runs again.
+    /// `min_unexplained` points seen in three frames or more fit no body (a body too small
+    /// or too briefly seen to be sampled well), up to `max_points / 2` of them join the
+    /// sample and the discovery runs again; 1 never runs again.
     pub max_rounds: usize,
     /// Fewest points fitting no body that make another discovery (default 12: four bodies'
     /// worth of the fewest points a pose needs).
@@ -258,9 +258,16 @@ pub(crate) fn discover_sampled(
         sample.iter().for_each(|&i| in_sample[i] = true);
         let rest: Vec<usize> = seen.iter().copied().filter(|&i| !in_sample[i]).collect();
         let (assigned, unexplained) = assign(tracks, &d, &rest, &p);
-        if round < p.max_rounds && unexplained.len() >= p.min_unexplained {
+        // Points seen in too few frames to be tested against a body cannot make a body of
+        // their own either; only the others call for another discovery.
+        let testable: Vec<usize> = unexplained
+            .iter()
+            .copied()
+            .filter(|&i| visible[i] >= kinetree_pose::MIN_SHARED_FRAMES)
+            .collect();
+        if round < p.max_rounds && testable.len() >= p.min_unexplained {
             sample.extend(choose(
-                &unexplained,
+                &testable,
                 &means,
                 &visible,
                 p.max_points / 2,
