@@ -26,6 +26,7 @@ use kinetree_core::nalgebra::{
 };
 use kinetree_core::{Result, Tracks};
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// One adjusted joint.
 #[derive(Debug, Clone, Copy)]
@@ -228,6 +229,11 @@ pub struct BundleLimits {
     /// times less precise than every frame would make them, far below the keypoint noise's
     /// effect on the positions; `docs/decisions.md`, `bundle_adjust.max_frames`).
     pub max_frames: usize,
+    /// Most observations (frames times placed points, 48 bytes each) whose visible points
+    /// the adjustment keeps between its steps; over more, each frame's are formed again from
+    /// the tracks at each use, which gives the same result in more time (default 2 000 000,
+    /// about 96 MB; `docs/decisions.md`, `bundle_adjust.max_kept_observations`).
+    pub max_kept_observations: usize,
 }
 
 impl Default for BundleLimits {
@@ -236,14 +242,34 @@ impl Default for BundleLimits {
             max_steps: 20,
             min_gain_in_variances: 0.1,
             max_frames: 20_000,
+            max_kept_observations: 2_000_000,
         }
     }
 }
 
-/// One frame: its visible points and the converged fit of its own parameters.
+/// One frame: its visible points (`None` when they are formed again at each use) and the
+/// converged fit of its own parameters.
 struct Frame {
-    visible: Visible,
+    visible: Option<Visible>,
     descent: Descent,
+}
+
+/// The frames the adjustment works on, and where the visible points of those that do not keep
+/// them come from: frame `t` of `frames` is frame `t` of `tracks`, seen by `observer`.
+struct FrameSet<'a> {
+    frames: Vec<Frame>,
+    observer: &'a Observer,
+    tracks: &'a Tracks,
+}
+
+impl FrameSet<'_> {
+    /// Frame `t`'s visible points: its own, or formed again.
+    fn visible(&self, t: usize) -> Cow<'_, Visible> {
+        match &self.frames[t].visible {
+            Some(v) => Cow::Borrowed(v),
+            None => Cow::Owned(self.observer.visible_at(self.tracks, t)),
+        }
+    }
 }
 
 /// Bundle-adjusts the joints `observer` follows (freed joints and multi-DoF ones are left
@@ -265,30 +291,43 @@ pub(crate) fn adjust(
         return Ok(None);
     }
     let t = tracks.n_frames();
-    let replayed = if t > limits.max_frames.max(1) && known.len() == t {
+    let m = limits.max_frames.max(1);
+    let subset = if t > m && known.len() == t {
+        let picked: Vec<usize> = (0..m).map(|j| j * t / m).collect();
+        let known: Vec<crate::FrameFit> = picked.iter().map(|&f| known[f].clone()).collect();
+        Some((tracks.select_frames(&picked)?, known))
+    } else {
+        None
+    };
+    let (source, known) = subset
+        .as_ref()
+        .map_or((tracks, known), |(s, k)| (s, k.as_slice()));
+    let keep =
+        source.n_frames().saturating_mul(observer.placed_points()) <= limits.max_kept_observations;
+    let frame = |descent, visible| Frame {
+        visible: keep.then_some(visible),
+        descent,
+    };
+    let frames = if subset.is_some() {
         // Evenly spaced frames, each fitted again from its own known fit (the frames before
         // it in the subset are not its neighbours).
-        let m = limits.max_frames.max(1);
-        let picked: Vec<usize> = (0..m).map(|j| j * t / m).collect();
-        let subset = tracks.select_frames(&picked)?;
-        let subset_known: Vec<crate::FrameFit> = picked.iter().map(|&f| known[f].clone()).collect();
-        observer.settle_sequence(&subset, &subset_known)?
+        observer.settle_sequence_with(source, known, frame)?
     } else {
-        observer.replay_sequence(tracks, known)?
+        observer.replay_sequence_with(source, known, frame)?
     };
-    let mut frames: Vec<Frame> = replayed
-        .into_iter()
-        .map(|(descent, visible)| Frame { visible, descent })
-        .collect();
-    let total = |frames: &[Frame]| frames.iter().map(|f| f.descent.cost).sum::<f64>();
-    let before = total(&frames);
+    let mut set = FrameSet {
+        frames,
+        observer,
+        tracks: source,
+    };
+    let before: f64 = set.frames.iter().map(|f| f.descent.cost).sum();
     let mut current = observer.clone();
     let mut cost = before;
     let mut lambda = 1e-3;
     let mut previous_gain: Option<f64> = None;
     let variance = (observer.sigma * observer.sigma).max(f64::MIN_POSITIVE);
     for _ in 0..limits.max_steps {
-        let Some((normal, rhs)) = reduced_system(&current, &blocks, n, &frames) else {
+        let Some((normal, rhs)) = reduced_system(&current, &blocks, n, &set) else {
             break;
         };
         let mut accepted = false;
@@ -319,14 +358,14 @@ pub(crate) fn adjust(
                 .collect();
             // Frames are refitted independently, in parallel; collected in order, so the sum
             // below is the same as a sequential one.
-            let refitted: Vec<Descent> = frames
-                .par_iter()
-                .map(|f| trial.descend(f.descent.state.clone(), &f.visible))
+            let refitted: Vec<Descent> = (0..set.frames.len())
+                .into_par_iter()
+                .map(|t| trial.descend(set.frames[t].descent.state.clone(), &set.visible(t)))
                 .collect();
             let c: f64 = refitted.iter().map(|d| d.cost).sum();
             if c.is_finite() && c < cost {
                 let gain = (cost - c) / variance;
-                for (f, d) in frames.iter_mut().zip(refitted) {
+                for (f, d) in set.frames.iter_mut().zip(refitted) {
                     f.descent = d;
                 }
                 (current, blocks, cost) = (trial, trial_blocks, c);
@@ -412,12 +451,40 @@ pub(crate) fn joint_precision(
     if blocks.is_empty() {
         return Ok(out);
     }
-    let frames: Vec<Frame> = observer
-        .settle_sequence(tracks, known)?
-        .into_iter()
-        .map(|(descent, visible)| Frame { visible, descent })
-        .collect();
-    let Some((normal, _)) = reduced_system(observer, &blocks, n, &frames) else {
+    let Some(mut sum) = ReducedSum::new(observer, &blocks, n) else {
+        return Ok(out);
+    };
+    let frame = |descent, visible| Frame {
+        visible: Some(visible),
+        descent,
+    };
+    if known.len() == tracks.n_frames() {
+        // The frames are settled a batch at a time and summed: their visible points together
+        // would take 48 bytes per observation.
+        for start in (0..known.len()).step_by(FRAME_BATCH) {
+            let range = start..(start + FRAME_BATCH).min(known.len());
+            let set = FrameSet {
+                frames: observer.settle_frames_with(tracks, known, range, frame)?,
+                observer,
+                tracks,
+            };
+            sum.add(observer, &set, 0..set.frames.len());
+        }
+    } else {
+        let set = FrameSet {
+            frames: observer.settle_sequence_with(tracks, known, frame)?,
+            observer,
+            tracks,
+        };
+        for start in (0..set.frames.len()).step_by(FRAME_BATCH) {
+            sum.add(
+                observer,
+                &set,
+                start..(start + FRAME_BATCH).min(set.frames.len()),
+            );
+        }
+    }
+    let Some((normal, _)) = sum.finish() else {
         return Ok(out);
     };
     let Some(chol) = normal.cholesky() else {
@@ -489,62 +556,94 @@ fn reduced_system(
     observer: &Observer,
     blocks: &[Block],
     n: usize,
-    frames: &[Frame],
+    frames: &FrameSet,
 ) -> Option<(DMatrix<f64>, DVector<f64>)> {
-    // The body each frame parameter moves with its subtree: a free pose's body, a joint's
-    // child.
-    let m = observer.n_params;
-    let mut owner = vec![0; m];
-    for (b, c) in observer.free_col.iter().enumerate() {
-        if let Some(c) = *c {
-            owner[c..c + 6].fill(b);
-        }
+    let mut sum = ReducedSum::new(observer, blocks, n)?;
+    let count = frames.frames.len();
+    for start in (0..count).step_by(FRAME_BATCH) {
+        sum.add(observer, frames, start..(start + FRAME_BATCH).min(count));
     }
-    for (k, c) in observer.joint_col.iter().enumerate() {
-        if let Some(c) = *c {
-            let j = &observer.joints[k];
-            owner[c..c + j.measure.width()].fill(j.child);
+    sum.finish()
+}
+
+/// The sums of [`reduced_system`], taken a batch of frames at a time so that a caller can
+/// form the frames batch by batch too (the visible points of every frame of a long recording
+/// of many points would not fit in memory together).
+struct ReducedSum<'a> {
+    layout: Layout<'a>,
+    normal: DMatrix<f64>,
+    rhs: DVector<f64>,
+    used: bool,
+}
+
+impl<'a> ReducedSum<'a> {
+    /// Empty sums; `None` when a block's joint has no position column.
+    fn new(observer: &Observer, blocks: &'a [Block], n: usize) -> Option<Self> {
+        // The body each frame parameter moves with its subtree: a free pose's body, a
+        // joint's child.
+        let m = observer.n_params;
+        let mut owner = vec![0; m];
+        for (b, c) in observer.free_col.iter().enumerate() {
+            if let Some(c) = *c {
+                owner[c..c + 6].fill(b);
+            }
         }
+        for (k, c) in observer.joint_col.iter().enumerate() {
+            if let Some(c) = *c {
+                let j = &observer.joints[k];
+                owner[c..c + j.measure.width()].fill(j.child);
+            }
+        }
+        // Per block: its joint's position column and child.
+        let place: Vec<(usize, usize)> = blocks
+            .iter()
+            .map(|b| Some((observer.joint_col[b.joint]?, observer.joints[b.joint].child)))
+            .collect::<Option<_>>()?;
+        Some(Self {
+            layout: Layout {
+                blocks,
+                n,
+                owner,
+                place,
+            },
+            normal: DMatrix::<f64>::zeros(n, n),
+            rhs: DVector::<f64>::zeros(n),
+            used: false,
+        })
     }
-    // Per block: its joint's position column and child.
-    let place: Vec<(usize, usize)> = blocks
-        .iter()
-        .map(|b| Some((observer.joint_col[b.joint]?, observer.joints[b.joint].child)))
-        .collect::<Option<_>>()?;
-    let layout = Layout {
-        blocks,
-        n,
-        owner,
-        place,
-    };
-    let mut normal = DMatrix::<f64>::zeros(n, n);
-    let mut rhs = DVector::<f64>::zeros(n);
-    let mut used = false;
-    // Frames' terms are formed in parallel, a batch at a time (a term is n x n), and added in
-    // frame order, so the sums do not depend on the number of threads.
-    for batch in frames.chunks(FRAME_BATCH) {
+
+    /// Adds the terms of the frames of `frames` in `batch`, the next in order. The terms are
+    /// formed in parallel and added in frame order, so the sums do not depend on the number of
+    /// threads; keep batches to about [`FRAME_BATCH`] frames (a term is n x n).
+    fn add(&mut self, observer: &Observer, frames: &FrameSet, batch: std::ops::Range<usize>) {
         let terms: Vec<FrameTerm> = batch
-            .par_iter()
-            .map_init(Scratch::default, |scratch, f| {
-                frame_term(observer, &layout, f, scratch)
+            .into_par_iter()
+            .map_init(Scratch::default, |scratch, t| {
+                let descent = &frames.frames[t].descent;
+                frame_term(observer, &self.layout, descent, &frames.visible(t), scratch)
             })
             .collect();
         for term in terms {
             match term {
                 FrameTerm::Unused => {}
-                FrameTerm::Unfactored => used = true,
+                FrameTerm::Unfactored => self.used = true,
                 FrameTerm::Term(n_f, g_f) => {
-                    used = true;
-                    normal += n_f;
-                    rhs += g_f;
+                    self.used = true;
+                    self.normal += n_f;
+                    self.rhs += g_f;
                 }
             }
         }
     }
-    // The Gram products went into the upper triangle only (the joint-joint blocks into both):
-    // the lower one is copied from it.
-    normal.fill_lower_triangle_with_upper_triangle();
-    used.then_some((normal, rhs))
+
+    /// The normal matrix and right-hand side; `None` when no frame had a usable
+    /// linearisation.
+    fn finish(mut self) -> Option<(DMatrix<f64>, DVector<f64>)> {
+        // The Gram products went into the upper triangle only (the joint-joint blocks into
+        // both): the lower one is copied from it.
+        self.normal.fill_lower_triangle_with_upper_triangle();
+        self.used.then_some((self.normal, self.rhs))
+    }
 }
 
 /// What [`reduced_system`] needs of the model besides the frames.
@@ -572,7 +671,13 @@ enum FrameTerm {
 }
 
 /// One frame's term of [`reduced_system`].
-fn frame_term(observer: &Observer, layout: &Layout, f: &Frame, scratch: &mut Scratch) -> FrameTerm {
+fn frame_term(
+    observer: &Observer,
+    layout: &Layout,
+    descent: &Descent,
+    visible: &Visible,
+    scratch: &mut Scratch,
+) -> FrameTerm {
     let Layout {
         blocks,
         n,
@@ -581,12 +686,12 @@ fn frame_term(observer: &Observer, layout: &Layout, f: &Frame, scratch: &mut Scr
     } = layout;
     let (n, m) = (*n, observer.n_params);
     let moves = |column: usize, body: usize| observer.cols[body].contains(&column);
-    let Some(lin) = observer.linearise(&f.descent.poses, &f.visible, scratch) else {
+    let Some(lin) = observer.linearise(&descent.poses, visible, scratch) else {
         return FrameTerm::Unused;
     };
     let twists: Vec<Option<Matrix6xX<f64>>> = blocks
         .iter()
-        .map(|b| block_twists(observer, b, f, &lin.origin))
+        .map(|b| block_twists(observer, b, descent, &lin.origin))
         .collect();
     // The frame's own block, unseen parameters pinned, a tiny ridge for near-dependent
     // ones (a joint whose child's points are all near its axis in this frame).
@@ -685,17 +790,17 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// The twists (camera-frame motions about `origin`, see [`Observer::linearise`]) of one
-/// joint's parameters in frame `f`, by central differences; `None` where the joint's parent
-/// has no pose or its position is unknown.
+/// joint's parameters in the frame of `descent`, by central differences; `None` where the
+/// joint's parent has no pose or its position is unknown.
 fn block_twists(
     observer: &Observer,
     b: &Block,
-    f: &Frame,
+    descent: &Descent,
     origin: &kinetree_core::nalgebra::Vector3<f64>,
 ) -> Option<Matrix6xX<f64>> {
     let j = &observer.joints[b.joint];
-    let parent = f.descent.poses[j.parent]?;
-    let state = &f.descent.state;
+    let parent = descent.poses[j.parent]?;
+    let state = &descent.state;
     let origin = Point3::from(*origin);
     let inverse = (parent * b.params.transform(b.joint, state)?).inverse();
     let motion = |d: &[f64]| -> Option<Isometry3<f64>> {

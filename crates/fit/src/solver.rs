@@ -528,51 +528,91 @@ impl Observer {
     }
 
     /// The descents and visible points [`Observer::fit_sequence_with`] hands on, given
-    /// `known` as [`Observer::refit_sequence`] takes it, the same bit for bit.
+    /// `known` as [`Observer::refit_sequence`] takes it, the same bit for bit, each frame's
+    /// handed to `each` as it is formed (so that a caller need not keep every frame's visible
+    /// points).
     ///
     /// # Errors
     /// As [`Observer::fit_sequence`].
-    pub(crate) fn replay_sequence(
+    pub(crate) fn replay_sequence_with<R: Send>(
         &self,
         tracks: &Tracks,
         known: &[FrameFit],
-    ) -> Result<Vec<(Descent, Visible)>> {
+        each: impl Fn(Descent, Visible) -> R + Sync,
+    ) -> Result<Vec<R>> {
         if known.len() != tracks.n_frames() {
             let mut out = Vec::with_capacity(tracks.n_frames());
-            self.fit_sequence_with(tracks, |d, v| out.push((d, v)))?;
+            self.fit_sequence_with(tracks, |d, v| out.push(each(d, v)))?;
             return Ok(out);
         }
-        self.replay_with(tracks, known, |descent, visible, _| Ok((descent, visible)))
+        self.replay_with(tracks, known, |descent, visible, _| {
+            Ok(each(descent, visible))
+        })
     }
 
     /// Every frame's descent started at `known`'s own fit of that frame, all frames in
     /// parallel: the converged state of each frame again, within the descent's tolerance (not
-    /// bit for bit, as [`Observer::replay_sequence`] gives it), for a few steps a frame where
-    /// a fit from the frames before takes two full descents. Without a fit per frame in
-    /// `known`, as [`Observer::replay_sequence`].
+    /// bit for bit, as [`Observer::replay_sequence_with`] gives it), for a few steps a frame
+    /// where a fit from the frames before takes two full descents; each frame's handed to
+    /// `each`. Without a fit per frame in `known`, as [`Observer::replay_sequence_with`].
     ///
     /// # Errors
     /// As [`Observer::fit_sequence`].
-    pub(crate) fn settle_sequence(
+    pub(crate) fn settle_sequence_with<R: Send>(
         &self,
         tracks: &Tracks,
         known: &[FrameFit],
-    ) -> Result<Vec<(Descent, Visible)>> {
+        each: impl Fn(Descent, Visible) -> R + Sync,
+    ) -> Result<Vec<R>> {
         if known.len() != tracks.n_frames() {
-            return self.replay_sequence(tracks, known);
+            return self.replay_sequence_with(tracks, known, each);
         }
+        self.settle_frames_with(tracks, known, 0..known.len(), each)
+    }
+
+    /// [`Observer::settle_sequence_with`] for the frames in `range` alone (`known` holding a
+    /// fit per frame of `tracks`), in parallel.
+    ///
+    /// # Errors
+    /// As [`Observer::fit_sequence`]; [`Error::Shape`] also for a range beyond `known`.
+    pub(crate) fn settle_frames_with<R: Send>(
+        &self,
+        tracks: &Tracks,
+        known: &[FrameFit],
+        range: std::ops::Range<usize>,
+        each: impl Fn(Descent, Visible) -> R + Sync,
+    ) -> Result<Vec<R>> {
         self.check_points(tracks.n_points())?;
-        Ok(known
+        let Some(fits) = known
+            .get(range.clone())
+            .filter(|_| range.end <= tracks.n_frames())
+        else {
+            return Err(Error::Shape {
+                expected: format!("frames below {}", tracks.n_frames().min(known.len())),
+                found: format!("frames {range:?}"),
+            });
+        };
+        Ok(fits
             .par_iter()
-            .enumerate()
-            .map(|(t, fit)| {
-                let frame: Vec<Option<Point3<f64>>> =
-                    (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
-                let visible = self.visible(&frame);
+            .zip(range)
+            .map(|(fit, t)| {
+                let visible = self.visible_at(tracks, t);
                 let descent = self.descend(self.initial_state(&visible, Some(fit), true), &visible);
-                (descent, visible)
+                each(descent, visible)
             })
             .collect())
+    }
+
+    /// [`Observer::visible`] of frame `t` of `tracks` (which has the model's points).
+    pub(crate) fn visible_at(&self, tracks: &Tracks, t: usize) -> Visible {
+        let frame: Vec<Option<Point3<f64>>> =
+            (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+        self.visible(&frame)
+    }
+
+    /// The number of placed points: the most a frame can show.
+    pub(crate) fn placed_points(&self) -> usize {
+        self.bodies.iter().map(|b| b.shape.len()).sum()
     }
 
     /// Every frame's descent from the last known values of the frames before it (folded from
@@ -1817,8 +1857,8 @@ pub(crate) fn rms_in_sigma(fits: &[FrameFit], sigma: f64) -> Option<f64> {
     (count > 0 && sigma > 0.0).then(|| (sum / count as f64).sqrt() / sigma)
 }
 
-/// Frames per parallel chunk of [`Observer::replay_sequence`]: enough to outweigh the copy of
-/// the last known values each chunk starts from.
+/// Frames per parallel chunk of [`Observer::replay_sequence_with`]: enough to outweigh the
+/// copy of the last known values each chunk starts from.
 const REPLAY_CHUNK: usize = 256;
 
 /// Folds a frame's fit into the last known values of the frames before it: every entry the

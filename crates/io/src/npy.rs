@@ -127,48 +127,51 @@ pub(crate) fn read_array(
     check_shape(&dims, item_bytes, data_len)?;
     check(&shape, &dtype)?;
     let order = npy.order();
-    let bad_data = |e: std::io::Error| Error::Malformed {
-        position: "data".into(),
-        message: e.to_string(),
-    };
-    fn widen<T: Into<f64>>(v: Vec<T>) -> Vec<f64> {
-        v.into_iter().map(Into::into).collect()
-    }
+    // The element count is the header's, checked against the data's length and the memory
+    // limit above, so the values are read into one buffer of their exact size (collecting
+    // npyz's iterator grows a buffer by doubling, up to twice the data's size).
+    let len = shape.iter().product::<u64>() as usize;
     let values: Vec<f64> = match dtype.as_str() {
-        "<f8" => npy.into_vec::<f64>().map_err(bad_data)?,
-        "<f4" => widen(npy.into_vec::<f32>().map_err(bad_data)?),
-        "<i4" => widen(npy.into_vec::<i32>().map_err(bad_data)?),
-        "<u4" => widen(npy.into_vec::<u32>().map_err(bad_data)?),
-        "<i2" => widen(npy.into_vec::<i16>().map_err(bad_data)?),
-        "<u2" => widen(npy.into_vec::<u16>().map_err(bad_data)?),
-        "|i1" => widen(npy.into_vec::<i8>().map_err(bad_data)?),
-        "|u1" => widen(npy.into_vec::<u8>().map_err(bad_data)?),
-        "|b1" => npy
-            .into_vec::<bool>()
-            .map_err(bad_data)?
-            .into_iter()
-            .map(|b| f64::from(u8::from(b)))
-            .collect(),
+        "<f8" => read_as_f64::<f64, _>(npy, len, |v| v),
+        "<f4" => read_as_f64::<f32, _>(npy, len, f64::from),
+        "<i4" => read_as_f64::<i32, _>(npy, len, f64::from),
+        "<u4" => read_as_f64::<u32, _>(npy, len, f64::from),
+        "<i2" => read_as_f64::<i16, _>(npy, len, f64::from),
+        "<u2" => read_as_f64::<u16, _>(npy, len, f64::from),
+        "|i1" => read_as_f64::<i8, _>(npy, len, f64::from),
+        "|u1" => read_as_f64::<u8, _>(npy, len, f64::from),
+        "|b1" => read_as_f64::<bool, _>(npy, len, |b| f64::from(u8::from(b))),
         // 64-bit integers: the values that matter here (flags, counts) are exact in f64.
-        "<i8" => npy
-            .into_vec::<i64>()
-            .map_err(bad_data)?
-            .into_iter()
-            .map(|v| v as f64)
-            .collect(),
-        _ => npy
-            .into_vec::<u64>()
-            .map_err(bad_data)?
-            .into_iter()
-            .map(|v| v as f64)
-            .collect(),
-    };
+        "<i8" => read_as_f64::<i64, _>(npy, len, |v| v as f64),
+        _ => read_as_f64::<u64, _>(npy, len, |v| v as f64),
+    }?;
     let values = if order == npyz::Order::Fortran && shape.len() > 1 {
         to_c_order(&shape, &values)
     } else {
         values
     };
     Ok(Array { shape, values })
+}
+
+/// The `len` values of `npy`'s data, each converted by `convert`.
+///
+/// # Errors
+/// [`Error::Malformed`] at the data for a read error or a type npyz cannot read as `T`.
+fn read_as_f64<T: npyz::Deserialize, R: Read>(
+    npy: npyz::NpyFile<R>,
+    len: usize,
+    convert: impl Fn(T) -> f64,
+) -> Result<Vec<f64>> {
+    let bad_data = |message: String| Error::Malformed {
+        position: "data".into(),
+        message,
+    };
+    let data = npy.data::<T>().map_err(|e| bad_data(e.to_string()))?;
+    let mut values = Vec::with_capacity(len);
+    for v in data {
+        values.push(convert(v.map_err(|e| bad_data(e.to_string()))?));
+    }
+    Ok(values)
 }
 
 /// The values of a Fortran-order (first index fastest) array in C order (last index fastest).

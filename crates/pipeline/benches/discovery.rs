@@ -157,6 +157,16 @@ fn discover_rrpr_points_1000_frames(bencher: divan::Bencher, n_points: usize) {
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
 
+/// Many points over many frames: the scale scenario at N = 5000, T = 10 000 (1.2 GB of
+/// tracks), discovered on the default sample of 500 points and the rest assigned. One sample
+/// of about 20 s; its peak memory is in `docs/benchmarks.md`.
+#[divan::bench(sample_count = 1)]
+fn discover_rrpr_5000_points_10000_frames(bencher: divan::Bencher) {
+    let tracks = scale_tracks(5000, 10_000);
+    let config = sigma_given();
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
+
 /// The scale scenario against the number of frames, with 1000 keypoints.
 #[divan::bench(args = [250, 500, 2000, 4000], sample_count = 3)]
 fn discover_rrpr_1000_points_frames(bencher: divan::Bencher, n_frames: usize) {

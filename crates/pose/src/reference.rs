@@ -7,6 +7,7 @@ use kinetree_core::{
 };
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 
 /// Parameters of [`KabschPoses`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -123,13 +124,19 @@ impl KabschPoses {
     fn body_track(&self, tracks: &Tracks, points: &[usize], sigma: f64) -> BodyTrack {
         let t_len = tracks.n_frames();
         let nb = points.len();
+        // Each frame's observations in a buffer of the body's size: collected from a filter,
+        // a buffer grows by doubling, and over long recordings of many points the slack was
+        // a third of the bodies' memory.
         let obs: Vec<Vec<(usize, Point3<f64>)>> = (0..t_len)
             .map(|t| {
-                points
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(k, &p)| tracks.get(t, p).map(|q| (k, q)))
-                    .collect()
+                let mut seen = Vec::with_capacity(nb);
+                seen.extend(
+                    points
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(k, &p)| tracks.get(t, p).map(|q| (k, q))),
+                );
+                seen
             })
             .collect();
         let mut order: Vec<usize> = (0..t_len).collect();
@@ -227,12 +234,22 @@ impl KabschPoses {
                 .enumerate()
                 .filter_map(|(t, fitted)| {
                     let (pose, used) = fitted.as_ref()?;
-                    let kept: Vec<(usize, Point3<f64>)> = obs[t]
-                        .iter()
-                        .zip(used)
-                        .filter(|(o, u)| **u && shape[o.0].is_some())
-                        .map(|(o, _)| *o)
-                        .collect();
+                    let enters =
+                        |(o, u): &(&(usize, Point3<f64>), &bool)| **u && shape[o.0].is_some();
+                    let kept: Cow<[(usize, Point3<f64>)]> = if used.len() == obs[t].len()
+                        && obs[t].iter().zip(used).all(|e| enters(&e))
+                    {
+                        Cow::Borrowed(&obs[t])
+                    } else {
+                        Cow::Owned(
+                            obs[t]
+                                .iter()
+                                .zip(used)
+                                .filter(enters)
+                                .map(|(o, _)| *o)
+                                .collect(),
+                        )
+                    };
                     cost += kept
                         .iter()
                         .filter_map(|&(k, q)| shape[k].map(|s| (pose * s - q).norm_squared()))

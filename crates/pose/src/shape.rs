@@ -13,6 +13,7 @@
 use kinetree_core::nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Point3, Vector3, Vector6,
 };
+use std::borrow::Cow;
 
 /// Bodies with more placed points than this keep the alternation's shape: the step's dense
 /// solve grows as the cube of the points (600 unknowns here, a few milliseconds), and a body
@@ -20,8 +21,10 @@ use kinetree_core::nalgebra::{
 pub(crate) const MAX_POINTS: usize = 200;
 
 /// One frame's registration: its pose (`camera_from_shape`) and the observations that entered
-/// it, as `(index into the shape, observed point)`.
-pub(crate) type FrameObs = (Isometry3<f64>, Vec<(usize, Point3<f64>)>);
+/// it, as `(index into the shape, observed point)`: borrowed from the frame's observations when
+/// all of them entered it (over long recordings of many points a copy of every frame's doubled
+/// the bodies' memory).
+pub(crate) type FrameObs<'a> = (Isometry3<f64>, Cow<'a, [(usize, Point3<f64>)]>);
 
 /// The Gauss-Newton step of the placed points of `shape` (all frames' residuals
 /// `pose * s_k - q`, the poses eliminated), as a move per shape entry (zero for unplaced
@@ -87,7 +90,7 @@ pub(crate) fn gauss_newton_step(
         let mut a = Matrix6::<f64>::zeros();
         let mut g = Vector6::<f64>::zeros();
         list.clear();
-        for &(k, q) in obs {
+        for &(k, q) in obs.iter() {
             let Some(i) = index[k] else {
                 continue;
             };
@@ -275,7 +278,7 @@ mod tests {
                         .map(|&(k, q)| (shape[k].expect("placed"), q))
                         .unzip();
                     let fitted = kinetree_core::geom::kabsch(&src, &dst)?;
-                    Some((fitted, obs))
+                    Some((fitted, Cow::Owned(obs)))
                 })
                 .collect();
             let step = gauss_newton_step(&shape, &frames).expect("step");
@@ -311,7 +314,7 @@ mod tests {
             };
             let mut a = Matrix6::<f64>::zeros();
             let mut g = Vector6::<f64>::zeros();
-            for &(k, q) in obs {
+            for &(k, q) in obs.iter() {
                 let residual = pose * shape[k] - q;
                 a += jac(k).transpose() * jac(k);
                 g += jac(k).transpose() * residual;
@@ -322,13 +325,13 @@ mod tests {
                 }
             }
             let a_inv = a.try_inverse().expect("pose block");
-            for &(i, _) in obs {
+            for &(i, _) in obs.iter() {
                 let bi = r.transpose() * jac(i);
                 let gi = bi * a_inv * g;
                 for d in 0..3 {
                     gradient[3 * i + d] -= gi[d];
                 }
-                for &(j, _) in obs {
+                for &(j, _) in obs.iter() {
                     let bj = r.transpose() * jac(j);
                     let block = bi * a_inv * bj.transpose();
                     let mut view = big.view_mut((3 * i, 3 * j), (3, 3));
@@ -374,7 +377,7 @@ mod tests {
                     .into_iter()
                     .map(|k| (k, pose * truth[k] + Vector3::new(1e-4, 0.0, -1e-4)))
                     .collect();
-                (pose, obs)
+                (pose, Cow::Owned(obs))
             })
             .collect();
         let placed: Vec<Option<Point3<f64>>> = start.iter().copied().map(Some).collect();

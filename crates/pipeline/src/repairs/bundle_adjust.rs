@@ -20,6 +20,10 @@ pub struct BundleAdjustParams {
     /// Most frames the adjustment works on, evenly spaced over longer recordings
     /// ([`kinetree_fit::BundleLimits::max_frames`], default 20 000).
     pub max_frames: usize,
+    /// Most observations whose visible points are kept between the steps; over more they
+    /// are formed again at each use, with the same result
+    /// ([`kinetree_fit::BundleLimits::max_kept_observations`], default 2 000 000).
+    pub max_kept_observations: usize,
 }
 
 impl Default for BundleAdjustParams {
@@ -30,6 +34,7 @@ impl Default for BundleAdjustParams {
             max_steps: b.max_steps,
             min_gain_in_variances: b.min_gain_in_variances,
             max_frames: b.max_frames,
+            max_kept_observations: b.max_kept_observations,
         }
     }
 }
@@ -59,6 +64,7 @@ impl BundleAdjustParams {
             max_steps: self.max_steps,
             min_gain_in_variances: self.min_gain_in_variances,
             max_frames: self.max_frames,
+            max_kept_observations: self.max_kept_observations,
         }
     }
 }
