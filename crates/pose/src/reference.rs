@@ -124,9 +124,9 @@ impl KabschPoses {
     fn body_track(&self, tracks: &Tracks, points: &[usize], sigma: f64) -> BodyTrack {
         let t_len = tracks.n_frames();
         let nb = points.len();
-        // Each frame's observations in a buffer of the body's size: collected from a filter,
-        // a buffer grows by doubling, and over long recordings of many points the slack was
-        // a third of the bodies' memory.
+        // Each frame's observations are kept in a buffer of their exact size: collected from a
+        // filter, a buffer grows by doubling, and over long recordings of many points the
+        // slack was a third of the bodies' memory.
         let obs: Vec<Vec<(usize, Point3<f64>)>> = (0..t_len)
             .map(|t| {
                 let mut seen = Vec::with_capacity(nb);
@@ -136,6 +136,7 @@ impl KabschPoses {
                         .enumerate()
                         .filter_map(|(k, &p)| tracks.get(t, p).map(|q| (k, q))),
                 );
+                seen.shrink_to_fit();
                 seen
             })
             .collect();
