@@ -451,16 +451,16 @@ pub(crate) fn joint_precision(
     if blocks.is_empty() {
         return Ok(out);
     }
-    let Some(mut sum) = ReducedSum::new(observer, &blocks, n) else {
-        return Ok(out);
-    };
     let frame = |descent, visible| Frame {
         visible: Some(visible),
         descent,
     };
-    if known.len() == tracks.n_frames() {
+    let system = if known.len() == tracks.n_frames() {
         // The frames are settled a batch at a time and summed: their visible points together
         // would take 48 bytes per observation.
+        let Some(mut sum) = ReducedSum::new(observer, &blocks, n) else {
+            return Ok(out);
+        };
         for start in (0..known.len()).step_by(FRAME_BATCH) {
             let range = start..(start + FRAME_BATCH).min(known.len());
             let set = FrameSet {
@@ -468,23 +468,18 @@ pub(crate) fn joint_precision(
                 observer,
                 tracks,
             };
-            sum.add(observer, &set, 0..set.frames.len());
+            sum.add(&set, 0..set.frames.len());
         }
+        sum.finish()
     } else {
         let set = FrameSet {
             frames: observer.settle_sequence_with(tracks, known, frame)?,
             observer,
             tracks,
         };
-        for start in (0..set.frames.len()).step_by(FRAME_BATCH) {
-            sum.add(
-                observer,
-                &set,
-                start..(start + FRAME_BATCH).min(set.frames.len()),
-            );
-        }
-    }
-    let Some((normal, _)) = sum.finish() else {
+        reduced_system(observer, &blocks, n, &set)
+    };
+    let Some((normal, _)) = system else {
         return Ok(out);
     };
     let Some(chol) = normal.cholesky() else {
@@ -561,7 +556,7 @@ fn reduced_system(
     let mut sum = ReducedSum::new(observer, blocks, n)?;
     let count = frames.frames.len();
     for start in (0..count).step_by(FRAME_BATCH) {
-        sum.add(observer, frames, start..(start + FRAME_BATCH).min(count));
+        sum.add(frames, start..(start + FRAME_BATCH).min(count));
     }
     sum.finish()
 }
@@ -570,6 +565,8 @@ fn reduced_system(
 /// form the frames batch by batch too (the visible points of every frame of a long recording
 /// of many points would not fit in memory together).
 struct ReducedSum<'a> {
+    /// The observer whose joints are linearised.
+    observer: &'a Observer,
     layout: Layout<'a>,
     normal: DMatrix<f64>,
     rhs: DVector<f64>,
@@ -578,7 +575,7 @@ struct ReducedSum<'a> {
 
 impl<'a> ReducedSum<'a> {
     /// Empty sums; `None` when a block's joint has no position column.
-    fn new(observer: &Observer, blocks: &'a [Block], n: usize) -> Option<Self> {
+    fn new(observer: &'a Observer, blocks: &'a [Block], n: usize) -> Option<Self> {
         // The body each frame parameter moves with its subtree: a free pose's body, a
         // joint's child.
         let m = observer.n_params;
@@ -600,6 +597,7 @@ impl<'a> ReducedSum<'a> {
             .map(|b| Some((observer.joint_col[b.joint]?, observer.joints[b.joint].child)))
             .collect::<Option<_>>()?;
         Some(Self {
+            observer,
             layout: Layout {
                 blocks,
                 n,
@@ -615,12 +613,13 @@ impl<'a> ReducedSum<'a> {
     /// Adds the terms of the frames of `frames` in `batch`, the next in order. The terms are
     /// formed in parallel and added in frame order, so the sums do not depend on the number of
     /// threads; keep batches to about [`FRAME_BATCH`] frames (a term is n x n).
-    fn add(&mut self, observer: &Observer, frames: &FrameSet, batch: std::ops::Range<usize>) {
+    fn add(&mut self, frames: &FrameSet, batch: std::ops::Range<usize>) {
+        let (observer, layout) = (self.observer, &self.layout);
         let terms: Vec<FrameTerm> = batch
             .into_par_iter()
             .map_init(Scratch::default, |scratch, t| {
                 let descent = &frames.frames[t].descent;
-                frame_term(observer, &self.layout, descent, &frames.visible(t), scratch)
+                frame_term(observer, layout, descent, &frames.visible(t), scratch)
             })
             .collect();
         for term in terms {

@@ -124,9 +124,9 @@ impl KabschPoses {
     fn body_track(&self, tracks: &Tracks, points: &[usize], sigma: f64) -> BodyTrack {
         let t_len = tracks.n_frames();
         let nb = points.len();
-        // Each frame's observations are kept in a buffer of their exact size: collected from a
-        // filter, a buffer grows by doubling, and over long recordings of many points the
-        // slack was a third of the bodies' memory.
+        // Each frame's observations are kept in a buffer of their exact size: a buffer grown
+        // by doubling leaves up to half of itself unused, a large share of the bodies' memory
+        // over long recordings of many points.
         let obs: Vec<Vec<(usize, Point3<f64>)>> = (0..t_len)
             .map(|t| {
                 let mut seen = Vec::with_capacity(nb);
@@ -236,21 +236,14 @@ impl KabschPoses {
                 .filter_map(|(t, fitted)| {
                     let (pose, used) = fitted.as_ref()?;
                     let enters =
-                        |(o, u): &(&(usize, Point3<f64>), &bool)| **u && shape[o.0].is_some();
-                    let kept: Cow<[(usize, Point3<f64>)]> = if used.len() == obs[t].len()
-                        && obs[t].iter().zip(used).all(|e| enters(&e))
-                    {
-                        Cow::Borrowed(&obs[t])
-                    } else {
-                        Cow::Owned(
-                            obs[t]
-                                .iter()
-                                .zip(used)
-                                .filter(enters)
-                                .map(|(o, _)| *o)
-                                .collect(),
-                        )
-                    };
+                        |(o, u): (&(usize, Point3<f64>), &bool)| *u && shape[o.0].is_some();
+                    let seen = || obs[t].iter().zip(used);
+                    let kept: Cow<[(usize, Point3<f64>)]> =
+                        if used.len() == obs[t].len() && seen().all(enters) {
+                            Cow::Borrowed(&obs[t])
+                        } else {
+                            Cow::Owned(seen().filter(|&e| enters(e)).map(|(o, _)| *o).collect())
+                        };
                     cost += kept
                         .iter()
                         .filter_map(|&(k, q)| shape[k].map(|s| (pose * s - q).norm_squared()))

@@ -22,8 +22,8 @@ pub(crate) const MAX_POINTS: usize = 200;
 
 /// One frame's registration: its pose (`camera_from_shape`) and the observations that entered
 /// it, as `(index into the shape, observed point)`: borrowed from the frame's observations when
-/// all of them entered it (over long recordings of many points a copy of every frame's doubled
-/// the bodies' memory).
+/// all of them entered it (a copy of every frame's would double the bodies' memory over long
+/// recordings of many points).
 pub(crate) type FrameObs<'a> = (Isometry3<f64>, Cow<'a, [(usize, Point3<f64>)]>);
 
 /// The Gauss-Newton step of the placed points of `shape` (all frames' residuals
