@@ -9,6 +9,7 @@ use kinetree_core::model::{JointFit, JointType, RigidTransform};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 use kinetree_core::{Model, Result, Tracks, Warning};
 use rayon::prelude::*;
+use std::collections::BTreeMap;
 
 /// A model's whole-tree fit between the steps of the fit's policy: the observer built from the
 /// model (its freed joints included), its fit of every frame, and a fingerprint of the parts
@@ -876,13 +877,26 @@ fn adjust_model(
     let Some(adjusted) = crate::bundle::adjust(observer, tracks, known, limits)? else {
         return Ok(None);
     };
-    let adjusted_fits = adjusted.fit_sequence(tracks)?;
+    // The joints are stored against their parents' poses at their reference frames, so only
+    // those frames are fitted here, each from its known fit; the whole sequence is fitted once,
+    // with the stored joints, below.
+    let mut at_reference: BTreeMap<usize, FrameFit> = BTreeMap::new();
+    for (k, j) in model.joints.iter().enumerate() {
+        let r = j.reference_frame;
+        if adjusted.joint_col[k].is_none()
+            || r >= tracks.n_frames()
+            || at_reference.contains_key(&r)
+        {
+            continue;
+        }
+        at_reference.insert(r, adjusted.fit(&tracks.frame_points(r), known.get(r))?);
+    }
     for (k, j) in adjusted.joints.iter().enumerate() {
         if adjusted.joint_col[k].is_none() {
             continue;
         }
-        let Some(cam_parent) = adjusted_fits
-            .get(model.joints[k].reference_frame)
+        let Some(cam_parent) = at_reference
+            .get(&model.joints[k].reference_frame)
             .and_then(|f| f.poses.get(j.parent).copied().flatten())
         else {
             continue;

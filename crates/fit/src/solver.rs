@@ -499,8 +499,7 @@ impl Observer {
         let mut warm: Option<FrameFit> = None;
         let mut out = Vec::with_capacity(frames.len());
         for t in frames {
-            let frame: Vec<Option<Point3<f64>>> =
-                (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+            let frame = tracks.frame_points(t);
             let (descent, visible) = self.fit_descent(&frame, warm.as_ref());
             let fit = self.finish(&descent, &visible, warm.as_ref())?;
             each(descent, visible);
@@ -605,8 +604,7 @@ impl Observer {
 
     /// [`Observer::visible`] of frame `t` of `tracks` (which has the model's points).
     pub(crate) fn visible_at(&self, tracks: &Tracks, t: usize) -> Visible {
-        let frame: Vec<Option<Point3<f64>>> =
-            (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+        let frame = tracks.frame_points(t);
         self.visible(&frame)
     }
 
@@ -640,8 +638,7 @@ impl Observer {
                 let end = (start + REPLAY_CHUNK).min(t_len);
                 let mut out = Vec::with_capacity(end - start);
                 for (t, fit) in known.iter().enumerate().take(end).skip(start) {
-                    let frame: Vec<Option<Point3<f64>>> =
-                        (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+                    let frame = tracks.frame_points(t);
                     let (descent, visible) = self.fit_descent(&frame, warm.as_ref());
                     out.push(each(descent, visible, warm.as_ref())?);
                     remember(&mut warm, fit);
@@ -1490,8 +1487,7 @@ impl Observer {
         }
         let mut excess = vec![(0.0, 0usize); self.joints.len()];
         for (t, fit) in fits.iter().enumerate() {
-            let frame: Vec<Option<Point3<f64>>> =
-                (0..tracks.n_points()).map(|i| tracks.get(t, i)).collect();
+            let frame = tracks.frame_points(t);
             let visible = self.visible(&frame);
             for (k, j) in self.joints.iter().enumerate() {
                 if self.joint_col[k].is_none() {
