@@ -392,7 +392,8 @@ enum Command {
         /// a limb segment, four on the pelvis, torso and head, two on each elbow, knee, wrist
         /// and ankle axis), `gripper-parallel` or `gripper-angular` (an arm with two fingers that slide along,
         /// or turn about, one axis), `hand` (a palm with four fingers and a thumb),
-        /// `hidden-link` (an arm whose wrist link is seen in part of the frames),
+        /// `hand-knuckles` (the same with a knuckle body between two hinges at each finger's
+        /// base), `hidden-link` (an arm whose wrist link is seen in part of the frames),
         /// `slender-planar` or `slender` (an arm of rods a few millimetres thick turning about
         /// parallel, or random, axes; `--joints` of them), `scale` (a base and four links
         /// R-R-P-R with `--points` keypoints inside them, as dense tracks), or `random` with

@@ -404,7 +404,8 @@ pub struct SimulationRequest {
     /// limb segment, four on the pelvis, torso and head, two on each elbow, knee, wrist and
     /// ankle axis),
     /// `gripper-parallel` or `gripper-angular` (an arm whose two fingers slide along, or turn
-    /// about, one axis), `hand` (a palm with four fingers and a thumb), `hidden-link` (an
+    /// about, one axis), `hand` (a palm with four fingers and a thumb), `hand-knuckles` (the
+    /// same with a knuckle body between two hinges at each finger's base), `hidden-link` (an
     /// arm whose wrist link is seen in part of the frames), `slender-planar` or `slender`
     /// (an arm of rods a few millimetres thick turning about parallel, or random, axes), or
     /// `scale` (a base and four links R-R-P-R with any number of keypoints inside them, the
@@ -501,7 +502,8 @@ impl SimulationRequest {
                     ..kinetree_synth::GripperParams::default()
                 })
             }
-            "hand" => DataConfig::Hand(kinetree_synth::HandParams {
+            "hand" | "hand-knuckles" => DataConfig::Hand(kinetree_synth::HandParams {
+                knuckle_bodies: self.mechanism == "hand-knuckles",
                 n_frames: self
                     .n_frames
                     .unwrap_or(kinetree_synth::HandParams::default().n_frames),
@@ -547,7 +549,7 @@ impl SimulationRequest {
                 return Err(Error::Config(format!(
                     "unknown mechanism `{other}`; use paper-arm, random, skeleton, \
                      skeleton-universal, skeleton-floating, skeleton-clinical, gripper-parallel, gripper-angular, \
-                     hand, hidden-link, slender-planar, slender or scale"
+                     hand, hand-knuckles, hidden-link, slender-planar, slender or scale"
                 )));
             }
         })

@@ -3,7 +3,7 @@
 
 use kinetree_core::geom::{angle_about, relative_poses, unwrap_angles};
 use kinetree_core::nalgebra::{
-    Isometry3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3, Vector4,
+    Isometry3, Point3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3, Vector4,
 };
 use kinetree_core::{BodyPoses, JointKind, PairDof, RankTest, TreeCosts};
 use petgraph::graph::{NodeIndex, UnGraph};
@@ -325,6 +325,142 @@ pub fn fit_margin_ties(pairs: &[PairDof], tree: &Tree) -> Vec<(usize, usize, usi
             let u = tree.parent[v]?;
             let w = tree.parent[u]?;
             (!tree.parent.contains(&Some(v)) && single_dof_triangle(pairs, &[], w, u, v))
+                .then_some((w, u, v))
+        })
+        .collect()
+}
+
+/// The bodies `v` of `tree` that hang by a hinge on a parent `u` that itself hangs by a hinge
+/// on `w`, where the two hinges turn about one line and `v`'s pair with `w` is a hinge too
+/// (`(w, u, v)`, in order of `v`; `v` may carry other bodies). Two fingers whose knuckles
+/// flex about one line move relative to each other by a hinge about it, which can test
+/// clearer than either finger's hinge on the palm: the finger on the palm has its own coordinate
+/// (the tree a roboticist draws), on the other finger a difference of two. One line: the
+/// median over the frames that pose `w` and `u` of the angle between the two axes is at most
+/// `max_angle_rad`, and of the distances of `u`'s hinge line from the other's, at the points
+/// nearest `u`'s and `v`'s origins, at most `max_offset` times the distance between those
+/// origins. And `v`'s hinge on `w` passes by `w`: the nearest of `w`'s placed points to it
+/// is within `max_reach` times their RMS distance from `w`'s origin (the median over the
+/// frames), as a knuckle line runs along the palm's edge, where a shoulder's axis seen from
+/// the pelvis does not. Whether the two trees fit alike is for a whole-tree fit to tell (the
+/// `sibling_ties` repair): serial hinges through one anchor a few degrees apart pass here.
+pub fn collinear_hinge_ties(
+    pairs: &[PairDof],
+    poses: &BodyPoses,
+    tree: &Tree,
+    max_angle_rad: f64,
+    max_offset: f64,
+    max_reach: f64,
+) -> Vec<(usize, usize, usize)> {
+    // A pair's hinge as (axis, pivot) in the camera frame at frame `t`.
+    let hinge_at = |x: usize, y: usize, t: usize| -> Option<(Vector3<f64>, Vector3<f64>)> {
+        let p = find_pair(pairs, Some(x), y)?;
+        let JointKind::Revolute { axis, pivot } = p.joint else {
+            return None;
+        };
+        let pose = poses
+            .bodies
+            .get(p.a?)?
+            .cam_from_body
+            .get(t)
+            .copied()
+            .flatten()?;
+        Some((pose.rotation * axis, (pose * pivot).coords))
+    };
+    let origin = |b: usize, t: usize| -> Option<Vector3<f64>> {
+        let pose = poses
+            .bodies
+            .get(b)?
+            .cam_from_body
+            .get(t)
+            .copied()
+            .flatten()?;
+        Some(pose.translation.vector)
+    };
+    // A body's placed points (in its frame) and their RMS distance from its origin.
+    let placed = |w: usize| -> (Vec<Point3<f64>>, f64) {
+        let Some(track) = poses.bodies.get(w) else {
+            return (Vec::new(), 0.0);
+        };
+        let points: Vec<Point3<f64>> = track
+            .shape
+            .iter()
+            .zip(&track.placed)
+            .filter_map(|(x, &ok)| ok.then_some(*x))
+            .collect();
+        let radius = (points.iter().map(|x| x.coords.norm_squared()).sum::<f64>()
+            / points.len().max(1) as f64)
+            .sqrt();
+        (points, radius)
+    };
+    // The nearest of `w`'s `points` to the line (`axis`, `pivot`) at frame `t`, over their
+    // RMS distance `radius` from `w`'s origin.
+    let reach = |w: usize,
+                 (points, radius): &(Vec<Point3<f64>>, f64),
+                 t: usize,
+                 axis: &Vector3<f64>,
+                 pivot: &Vector3<f64>|
+     -> Option<f64> {
+        let pose = poses
+            .bodies
+            .get(w)?
+            .cam_from_body
+            .get(t)
+            .copied()
+            .flatten()?;
+        let nearest = points
+            .iter()
+            .map(|x| {
+                let d = (pose * x).coords - pivot;
+                (d - axis * axis.dot(&d)).norm()
+            })
+            .reduce(f64::min)?;
+        (*radius > 0.0).then_some(nearest / radius)
+    };
+    let is_hinge = |x: usize, y: usize| {
+        find_pair(pairs, Some(x), y).is_some_and(|p| matches!(p.joint, JointKind::Revolute { .. }))
+    };
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied()
+    };
+    (0..tree.parent.len())
+        .filter_map(|v| {
+            let u = tree.parent[v]?;
+            let w = tree.parent[u]?;
+            if !(is_hinge(w, u) && is_hinge(u, v) && is_hinge(w, v)) {
+                return None;
+            }
+            let (mut angles, mut offsets, mut reaches) = (Vec::new(), Vec::new(), Vec::new());
+            let of_w = placed(w);
+            for t in 0..poses.n_frames {
+                if let Some(r) = hinge_at(w, v, t).and_then(|(a, p)| reach(w, &of_w, t, &a, &p)) {
+                    reaches.push(r);
+                }
+                let (Some((a1, p1)), Some((a2, p2)), Some(ou), Some(ov)) = (
+                    hinge_at(w, u, t),
+                    hinge_at(u, v, t),
+                    origin(u, t),
+                    origin(v, t),
+                ) else {
+                    continue;
+                };
+                angles.push(a1.angle(&a2).min(a1.angle(&(-a2))));
+                // Distance of the points of the second line nearest each origin from the
+                // first line, over the origins' distance.
+                let apart = (ov - ou).norm();
+                if apart <= 0.0 {
+                    continue;
+                }
+                let off = |o: &Vector3<f64>| {
+                    let on_second = p2 + a2 * a2.dot(&(o - p2));
+                    let d = on_second - p1;
+                    (d - a1 * a1.dot(&d)).norm()
+                };
+                offsets.push(off(&ou).max(off(&ov)) / apart);
+            }
+            let (angle, offset, reach) = (median(angles)?, median(offsets)?, median(reaches)?);
+            (angle <= max_angle_rad && offset <= max_offset && reach <= max_reach)
                 .then_some((w, u, v))
         })
         .collect()
@@ -717,6 +853,106 @@ mod tests {
             fit_ratio,
             distance_m: None,
         }
+    }
+
+    /// Poses of bodies at fixed camera positions `origins` (identity rotations) over `n`
+    /// frames, body 0 with the keypoints `shape` (in its frame), the others with none.
+    fn still_poses(origins: &[[f64; 3]], n: usize, shape: &[[f64; 3]]) -> BodyPoses {
+        BodyPoses {
+            n_frames: n,
+            bodies: origins
+                .iter()
+                .enumerate()
+                .map(|(b, o)| kinetree_core::BodyTrack {
+                    points: Vec::new(),
+                    shape: if b == 0 {
+                        shape.iter().map(|&x| Point3::from(x)).collect()
+                    } else {
+                        Vec::new()
+                    },
+                    placed: vec![b == 0; if b == 0 { shape.len() } else { 0 }],
+                    reference_frame: 0,
+                    cam_from_body: vec![Some(Isometry3::translation(o[0], o[1], o[2])); n],
+                    quality: vec![None; n],
+                    frames_too_few_points: 0,
+                    frames_degenerate: 0,
+                })
+                .collect(),
+        }
+    }
+
+    /// A palm (body 0) with two fingers whose knuckles flex about one line, x through the
+    /// origin along the palm's edge: the second finger, hung on the first by a hinge about
+    /// that line, is a tie; a hinge 30 deg off the line, about a parallel line a finger's
+    /// length away (the next phalanx), or with the palm's keypoints far from the line, is not.
+    #[test]
+    fn fingers_flexing_about_one_line_are_collinear_ties() {
+        let hinge = |axis: Vector3<f64>, pivot: [f64; 3]| JointKind::Revolute {
+            axis,
+            pivot: Point3::from(pivot),
+        };
+        // Body frames at the bodies' origins: the line x through the camera origin is at
+        // (., -y, -z) of each body's origin in its own frame.
+        let origins = [[0.0, 0.0, -0.04], [0.03, 0.0, 0.01], [-0.03, 0.0, 0.01]];
+        // The palm's keypoints on its face, up to its edge (z = 0.04 in its frame).
+        let palm = [
+            [-0.03, 0.0, 0.04],
+            [0.03, 0.0, 0.04],
+            [-0.03, 0.0, -0.04],
+            [0.03, 0.0, -0.04],
+        ];
+        let poses = still_poses(&origins, 5, &palm);
+        let at = |b: usize| [0.0, -origins[b][1], -origins[b][2]];
+        let tree = Tree {
+            root: 0,
+            root_is_static: true,
+            parent: vec![None, Some(0), Some(1)],
+            order: vec![0, 1, 2],
+        };
+        let pairs = |second: JointKind| {
+            vec![
+                pair(Some(0), 1, hinge(Vector3::x(), at(0)), 0.5),
+                pair(Some(1), 2, second, 0.3),
+                pair(Some(0), 2, hinge(Vector3::x(), at(0)), 0.6),
+            ]
+        };
+        let max_angle = 10f64.to_radians();
+        let on_line = pairs(hinge(-Vector3::x(), at(1)));
+        assert_eq!(
+            collinear_hinge_ties(&on_line, &poses, &tree, max_angle, 0.25, 1.0),
+            vec![(0, 1, 2)]
+        );
+        // Keypoints 5-7 cm below the line, 4 cm from the palm's origin in the RMS.
+        let low = [
+            [-0.03, 0.0, -0.01],
+            [0.03, 0.0, -0.01],
+            [-0.03, 0.0, -0.03],
+            [0.03, 0.0, -0.03],
+        ];
+        let far = still_poses(&origins, 5, &low);
+        assert!(collinear_hinge_ties(&on_line, &far, &tree, max_angle, 0.25, 1.0).is_empty());
+        assert_eq!(
+            collinear_hinge_ties(&on_line, &far, &tree, max_angle, 0.25, 2.0),
+            vec![(0, 1, 2)]
+        );
+        let tilted = Vector3::new(30f64.to_radians().cos(), 30f64.to_radians().sin(), 0.0);
+        for second in [
+            hinge(tilted, at(1)),
+            hinge(Vector3::x(), [at(1)[0], at(1)[1], at(1)[2] + 0.05]),
+            JointKind::MultiDof,
+        ] {
+            assert!(
+                collinear_hinge_ties(&pairs(second), &poses, &tree, max_angle, 0.25, 1.0)
+                    .is_empty()
+            );
+        }
+        // The angle and offset bounds are what decide: the tilted hinge's line leaves the
+        // other's by 0.43 of the fingers' distance at their origins.
+        let tilted = pairs(hinge(tilted, at(1)));
+        assert_eq!(
+            collinear_hinge_ties(&tilted, &poses, &tree, 31f64.to_radians(), 0.44, 1.0),
+            vec![(0, 1, 2)]
+        );
     }
 
     fn ball() -> JointKind {

@@ -5,12 +5,15 @@
 //! other by a joint of the same type, so a chain through one finger fits the data as well as
 //! both fingers on the hand. [`kinetree_structure::spanning_tree`] hoists such a body when its
 //! pair tests say so within a fit margin; the pair tests' fit ratios scatter too much for that
-//! margin to catch every tie (`docs/decisions.md`, `sibling_ties`). For each body it leaves
-//! (`kinetree_structure::fit_margin_ties`), this repair fits the tree with the body on its
-//! grandparent whole, and proposes it when the keypoints' squared residual grows by at most
-//! `max_cost_per_frame` noise variances per frame the body is seen with the grandparent: a
-//! joint a few degrees off the parent's axis costs more. The proposal stands when the
-//! finished model has no more doubtful joints and re-predicts the keypoints within
+//! margin to catch every tie (`docs/decisions.md`, `sibling_ties`). The same holds for fingers
+//! whose knuckles flex about one line: a finger's hinge on its neighbour can test clearer than
+//! its hinge on the palm. The candidates are the bodies [`kinetree_structure::fit_margin_ties`] leaves and
+//! those [`kinetree_structure::collinear_hinge_ties`] finds (which may carry other bodies).
+//! For each, this repair fits the tree with the body on its grandparent whole, and keeps the
+//! hoist when the keypoints' squared residual grows by at most `max_cost_per_frame` noise
+//! variances per frame the body is seen with the grandparent: a joint a few degrees off the
+//! parent's axis costs more. The hoists kept are proposed together; the proposal stands when
+//! the finished model has no more doubtful joints and re-predicts the keypoints within
 //! `rms_tolerance` of the model.
 
 use super::{count_in_range, in_range, plain_sse, tree_inputs, tree_stands};
@@ -32,6 +35,17 @@ pub struct SiblingTiesParams {
     pub rms_tolerance: f64,
     /// Most bodies tried per model (default 3; each costs a whole-tree fit of every frame).
     pub max_alternatives: usize,
+    /// Largest angle, degrees, between a body's hinge on its parent and the parent's hinge on
+    /// the grandparent for the two to turn about one line
+    /// ([`kinetree_structure::collinear_hinge_ties`]; default 20).
+    pub collinear_max_angle_deg: f64,
+    /// Largest distance between those two hinge lines, over the distance between the body's
+    /// and its parent's origins, for them to be one line (default 0.4).
+    pub collinear_max_offset: f64,
+    /// Largest distance of the body's hinge on its grandparent from the grandparent's nearest
+    /// keypoint, over the RMS distance of the grandparent's keypoints from its origin: the
+    /// hinge must pass by the grandparent (default 1).
+    pub collinear_max_reach: f64,
 }
 
 impl Default for SiblingTiesParams {
@@ -41,6 +55,9 @@ impl Default for SiblingTiesParams {
             max_cost_per_frame: 1.0,
             rms_tolerance: 0.01,
             max_alternatives: 3,
+            collinear_max_angle_deg: 20.0,
+            collinear_max_offset: 0.4,
+            collinear_max_reach: 1.0,
         }
     }
 }
@@ -60,6 +77,27 @@ impl SiblingTiesParams {
             1e6,
         )?;
         in_range(NAME, "rms_tolerance", self.rms_tolerance, 0.0, 1.0)?;
+        in_range(
+            NAME,
+            "collinear_max_angle_deg",
+            self.collinear_max_angle_deg,
+            0.0,
+            90.0,
+        )?;
+        in_range(
+            NAME,
+            "collinear_max_offset",
+            self.collinear_max_offset,
+            0.0,
+            1e3,
+        )?;
+        in_range(
+            NAME,
+            "collinear_max_reach",
+            self.collinear_max_reach,
+            0.0,
+            1e3,
+        )?;
         count_in_range(NAME, "max_alternatives", self.max_alternatives, 0, 100)
     }
 }
@@ -96,36 +134,87 @@ impl Repair for SiblingTies {
         let Some(tree) = kinetree_structure::spanning_tree(nb, pairs, &ctx.tree) else {
             return Ok(None);
         };
-        let ties = kinetree_structure::fit_margin_ties(pairs, &tree);
-        if ties.is_empty() {
-            return Ok(None);
-        }
         let variance = first.model.noise.sigma_m.powi(2).max(f64::MIN_POSITIVE);
-        let own = plain_sse(&first.model, ctx.tracks)?;
+        let mut own = None;
+        let mut cost_of =
+            |excluded: &[(usize, usize)], w: usize, v: usize| -> Result<Option<f64>> {
+                let frames = find_pair(pairs, Some(w), v).map_or(0, |p| p.translation.n_columns);
+                if frames == 0 {
+                    return Ok(None);
+                }
+                let own = match own {
+                    Some(x) => x,
+                    None => *own.insert(plain_sse(&first.model, ctx.tracks)?),
+                };
+                let alt =
+                    models.assemble(&draft.segmentation, poses, pairs, excluded, &first.history)?;
+                Ok(Some(
+                    (plain_sse(&alt.model, ctx.tracks)? - own) / variance / frames as f64,
+                ))
+            };
+        let mut tried = 0;
+        // The ties the fit margin left: the tree without the body's edge, when it hangs the
+        // body on its grandparent; the one that costs least.
         let mut best: Option<((usize, usize), f64)> = None;
-        for (w, u, v) in ties.into_iter().take(self.params.max_alternatives) {
+        for (w, u, v) in kinetree_structure::fit_margin_ties(pairs, &tree) {
+            if tried == self.params.max_alternatives {
+                break;
+            }
+            tried += 1;
             let edge = (u, v);
             let hoisted = kinetree_structure::spanning_tree_without(nb, pairs, &[edge], &ctx.tree);
             if hoisted.is_none_or(|t| t.parent[v] != Some(w)) {
                 continue;
             }
-            let frames = find_pair(pairs, Some(w), v).map_or(0, |p| p.translation.n_columns);
-            if frames == 0 {
-                continue;
-            }
-            let alt =
-                models.assemble(&draft.segmentation, poses, pairs, &[edge], &first.history)?;
-            let cost = (plain_sse(&alt.model, ctx.tracks)? - own) / variance / frames as f64;
-            if cost <= self.params.max_cost_per_frame && best.is_none_or(|b| cost < b.1) {
+            if let Some(cost) = cost_of(&[edge], w, v)?
+                && cost <= self.params.max_cost_per_frame
+                && best.is_none_or(|b| cost < b.1)
+            {
                 best = Some((edge, cost));
             }
         }
-        Ok(best.map(|(edge, cost)| {
-            Proposal::new(
+        if let Some((edge, cost)) = best {
+            return Ok(Some(Proposal::new(
                 Edit::Tree(vec![edge]),
                 format!("tree without edge {edge:?} costs {cost:.3} noise variances per frame"),
-            )
-        }))
+            )));
+        }
+        // Bodies on a parent's hinge line: the tree with just the body moved, and every such
+        // move that costs little at once.
+        let mut hoisted = tree.parent.clone();
+        let mut costs = Vec::new();
+        for (w, u, v) in kinetree_structure::collinear_hinge_ties(
+            pairs,
+            poses,
+            &tree,
+            self.params.collinear_max_angle_deg.to_radians(),
+            self.params.collinear_max_offset,
+            self.params.collinear_max_reach,
+        ) {
+            if tried == self.params.max_alternatives {
+                break;
+            }
+            tried += 1;
+            let mut parent = tree.parent.clone();
+            parent[v] = Some(w);
+            if let Some(cost) = cost_of(&off_the_tree(pairs, &parent), w, v)?
+                && cost <= self.params.max_cost_per_frame
+            {
+                hoisted[v] = Some(w);
+                costs.push(format!("{v} from {u} onto {w}: {cost:.3}"));
+            }
+        }
+        if costs.is_empty() {
+            return Ok(None);
+        }
+        Ok(Some(Proposal::new(
+            Edit::Tree(off_the_tree(pairs, &hoisted)),
+            format!(
+                "bodies moved onto their grandparents' hinge lines cost, in noise variances \
+                 per frame each is seen with its grandparent, {}",
+                costs.join(", ")
+            ),
+        )))
     }
 
     fn stands(
@@ -139,4 +228,17 @@ impl Repair for SiblingTies {
             x <= m * (1.0 + self.params.rms_tolerance)
         }))
     }
+}
+
+/// Every tested pair between two bodies that is not an edge of the tree `parent`: left out,
+/// they leave the spanning tree no other choice.
+fn off_the_tree(pairs: &[kinetree_core::PairDof], parent: &[Option<usize>]) -> Vec<(usize, usize)> {
+    pairs
+        .iter()
+        .filter_map(|p| {
+            let (a, b) = (p.a?, p.b);
+            let edge = parent.get(b) == Some(&Some(a)) || parent.get(a) == Some(&Some(b));
+            (!edge).then_some((a, b))
+        })
+        .collect()
 }
