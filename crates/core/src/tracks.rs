@@ -197,8 +197,8 @@ impl Tracks {
         }
     }
 
-    /// Every point of `frame`, `None` where occluded (and every point when `frame` is out of
-    /// range): the per-frame input of a fit.
+    /// Every point of `frame`, `None` where occluded (every point `None` when `frame` is out
+    /// of range): the per-frame input of a fit.
     pub fn frame_points(&self, frame: usize) -> Vec<Option<Point3<f64>>> {
         (0..self.n_points).map(|i| self.get(frame, i)).collect()
     }
