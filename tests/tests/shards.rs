@@ -1,7 +1,9 @@
 //! Sweeps split into shards for a cluster's job array, and merged back into the files an
 //! unsharded run writes.
 
-use kinetree_pipeline::sweep::{Shard, Sweep, SweepOptions, merge_shards, run_sweep};
+use kinetree_pipeline::sweep::{
+    Shard, Sweep, SweepOptions, merge_shards, parse_runs_csv, run_sweep, runs_csv,
+};
 use std::path::{Path, PathBuf};
 
 /// Five grid points (an inline list and a grid key) over two seeds, one of them an inline
@@ -238,4 +240,60 @@ n_frames = 150
     assert!(column("functional_max_centre_error_m") > 0, "{csv}");
     assert!(column("max_axis_error_in_parent_deg") > 0, "{csv}");
     assert!(read(&whole.join("table.md")).contains("SCoRE"));
+}
+
+/// A sweep that counts each run's joints writes the counts, reads them back through a merge
+/// and a resume, and agrees with its own `joints_exact`: a run with every joint right has
+/// every true joint counted right, and no run counts more right than true.
+#[test]
+fn per_joint_counts_read_back_and_agree_with_joints_exact() {
+    let text = r#"
+[experiment]
+name = "per-joint"
+
+[sweep]
+seeds = [1, 2, 3]
+per_joint = true
+
+[sweep.grid]
+"data.n_joints" = [2, 4]
+
+[data]
+kind = "random"
+prismatic_fraction = 0.3
+n_frames = 150
+"#;
+    let sweep = Sweep::from_toml(text).expect("parses");
+    let whole = tmp("per-joint-whole");
+    assert_eq!(run(&sweep, &whole, None), 6);
+    let dir = tmp("per-joint-split");
+    for index in 0..2 {
+        run(&sweep, &dir, Some(Shard { index, count: 2 }));
+    }
+    merge_shards(&dir).expect("merges");
+    for file in ["runs.csv", "table.md"] {
+        assert_eq!(read(&dir.join(file)), read(&whole.join(file)), "{file}");
+    }
+    let csv = read(&whole.join("runs.csv"));
+    let runs = parse_runs_csv(&sweep, &csv).expect("reads back");
+    assert_eq!(runs_csv(&sweep, &runs), csv, "written as read");
+    assert_eq!(runs.len(), 6);
+    for r in &runs {
+        let n_joints: usize = r.values[0].parse().expect("n_joints");
+        let (Some(true_joints), Some(right)) = (r.joints_true, r.joints_right) else {
+            panic!("seed {} of {n_joints} joints has no counts: {csv}", r.seed);
+        };
+        assert_eq!(true_joints, n_joints, "{csv}");
+        assert!(right <= true_joints, "{csv}");
+        if r.joints_exact == Some(true) {
+            assert_eq!(right, true_joints, "{csv}");
+        }
+    }
+    let table = read(&whole.join("table.md"));
+    let right: usize = runs.iter().filter_map(|r| r.joints_right).sum();
+    assert!(
+        table.contains("joints right") && table.contains(&format!("/{} (", 3 * 2)),
+        "{table}"
+    );
+    assert!(right > 0, "{csv}");
 }

@@ -67,6 +67,13 @@ pub struct SweepSpec {
     /// `runs.csv` and their medians in `table.md`.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub functional: bool,
+    /// Counts the true joints of each synthetic run and those recovered (found between the
+    /// right bodies with their type, as `kinetree_eval::JointEval` judges them): the columns
+    /// [`PER_JOINT_COLUMNS`] in `runs.csv` and, per grid point, the share of its true joints
+    /// recovered in `table.md`. A run that misses one joint of twenty fails `joints exact`
+    /// as one that misses them all; this column tells them apart.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub per_joint: bool,
 }
 
 /// Seeds of a sweep.
@@ -145,6 +152,10 @@ pub struct SweepRun {
     /// Largest SARA axis error over the true revolute joints, in the same frame, degrees (with
     /// `[sweep] functional = true`).
     pub functional_max_axis_error_deg: Option<f64>,
+    /// True joints (synthetic data, with `[sweep] per_joint = true`).
+    pub joints_true: Option<usize>,
+    /// ... of which a model joint links the same two bodies with the same type.
+    pub joints_right: Option<usize>,
     /// Bodies found.
     pub bodies: Option<usize>,
     /// Wall time of the run, seconds (with `[sweep] timing = true`).
@@ -360,6 +371,7 @@ impl Sweep {
                 grid: toml::Table::new(),
                 timing: false,
                 functional: false,
+                per_joint: false,
             },
         };
         if let Seeds::Count(n) = spec.seeds
@@ -580,6 +592,8 @@ impl Sweep {
             max_axis_error_in_parent_deg: None,
             functional_max_centre_error_m: None,
             functional_max_axis_error_deg: None,
+            joints_true: None,
+            joints_right: None,
             bodies: None,
             seconds: None,
         };
@@ -617,6 +631,11 @@ impl Sweep {
                     });
                     run.joints_exact = Some(e.joints_exact);
                     run.structure_exact = Some(e.structure_exact);
+                    if self.spec.per_joint {
+                        run.joints_true = Some(e.joints.len());
+                        run.joints_right =
+                            Some(e.joints.iter().filter(|j| j.found && j.type_ok).count());
+                    }
                     let max = |v: Vec<f64>| v.into_iter().reduce(f64::max);
                     run.max_axis_error_deg =
                         max(e.joints.iter().filter_map(|j| j.axis_error_deg).collect());
@@ -698,6 +717,10 @@ pub const FUNCTIONAL_COLUMNS: [&str; 3] = [
     "functional_max_axis_error_deg",
 ];
 
+/// The columns of `runs.csv` after the standard and functional ones with `[sweep] per_joint =
+/// true`.
+pub const PER_JOINT_COLUMNS: [&str; 2] = ["joints_true", "joints_right"];
+
 /// The header line of `runs.csv`.
 fn csv_header(sweep: &Sweep) -> String {
     let mut s = String::new();
@@ -709,6 +732,10 @@ fn csv_header(sweep: &Sweep) -> String {
     if sweep.spec.functional {
         s.push(',');
         s.push_str(&FUNCTIONAL_COLUMNS.join(","));
+    }
+    if sweep.spec.per_joint {
+        s.push(',');
+        s.push_str(&PER_JOINT_COLUMNS.join(","));
     }
     s.push_str(if sweep.spec.timing {
         ",seconds\n"
@@ -751,6 +778,10 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
             opt(r.functional_max_centre_error_m),
             opt(r.functional_max_axis_error_deg)
         );
+    }
+    if sweep.spec.per_joint {
+        let count = |c: Option<usize>| c.map_or(String::new(), |c| c.to_string());
+        let _ = write!(s, ",{},{}", count(r.joints_true), count(r.joints_right));
     }
     if sweep.spec.timing {
         let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
@@ -809,6 +840,11 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
     let seeds: std::collections::BTreeSet<u64> = sweep.seeds().into_iter().collect();
     // The functional methods' columns, when the sweep has them, follow the standard ones.
     let functional = sweep.spec.functional.then_some(RUN_COLUMNS.len());
+    // Then the per-joint counts, when the sweep has them.
+    let per_joint = sweep
+        .spec
+        .per_joint
+        .then(|| functional.map_or(RUN_COLUMNS.len(), |i| i + FUNCTIONAL_COLUMNS.len()));
     let mut runs = Vec::new();
     for (k, record) in records.enumerate() {
         let line = k + 2;
@@ -834,6 +870,15 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             v.parse()
                 .map(Some)
                 .map_err(|_| bad(line, format!("{} `{v}` is not a number", header[nk + i])))
+        };
+        let count = |i: usize| -> Result<Option<usize>> {
+            let v = rest[i];
+            if v.is_empty() {
+                return Ok(None);
+            }
+            v.parse()
+                .map(Some)
+                .map_err(|_| bad(line, format!("{} `{v}` is not a count", header[nk + i])))
         };
         let flag = |i: usize| -> Result<Option<bool>> {
             match rest[i] {
@@ -872,10 +917,14 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             max_axis_error_in_parent_deg: functional.map(num).transpose()?.flatten(),
             functional_max_centre_error_m: functional.map(|i| num(i + 1)).transpose()?.flatten(),
             functional_max_axis_error_deg: functional.map(|i| num(i + 2)).transpose()?.flatten(),
+            joints_true: per_joint.map(count).transpose()?.flatten(),
+            joints_right: per_joint.map(|i| count(i + 1)).transpose()?.flatten(),
             seconds: if sweep.spec.timing {
-                rest[RUN_COLUMNS.len() + functional.map_or(0, |_| FUNCTIONAL_COLUMNS.len())]
-                    .parse()
-                    .ok()
+                rest[RUN_COLUMNS.len()
+                    + functional.map_or(0, |_| FUNCTIONAL_COLUMNS.len())
+                    + per_joint.map_or(0, |_| PER_JOINT_COLUMNS.len())]
+                .parse()
+                .ok()
             } else {
                 None
             },
@@ -904,11 +953,16 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     let head: Vec<String> = sweep.keys.iter().map(|k| format!("`{k}`")).collect();
     let _ = writeln!(
         s,
-        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) | median max axis error (stds) |{}{}",
+        "| {}{}runs | errors | joints exact | structure exact | identifiable ARI 1 | mean ARI | median max axis error (deg) | median max revolute RMS (rad) | median max prismatic RMS (mm) | smoothed: revolute (rad) | smoothed: prismatic (mm) | median max centre error (mm) | median max axis error (stds) |{}{}{}",
         head.join(" | "),
         if head.is_empty() { "" } else { " | " },
         if sweep.spec.functional {
             " median max axis error in parent (deg) | SCoRE: median max centre error (mm) | SARA: median max axis error (deg) |"
+        } else {
+            ""
+        },
+        if sweep.spec.per_joint {
+            " joints right |"
         } else {
             ""
         },
@@ -924,10 +978,11 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     } else {
         0
     };
+    let per_joint_cols = usize::from(sweep.spec.per_joint);
     let _ = writeln!(
         s,
         "|{}",
-        "---|".repeat(sweep.keys.len() + 13 + functional_cols + timing_cols)
+        "---|".repeat(sweep.keys.len() + 13 + functional_cols + per_joint_cols + timing_cols)
     );
     for p in 0..sweep.points.len() {
         let rs: Vec<&SweepRun> = runs.iter().filter(|r| r.point == p).collect();
@@ -1003,6 +1058,22 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
                 column(|r| r.functional_max_centre_error_m, 1e3),
                 column(|r| r.functional_max_axis_error_deg, 1.0)
             );
+        }
+        if sweep.spec.per_joint {
+            // Over the runs that counted their joints (a failed run counts none).
+            let (right, total) = rs
+                .iter()
+                .filter_map(|r| Some((r.joints_right?, r.joints_true?)))
+                .fold((0, 0), |(a, b), (r, t)| (a + r, b + t));
+            if total == 0 {
+                s.push_str(" - |");
+            } else {
+                let _ = write!(
+                    s,
+                    " {right}/{total} ({:.0} %) |",
+                    100.0 * right as f64 / total as f64
+                );
+            }
         }
         if sweep.spec.timing {
             let times: Vec<f64> = rs.iter().filter_map(|r| r.seconds).collect();
