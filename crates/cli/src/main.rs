@@ -9,6 +9,11 @@ use kinetree_pipeline::{
 };
 use std::path::{Path, PathBuf};
 
+/// mimalloc instead of the system allocator: the per-frame fits of long recordings make and
+/// drop many small buffers (docs/benchmarks.md, "Long recordings", has the measurement).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// `println!` through [`emit`].
 macro_rules! emitln {
     ($($arg:tt)*) => {
