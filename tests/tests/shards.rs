@@ -189,6 +189,22 @@ fn merge_refuses_missing_unfinished_mixed_and_foreign_shards() {
     assert!(message(&e).contains("different sweeps"), "{e}");
 }
 
+/// Runs `sweep` (of `runs` runs) whole and in two shards merged, checks that both write the
+/// same `runs.csv` and `table.md`, and returns the whole run's folder.
+fn run_whole_and_merged(sweep: &Sweep, name: &str, runs: usize) -> PathBuf {
+    let whole = tmp(&format!("{name}-whole"));
+    assert_eq!(run(sweep, &whole, None), runs);
+    let dir = tmp(&format!("{name}-split"));
+    for index in 0..2 {
+        run(sweep, &dir, Some(Shard { index, count: 2 }));
+    }
+    merge_shards(&dir).expect("merges");
+    for file in ["runs.csv", "table.md"] {
+        assert_eq!(read(&dir.join(file)), read(&whole.join(file)), "{file}");
+    }
+    whole
+}
+
 /// A sweep with the functional methods' columns reads back through a merge: the same files as
 /// unsharded, the columns filled.
 #[test]
@@ -213,16 +229,7 @@ n_frames = 150
 "#,
     )
     .expect("parses");
-    let whole = tmp("functional-whole");
-    assert_eq!(run(&sweep, &whole, None), 6);
-    let dir = tmp("functional-split");
-    for index in 0..2 {
-        run(&sweep, &dir, Some(Shard { index, count: 2 }));
-    }
-    merge_shards(&dir).expect("merges");
-    for file in ["runs.csv", "table.md"] {
-        assert_eq!(read(&dir.join(file)), read(&whole.join(file)), "{file}");
-    }
+    let whole = run_whole_and_merged(&sweep, "functional", 6);
     let csv = read(&whole.join("runs.csv"));
     let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
     let column = |name: &str| {
@@ -264,16 +271,7 @@ prismatic_fraction = 0.3
 n_frames = 150
 "#;
     let sweep = Sweep::from_toml(text).expect("parses");
-    let whole = tmp("per-joint-whole");
-    assert_eq!(run(&sweep, &whole, None), 6);
-    let dir = tmp("per-joint-split");
-    for index in 0..2 {
-        run(&sweep, &dir, Some(Shard { index, count: 2 }));
-    }
-    merge_shards(&dir).expect("merges");
-    for file in ["runs.csv", "table.md"] {
-        assert_eq!(read(&dir.join(file)), read(&whole.join(file)), "{file}");
-    }
+    let whole = run_whole_and_merged(&sweep, "per-joint", 6);
     let csv = read(&whole.join("runs.csv"));
     let runs = parse_runs_csv(&sweep, &csv).expect("reads back");
     assert_eq!(runs_csv(&sweep, &runs), csv, "written as read");
