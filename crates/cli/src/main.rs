@@ -10,7 +10,8 @@ use kinetree_pipeline::{
 use std::path::{Path, PathBuf};
 
 /// mimalloc instead of the system allocator: the per-frame fits of long recordings make and
-/// drop many small buffers (docs/benchmarks.md, "Long recordings", has the measurement).
+/// drop many small buffers (`docs/decisions.md`, "Long recordings: the adjusted joints'
+/// frames and the allocator", has the measurement).
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
