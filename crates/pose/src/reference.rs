@@ -128,6 +128,7 @@ impl KabschPoses {
         // by doubling leaves up to half of itself unused, a large share of the bodies' memory
         // over long recordings of many points.
         let obs: Vec<Vec<(usize, Point3<f64>)>> = (0..t_len)
+            .into_par_iter()
             .map(|t| {
                 let mut seen = Vec::with_capacity(nb);
                 seen.extend(
@@ -198,11 +199,14 @@ impl KabschPoses {
             }
             pose.map(|p| (p, used))
         };
+        // The frames' fits are independent and run in parallel; what they add up to is
+        // summed in one fixed order, so the result does not depend on the thread count.
         for _ in 0..self.params.shape_passes {
             let mut sums = vec![kinetree_core::nalgebra::Vector3::zeros(); nb];
             let mut counts = vec![0usize; nb];
-            for &t in &order {
-                if let Some((pose, used)) = fit_with(&shape, t) {
+            let fits: Vec<_> = order.par_iter().map(|&t| fit_with(&shape, t)).collect();
+            for (&t, fitted) in order.iter().zip(fits) {
+                if let Some((pose, used)) = fitted {
                     let inv = pose.inverse();
                     // Unplaced points join the shape here; robustly rejected ones do not.
                     for (&(k, q), u) in obs[t].iter().zip(&used) {
@@ -227,32 +231,42 @@ impl KabschPoses {
         // Every frame registered to `shape`: its pose (`None` where it cannot be registered),
         // the registered frames' observations for the step, and their squared residual.
         let register = |shape: &[Option<Point3<f64>>]| {
-            let poses: Vec<Option<(Isometry3<f64>, Vec<bool>)>> =
-                (0..t_len).map(|t| fit_with(shape, t)).collect();
-            let mut cost = 0.0;
-            let frames: Vec<crate::shape::FrameObs> = poses
-                .iter()
-                .enumerate()
-                .filter_map(|(t, fitted)| {
-                    let (pose, used) = fitted.as_ref()?;
+            // Each frame's fit, kept observations and squared residual, in parallel; the
+            // residuals are summed in frame order.
+            let fitted: Vec<Option<(Isometry3<f64>, Cow<[(usize, Point3<f64>)]>, f64)>> = (0
+                ..t_len)
+                .into_par_iter()
+                .map(|t| {
+                    let (pose, used) = fit_with(shape, t)?;
                     let enters =
                         |(o, u): (&(usize, Point3<f64>), &bool)| *u && shape[o.0].is_some();
-                    let seen = || obs[t].iter().zip(used);
+                    let seen = || obs[t].iter().zip(&used);
                     let kept: Cow<[(usize, Point3<f64>)]> =
                         if used.len() == obs[t].len() && seen().all(enters) {
                             Cow::Borrowed(&obs[t])
                         } else {
                             Cow::Owned(seen().filter(|&e| enters(e)).map(|(o, _)| *o).collect())
                         };
-                    cost += kept
+                    let cost = kept
                         .iter()
                         .filter_map(|&(k, q)| shape[k].map(|s| (pose * s - q).norm_squared()))
                         .sum::<f64>();
-                    Some((*pose, kept))
+                    Some((pose, kept, cost))
                 })
                 .collect();
-            let poses: Vec<Option<Isometry3<f64>>> =
-                poses.into_iter().map(|p| p.map(|p| p.0)).collect();
+            let mut cost = 0.0;
+            let mut poses: Vec<Option<Isometry3<f64>>> = Vec::with_capacity(t_len);
+            let mut frames: Vec<crate::shape::FrameObs> = Vec::with_capacity(t_len);
+            for entry in fitted {
+                match entry {
+                    Some((pose, kept, c)) => {
+                        cost += c;
+                        poses.push(Some(pose));
+                        frames.push((pose, kept));
+                    }
+                    None => poses.push(None),
+                }
+            }
             (frames, cost, poses)
         };
         let tolerance = 1e-3 * sigma.max(1e-9);
@@ -304,52 +318,53 @@ impl KabschPoses {
                 *p *= shape_from_body;
             }
         }
-        let mut quality = vec![None; t_len];
-        let (mut too_few, mut degenerate) = (0, 0);
-        for t in 0..t_len {
-            let vis: Vec<(Point3<f64>, Point3<f64>)> = obs[t]
-                .iter()
-                .filter(|(k, _)| shape[*k].is_some())
-                .map(|&(k, q)| (body_shape[k], q))
-                .collect();
-            let Some(pose) = poses[t] else {
-                if vis.len() < 3 {
-                    too_few += 1;
-                } else {
-                    degenerate += 1;
-                }
-                continue;
-            };
-            // In the robust mode the quality describes the points the fit kept.
-            let vis: Vec<(Point3<f64>, Point3<f64>)> = match outlier {
-                Some(bound) => vis
-                    .into_iter()
-                    .filter(|(s, q)| (pose * s - q).norm() <= bound)
-                    .collect(),
-                None => vis,
-            };
-            let src: Vec<Point3<f64>> = vis.iter().map(|v| v.0).collect();
-            let n = src.len() as f64;
-            let rms = (vis
-                .iter()
-                .map(|(s, q)| (pose * s - q).norm_squared())
-                .sum::<f64>()
-                / n)
-                .sqrt();
-            // A fit on collinear points never gets here (see `usable`); a huge finite variance
-            // keeps the matrix free of the NaN that infinity times zero would put off the
-            // diagonal.
-            let rot_cov =
-                rotation_cov_per_sigma2(&src).unwrap_or_else(|| Matrix3::identity() * 1e12);
-            let c = centroid(&src).coords.cross_matrix();
-            let origin_cov = Matrix3::identity() / n + c * rot_cov * c.transpose();
-            quality[t] = Some(PoseQuality::from_covariances(
-                vis.len(),
-                rms,
-                rot_cov,
-                origin_cov,
-            ));
-        }
+        // Each frame's quality, in parallel; an unregistered frame's is `Err(true)` when it
+        // shows too few points and `Err(false)` when they are degenerate.
+        let judged: Vec<std::result::Result<PoseQuality, bool>> = (0..t_len)
+            .into_par_iter()
+            .map(|t| {
+                let vis: Vec<(Point3<f64>, Point3<f64>)> = obs[t]
+                    .iter()
+                    .filter(|(k, _)| shape[*k].is_some())
+                    .map(|&(k, q)| (body_shape[k], q))
+                    .collect();
+                let Some(pose) = poses[t] else {
+                    return Err(vis.len() < 3);
+                };
+                // In the robust mode the quality describes the points the fit kept.
+                let vis: Vec<(Point3<f64>, Point3<f64>)> = match outlier {
+                    Some(bound) => vis
+                        .into_iter()
+                        .filter(|(s, q)| (pose * s - q).norm() <= bound)
+                        .collect(),
+                    None => vis,
+                };
+                let src: Vec<Point3<f64>> = vis.iter().map(|v| v.0).collect();
+                let n = src.len() as f64;
+                let rms = (vis
+                    .iter()
+                    .map(|(s, q)| (pose * s - q).norm_squared())
+                    .sum::<f64>()
+                    / n)
+                    .sqrt();
+                // A fit on collinear points never gets here (see `usable`); a huge finite variance
+                // keeps the matrix free of the NaN that infinity times zero would put off the
+                // diagonal.
+                let rot_cov =
+                    rotation_cov_per_sigma2(&src).unwrap_or_else(|| Matrix3::identity() * 1e12);
+                let c = centroid(&src).coords.cross_matrix();
+                let origin_cov = Matrix3::identity() / n + c * rot_cov * c.transpose();
+                Ok(PoseQuality::from_covariances(
+                    vis.len(),
+                    rms,
+                    rot_cov,
+                    origin_cov,
+                ))
+            })
+            .collect();
+        let too_few = judged.iter().filter(|q| matches!(q, Err(true))).count();
+        let degenerate = judged.iter().filter(|q| matches!(q, Err(false))).count();
+        let quality: Vec<Option<PoseQuality>> = judged.into_iter().map(|q| q.ok()).collect();
         BodyTrack {
             points: points.to_vec(),
             shape: body_shape,
