@@ -215,6 +215,14 @@ fn bad_pipeline_parameters_are_typed_errors() {
         Pipeline::from_config(&cfg),
         Err(Error::InvalidParameter { ref name, .. }) if name == "pipeline.dof.model_error_m"
     ));
+    for key in ["hidden_hinge_ratio", "hidden_hinge_min_angle_deg"] {
+        let bad = format!("[dof]\nkind = \"chi2_rank\"\n{key} = -1.0\n");
+        let cfg = kinetree_pipeline::config::pipeline_from_toml(&bad).expect("parses");
+        assert!(matches!(
+            Pipeline::from_config(&cfg),
+            Err(Error::InvalidParameter { ref name, .. }) if *name == format!("pipeline.dof.{key}")
+        ));
+    }
     // A stage's parameter is named with its section.
     let cut = "clustering = { kind = \"hierarchical\", cut = -1.0 }\n";
     let cfg = kinetree_pipeline::config::pipeline_from_toml(cut).expect("parses");

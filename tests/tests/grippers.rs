@@ -177,3 +177,43 @@ fn a_hand_merged_with_a_sliding_finger_is_split_by_profile() {
     assert_eq!(parents(defaults.profile_max_points), ["hand", "hand"]);
     assert!(parents(0).iter().any(|p| p.starts_with("finger")));
 }
+
+/// A hand merged with one finger of a parallel gripper (3 mm of noise): the merged body's poses
+/// turn by a degree or two with the other finger's 1 cm slide, and that rotation stands out
+/// against the measured noise level (the `chi2_rank` hidden-hinge rule's ratio). Taken as a
+/// hinge, it would make the fingers' pair a hinge about a far axis (the arc that mimics the
+/// slide), and the merged body would stay unsplit. The rule's least angle keeps that hinge
+/// out: the hand is split off and both fingers hang on it. With no least angle, the hand is
+/// lost.
+#[test]
+fn a_slide_seen_through_a_merged_body_is_no_hidden_hinge() {
+    let params = GripperParams {
+        gripper: GripperKind::Parallel,
+        noise_sigma_m: 0.003,
+        seed: 6,
+        ..GripperParams::default()
+    };
+    let data = simulate(&gripper_scenario(&params)).expect("simulate");
+    let discover = |min_angle_deg: f64| {
+        let c = PipelineConfig {
+            dof: kinetree_pipeline::config::DofConfig::Chi2Rank(kinetree_dof::Chi2RankParams {
+                hidden_hinge_min_angle_deg: min_angle_deg,
+                ..kinetree_dof::Chi2RankParams::default()
+            }),
+            ..PipelineConfig::default()
+        };
+        Pipeline::from_config(&c)
+            .expect("pipeline")
+            .run(&data.tracks)
+            .expect("discover")
+            .model
+    };
+    let bounded = discover(kinetree_dof::Chi2RankParams::default().hidden_hinge_min_angle_deg);
+    assert_eq!(fingers_parents(&bounded, &data), ["hand", "hand"]);
+    let lifted = discover(0.0);
+    assert!(
+        !fingers_parents(&lifted, &data).contains(&"hand".to_string()),
+        "{:?}",
+        fingers_parents(&lifted, &data)
+    );
+}

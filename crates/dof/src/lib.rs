@@ -7,8 +7,8 @@ mod track;
 
 pub use axis::fixed_axis;
 pub use rank::{
-    MIN_EXCESS, RankRule, chi2_per_dof_quantile, hidden_next_rank, mahalanobis_line, rank_test,
-    rank_test_uncentred, weighted_direction,
+    HiddenHinge, MIN_EXCESS, RankRule, chi2_per_dof_quantile, hidden_next_rank,
+    hidden_next_rank_above, mahalanobis_line, rank_test, rank_test_uncentred, weighted_direction,
 };
 pub use tester::{Chi2Rank, Chi2RankParams, SvdRank, SvdRankParams};
 pub use track::{

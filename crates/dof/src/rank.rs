@@ -29,7 +29,21 @@ pub enum RankRule {
         /// The residual per degree of freedom above which [`hidden_next_rank`] looks for a
         /// rotation the slack hides.
         min_excess: f64,
+        /// The looser rule for a rotation the slack hides ([`HiddenHinge`]).
+        hidden_hinge: HiddenHinge,
     },
+}
+
+/// A rotation test that stopped at rank 0 is retried at rank 1 when rank 0's residual per
+/// degree of freedom exceeds `ratio` times rank 1's ([`hidden_next_rank_above`]), and the
+/// retry is kept only as a hinge whose rotation's RMS angle above the noise is at least
+/// `min_angle_rad`. `ratio` 0 turns the rule off.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct HiddenHinge {
+    /// Least ratio of rank 0's residual to rank 1's.
+    pub ratio: f64,
+    /// Least RMS angle of the hinge's rotation above the noise, radians.
+    pub min_angle_rad: f64,
 }
 
 pub use kinetree_core::stats::chi2_per_dof_quantile;
@@ -59,12 +73,22 @@ pub const MIN_EXCESS: f64 = 1.0;
 /// construction (a 2 cm, 4-point body's rotation covariance leaving one direction), and a
 /// ratio to it then means nothing (see [`MIN_EXCESS`]).
 pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64, min_excess: f64) -> bool {
+    test.chi2_bound
+        .get(test.rank)
+        .is_some_and(|&bound| hidden_next_rank_above(test, dim, z, min_excess, bound))
+}
+
+/// [`hidden_next_rank`] with the bound on the ratio of rank `r`'s residual to rank `r + 1`'s
+/// given (`ratio`) instead of rank `r`'s chi-square bound.
+pub fn hidden_next_rank_above(
+    test: &RankTest,
+    dim: usize,
+    z: f64,
+    min_excess: f64,
+    ratio: f64,
+) -> bool {
     let r = test.rank;
-    if r + 1 >= dim
-        || test.chi2_per_dof.len() < r + 2
-        || test.chi2_bound.len() <= r
-        || test.n_columns < 2
-    {
+    if r + 1 >= dim || test.chi2_per_dof.len() < r + 2 || test.n_columns < 2 {
         return false;
     }
     // Rank `r + 1` must leave degrees of freedom: with too few columns its residual is zero
@@ -77,11 +101,7 @@ pub fn hidden_next_rank(test: &RankTest, dim: usize, z: f64, min_excess: f64) ->
     }
     let level = test.chi2_per_dof[r + 1];
     let residual = test.chi2_per_dof[r];
-    if !(level > 0.0
-        && level < 1.0
-        && residual > min_excess
-        && residual > test.chi2_bound[r] * level)
-    {
+    if !(level > 0.0 && level < 1.0 && residual > min_excess && residual > ratio * level) {
         return false;
     }
     let dof = |r: f64| unclamped(r).max(1.0);

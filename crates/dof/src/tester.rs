@@ -1,7 +1,7 @@
 //! The DoF testers: relative-motion columns with their noise, rank rules, joint typing.
 
 use crate::axis::fixed_axis;
-use crate::rank::{RankRule, rank_test, rank_test_uncentred, weighted_direction};
+use crate::rank::{HiddenHinge, RankRule, rank_test, rank_test_uncentred, weighted_direction};
 use kinetree_core::geom::{
     angle_about, canonical_sign, log_so3, perpendicular_basis, relative_poses,
 };
@@ -558,6 +558,12 @@ const AXES_SEPARATION_RAD: f64 = 0.175;
 /// Default of [`Chi2RankParams::universal_slack`] (`docs/decisions.md`).
 pub const UNIVERSAL_SLACK: f64 = 1.25;
 
+/// Default of [`Chi2RankParams::hidden_hinge_ratio`] (`docs/decisions.md`).
+pub const HIDDEN_HINGE_RATIO: f64 = 1.8;
+
+/// Default of [`Chi2RankParams::hidden_hinge_min_angle_deg`] (`docs/decisions.md`).
+pub const HIDDEN_HINGE_MIN_ANGLE_DEG: f64 = 5.0;
+
 /// Most damped Gauss-Newton steps of each descent of [`axes_test`].
 const AXES_ITERATIONS: usize = 100;
 
@@ -713,6 +719,16 @@ struct CentreSettings {
     universal_slack: f64,
 }
 
+/// RMS angle of a rotation test's first direction above the noise that its second shows:
+/// `sqrt((s1^2 - s2^2) / K)` for singular values `s1`, `s2` over `K` columns (radians).
+fn turning_angle(rotation: &RankTest) -> f64 {
+    let s = &rotation.singular_values;
+    let (Some(s1), Some(s2)) = (s.first(), s.get(1)) else {
+        return 0.0;
+    };
+    ((s1 * s1 - s2 * s2).max(0.0) / rotation.n_columns.max(1) as f64).sqrt()
+}
+
 /// Types the joint between `a` and `b` from the rank decisions of `rule`.
 fn classify(
     c: &PairColumns,
@@ -730,15 +746,38 @@ fn classify(
     // motion-dependent bias (box corners occluded as it slides) shows such a rotation too,
     // but no fixed pivot explains its translation. Only the rotation is retried: on
     // translations, mis-modelled anisotropic noise made a prismatic child's line a plane.
-    if let RankRule::Chi2 { z, min_excess, .. } = rule
+    //
+    // Below that bound, a rotation that stands out against the measured level by `ratio`
+    // (a finger's distal phalanx: 1-2.5 cm, a few keypoints seen, flexing through 30-90 deg
+    // with several degrees of rotation noise per frame) is tried too, and kept only as a
+    // hinge that turns by at least `min_angle_rad` RMS above the noise: a slide carried by a
+    // body that mixes points of both sides turns that body by a degree or two with the
+    // slide, which a hinge about a far axis mimics.
+    if let RankRule::Chi2 {
+        z,
+        min_excess,
+        hidden_hinge: HiddenHinge {
+            ratio,
+            min_angle_rad,
+        },
+        ..
+    } = rule
         && rotation.rank == 0
-        && crate::rank::hidden_next_rank(&rotation, 3, z, min_excess)
     {
-        let mut turning = rotation.clone();
-        turning.rank = 1;
-        let retried = classify_ranks(c, a, b, rule, centre_settings, translation.clone(), turning)?;
-        if matches!(retried.joint, JointKind::Revolute { .. }) {
-            return Ok(retried);
+        let by_bound = crate::rank::hidden_next_rank(&rotation, 3, z, min_excess);
+        if by_bound
+            || ratio > 0.0
+                && crate::rank::hidden_next_rank_above(&rotation, 3, z, min_excess, ratio)
+        {
+            let mut turning = rotation.clone();
+            turning.rank = 1;
+            let retried =
+                classify_ranks(c, a, b, rule, centre_settings, translation.clone(), turning)?;
+            if matches!(retried.joint, JointKind::Revolute { .. })
+                && (by_bound || turning_angle(&rotation) >= min_angle_rad)
+            {
+                return Ok(retried);
+            }
         }
     }
     classify_ranks(c, a, b, rule, centre_settings, translation, rotation)
@@ -1079,6 +1118,14 @@ pub struct Chi2RankParams {
     /// (default 1.25: its noise model leaves out no reference frame or linearisation; see
     /// `docs/decisions.md`).
     pub universal_slack: f64,
+    /// A rotation test that stops at rank 0 under its chi-square bound is retried at rank 1
+    /// when its rank-0 residual per degree of freedom exceeds this many times its rank-1
+    /// residual (the measured noise level) and a nested F-test at `z` rejects rank 0; the
+    /// retry stands only as a hinge that turns by `hidden_hinge_min_angle_deg` (default 1.8;
+    /// 0 turns it off; `docs/decisions.md`, `dof.hidden_hinge_ratio`).
+    pub hidden_hinge_ratio: f64,
+    /// Least RMS angle of such a hinge's rotation above the noise, degrees (default 5).
+    pub hidden_hinge_min_angle_deg: f64,
 }
 
 impl Default for Chi2RankParams {
@@ -1094,6 +1141,8 @@ impl Default for Chi2RankParams {
             spherical: true,
             universal: true,
             universal_slack: UNIVERSAL_SLACK,
+            hidden_hinge_ratio: HIDDEN_HINGE_RATIO,
+            hidden_hinge_min_angle_deg: HIDDEN_HINGE_MIN_ANGLE_DEG,
         }
     }
 }
@@ -1114,6 +1163,11 @@ impl Chi2RankParams {
             ("model_error_m", self.model_error_m),
             ("model_error_rad", self.model_error_rad),
             ("min_excess", self.min_excess),
+            ("hidden_hinge_ratio", self.hidden_hinge_ratio),
+            (
+                "hidden_hinge_min_angle_deg",
+                self.hidden_hinge_min_angle_deg,
+            ),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(Error::InvalidParameter {
@@ -1167,6 +1221,10 @@ impl DofTester for Chi2Rank {
                 z: self.params.z,
                 slack: self.params.slack,
                 min_excess: self.params.min_excess,
+                hidden_hinge: HiddenHinge {
+                    ratio: self.params.hidden_hinge_ratio,
+                    min_angle_rad: self.params.hidden_hinge_min_angle_deg.to_radians(),
+                },
             },
             CentreSettings {
                 min_angle_rad: self.params.min_centre_angle_rad,

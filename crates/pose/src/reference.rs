@@ -233,8 +233,7 @@ impl KabschPoses {
         let register = |shape: &[Option<Point3<f64>>]| {
             // Each frame's fit, kept observations and squared residual, in parallel; the
             // residuals are summed in frame order.
-            let fitted: Vec<Option<(Isometry3<f64>, Cow<[(usize, Point3<f64>)]>, f64)>> = (0
-                ..t_len)
+            let fitted: Vec<Option<(crate::shape::FrameObs, f64)>> = (0..t_len)
                 .into_par_iter()
                 .map(|t| {
                     let (pose, used) = fit_with(shape, t)?;
@@ -251,7 +250,7 @@ impl KabschPoses {
                         .iter()
                         .filter_map(|&(k, q)| shape[k].map(|s| (pose * s - q).norm_squared()))
                         .sum::<f64>();
-                    Some((pose, kept, cost))
+                    Some(((pose, kept), cost))
                 })
                 .collect();
             let mut cost = 0.0;
@@ -259,10 +258,10 @@ impl KabschPoses {
             let mut frames: Vec<crate::shape::FrameObs> = Vec::with_capacity(t_len);
             for entry in fitted {
                 match entry {
-                    Some((pose, kept, c)) => {
+                    Some((frame, c)) => {
                         cost += c;
-                        poses.push(Some(pose));
-                        frames.push((pose, kept));
+                        poses.push(Some(frame.0));
+                        frames.push(frame);
                     }
                     None => poses.push(None),
                 }
