@@ -445,4 +445,17 @@ mod tests {
         assert!(!hidden_next_rank(&full, 3, 4.0, MIN_EXCESS));
         assert!(!hidden_next_rank(&RankTest::empty(), 3, 4.0, MIN_EXCESS));
     }
+
+    /// A distal phalanx's hinge measured on a hand (rank 0's residual 2.25 against a level of
+    /// 0.63, under the bound) stands out at the hidden-hinge ratio of 1.8 and not at the
+    /// chi-square bound; noise alone (a ratio near 1.1) stands out at neither.
+    #[test]
+    fn a_hinge_under_the_bound_stands_out_at_a_given_ratio() {
+        let hinge = chi2_test([2.25, 0.63, 0.50], 63);
+        assert!(!hidden_next_rank(&hinge, 3, 4.0, MIN_EXCESS));
+        assert!(hidden_next_rank_above(&hinge, 3, 4.0, MIN_EXCESS, 1.8));
+        assert!(!hidden_next_rank_above(&hinge, 3, 4.0, MIN_EXCESS, 4.0));
+        let noise = chi2_test([1.09, 0.98, 0.95], 200);
+        assert!(!hidden_next_rank_above(&noise, 3, 4.0, MIN_EXCESS, 1.8));
+    }
 }
