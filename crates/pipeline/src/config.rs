@@ -271,7 +271,9 @@ impl Default for PipelineConfig {
 
 /// The pipeline for motion-capture markers on skin (the `[pipeline]` table's contents):
 /// the noise level from each marker's most rigid partners, the distance std-dev cut at three
-/// noise std-devs as dissimilarity, and 3 mm / 0.02 rad of joint model error in the DoF test.
+/// noise std-devs as dissimilarity, 3 mm / 0.02 rad of joint model error in the DoF test, and
+/// no hidden hinges (skin moving over a segment turns its markers with the neighbour's
+/// motion; `docs/decisions.md`, `dof.hidden_hinge_ratio`).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 
@@ -283,6 +285,7 @@ cut_in_noise_std = 3.0
 kind = "chi2_rank"
 model_error_m = 0.003
 model_error_rad = 0.02
+hidden_hinge_ratio = 0.0
 "#;
 
 impl PipelineConfig {
