@@ -344,11 +344,12 @@ fn wrong_joints_with(
 /// the whole-tree fit's). Tested again on the fitted poses, every joint comes out with its
 /// type (a `pairs_retested` warning). With the reference shapes refined by Gauss-Newton
 /// steps, that one's parent is posed well enough for the first pair tests (no retest
-/// needed); the other two need the retest.
+/// needed), and with the rotation test's hidden-hinge rule (`dof.hidden_hinge_ratio`) the
+/// first pair tests type another right; the third needs the retest.
 #[test]
 fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
     let specs = rate_draw(458);
-    for (case, needs_retest) in [(159, true), (287, false), (457, true)] {
+    for (case, needs_retest) in [(159, true), (287, false), (457, false)] {
         let (warnings, wrong) = wrong_joints(&specs[case]);
         assert!(wrong.is_empty(), "case {case}: wrong joints {wrong:?}");
         let retested = warnings
