@@ -1121,8 +1121,8 @@ pub struct Chi2RankParams {
     /// A rotation test that stops at rank 0 under its chi-square bound is retried at rank 1
     /// when its rank-0 residual per degree of freedom exceeds this many times its rank-1
     /// residual (the measured noise level) and a nested F-test at `z` rejects rank 0; the
-    /// retry stands only as a hinge that turns by `hidden_hinge_min_angle_deg` (default 1.8;
-    /// 0 turns it off; `docs/decisions.md`, `dof.hidden_hinge_ratio`).
+    /// retry stands only as a hinge that turns by at least `hidden_hinge_min_angle_deg`.
+    /// Default 1.8; 0 turns the rule off (`docs/decisions.md`, `dof.hidden_hinge_ratio`).
     pub hidden_hinge_ratio: f64,
     /// Least RMS angle of such a hinge's rotation above the noise, degrees (default 5).
     pub hidden_hinge_min_angle_deg: f64,
