@@ -427,6 +427,72 @@ fn with_no_static_body_the_configuration_starts_with_the_root_pose() {
     assert!(checked > 150, "{checked} frames with a root pose");
 }
 
+/// A universal wrist or ankle handed to the whole-tree fit as a hinge about its first axis
+/// (what the pair test gives when the second angle hides in its rotation noise, as at a
+/// finger's knuckle) is typed universal again when `hinges_as_universal` is on, its second
+/// axis within 5 deg of the discovered one; the elbows and knees, true hinges, stay revolute.
+#[test]
+fn a_hinge_hiding_a_second_axis_is_typed_universal_by_the_fit() {
+    let data = universal_skeleton(0);
+    let found = discover(&data);
+    let k = found
+        .joints
+        .iter()
+        .position(|j| j.joint_type == JointType::Universal)
+        .expect("a universal joint");
+    let second = Vector3::from(found.joints[k].second_axis_in_parent.expect("second axis"));
+    let hinges: Vec<usize> = (0..found.joints.len())
+        .filter(|&h| found.joints[h].joint_type == JointType::Revolute)
+        .collect();
+    assert!(!hinges.is_empty(), "the skeleton has hinges");
+    let mut model = found.clone();
+    {
+        let j = &mut model.joints[k];
+        j.joint_type = JointType::Revolute;
+        j.dof = 1;
+        (j.second_axis, j.second_axis_in_parent) = (None, None);
+        j.coordinates.clear();
+        j.coordinate_std.clear();
+        j.smoothed_coordinates.clear();
+        j.smoothed_coordinate_std.clear();
+    }
+    let off = kinetree_fit::TypeByFitLimits::default();
+    let state = kinetree_fit::FitState::new(&model, &data.tracks).expect("fit");
+    let (_, typed) =
+        kinetree_fit::type_joints_by_fit(&mut model.clone(), &data.tracks, state, &off)
+            .expect("typing");
+    assert!(!typed.contains(&k), "off by default: {typed:?}");
+    let on = kinetree_fit::TypeByFitLimits {
+        hinges_as_universal: true,
+        ..off
+    };
+    let state = kinetree_fit::FitState::new(&model, &data.tracks).expect("fit");
+    let (_, typed) =
+        kinetree_fit::type_joints_by_fit(&mut model, &data.tracks, state, &on).expect("typing");
+    assert!(typed.contains(&k), "joint {k} not typed: {typed:?}");
+    assert_eq!(model.joints[k].joint_type, JointType::Universal);
+    let again = Vector3::from(model.joints[k].second_axis_in_parent.expect("second axis"));
+    let angle = again
+        .normalize()
+        .dot(&second.normalize())
+        .abs()
+        .min(1.0)
+        .acos()
+        .to_degrees();
+    assert!(
+        angle < 5.0,
+        "second axis {angle:.2} deg off the discovered one"
+    );
+    for h in hinges {
+        assert_eq!(
+            model.joints[h].joint_type,
+            JointType::Revolute,
+            "hinge {h} typed {:?}",
+            model.joints[h].joint_type
+        );
+    }
+}
+
 /// Skeletons whose wrists and ankles are universal joints (flexion, then deviation about an
 /// axis of the hand or foot): typed universal, centred, their two angles followed, observed in
 /// two columns each; the ball joints stay spherical and the hinges revolute.

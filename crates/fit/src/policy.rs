@@ -359,6 +359,14 @@ pub struct TypeByFitLimits {
     /// skeletons gained 0.83-1.23 per frame, balls typed universal 1.5 and more, the bound
     /// is 1.41; see [`type_joints_by_fit`]).
     pub min_ball_gain_in_std: f64,
+    /// Whether every hinge the fit follows is tried as a universal joint (default off: each
+    /// trial costs two fits of every frame and a bundle adjustment; see
+    /// [`type_joints_by_fit`]).
+    pub hinges_as_universal: bool,
+    /// Such a hinge is typed universal when the second axis lowers the fit's squared
+    /// residual, in noise variances, over the `K` frames where both joints have positions,
+    /// by more than `K` plus this many `sqrt(2 K)` (default 5, as `min_ball_gain_in_std`).
+    pub min_universal_gain_in_std: f64,
     /// A candidate whose excess, refined but before the bundle adjustment, is above this is
     /// not adjusted and not kept (default 1000): over every sweep the adjustment cut a
     /// candidate's excess at most 178-fold, so such a candidate cannot reach `max_excess`,
@@ -377,6 +385,8 @@ impl Default for TypeByFitLimits {
             max_translation_rank: 2,
             max_ball_off_axis_in_std: BALL_OFF_AXIS,
             min_ball_gain_in_std: BALL_GAIN_IN_STD,
+            hinges_as_universal: false,
+            min_universal_gain_in_std: BALL_GAIN_IN_STD,
             max_excess_to_adjust: TYPE_EXCESS_TO_ADJUST,
             bundle: BundleLimits::default(),
         }
@@ -389,8 +399,9 @@ impl Default for TypeByFitLimits {
 /// the first the fit then follows closely is kept (see `type_by_fit`). A freed single-DoF
 /// joint gets the other single-DoF type tried the same way: a link turning a little on the
 /// base can show no rotation in its pair test and a straight path. A universal joint is tried
-/// as a ball and then as a hinge (see `universal_by_fit`). Returns the new fit and the joints
-/// typed.
+/// as a ball and then as a hinge (see `universal_by_fit`). With `hinges_as_universal`, every
+/// hinge the fit follows is first tried as a universal joint (see `universal_from_hinge`).
+/// Returns the new fit and the joints typed.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
@@ -406,6 +417,11 @@ pub fn type_joints_by_fit(
         made_from,
     } = state;
     let mut typed = Vec::new();
+    if limits.hinges_as_universal {
+        let (o, f, t) = universals_from_hinges(model, tracks, observer, fits, limits)?;
+        (observer, fits) = (o, f);
+        typed = t;
+    }
     // The joints are tried in order, each on the fit the typings before it left. A trial that
     // types nothing leaves the model as it was, so the trials from one state run in parallel
     // and the first that types its joint is taken, as a loop in joint order would take it;
@@ -413,7 +429,7 @@ pub fn type_joints_by_fit(
     let mut from = 0;
     loop {
         let tries: Vec<usize> = (from..observer.joints.len())
-            .filter(|&k| typing_tried(model, k, &observer, &fits, limits))
+            .filter(|&k| !typed.contains(&k) && typing_tried(model, k, &observer, &fits, limits))
             .collect();
         let trials: Vec<Result<Option<_>>> = tries
             .par_iter()
@@ -557,6 +573,148 @@ fn universal_by_fit(
     }
     (model.joints, model.warnings) = original;
     Ok(None)
+}
+
+/// Revolute joint `k` typed universal by the fit when a second axis explains the keypoints
+/// better: a knuckle's abduction, a fraction of its flexion on a link of 1-2.5 cm, hides in
+/// the pair test's rotation vectors, whose universal-joint columns leave a plane as the
+/// angles grow. The hinge is fitted as a ball about the point of its axis nearest the
+/// child's keypoints; the second axis, fixed in the child and perpendicular to the hinge's
+/// at the reference pose, is the direction the ball's relative rotations keep perpendicular
+/// to the hinge axis. The universal joint, bundle-adjusted, is kept when it lowers the fit's
+/// squared residual, in noise variances, over the `K` frames where both joints have
+/// positions, by more than `K` plus `min_universal_gain_in_std` times `sqrt(2 K)`: the hinge
+/// is the universal joint with its second angle held at zero, so on a true hinge the extra
+/// coordinate gains a chi-square of `K` degrees of freedom.
+fn universal_from_hinge(
+    model: &mut Model,
+    k: usize,
+    tracks: &Tracks,
+    observer: &Observer,
+    fits: &[FrameFit],
+    limits: &TypeByFitLimits,
+) -> Result<Option<(Observer, Vec<FrameFit>)>> {
+    let j = &observer.joints[k];
+    let Measure::Revolute(axis, pivot) = j.measure else {
+        return Ok(None);
+    };
+    let (parent, child, reference) = (j.parent, j.child, j.reference);
+    let shape = &observer.bodies[child].shape;
+    if shape.is_empty() {
+        return Ok(None);
+    }
+    let Some(cam_parent) = fits
+        .get(model.joints[k].reference_frame)
+        .and_then(|f| f.poses.get(parent).copied().flatten())
+    else {
+        return Ok(None);
+    };
+    let centroid = shape.iter().map(|(_, p)| p.coords).sum::<Vector3<f64>>() / shape.len() as f64;
+    let seen = reference * Point3::from(centroid);
+    let centre = pivot + axis * axis.dot(&(seen - pivot));
+    let original = (model.joints.clone(), model.warnings.clone());
+    let arr = |v: Vector3<f64>| [v.x, v.y, v.z];
+    {
+        let joint = &mut model.joints[k];
+        joint.joint_type = JointType::Spherical;
+        joint.dof = 3;
+        joint.fit = JointFit::TypedByFit;
+        (joint.axis, joint.axis_in_parent) = (None, None);
+        joint.point_in_parent = Some(arr(centre.coords));
+        joint.point = Some(arr((cam_parent * centre).coords));
+        clear_coordinates(joint);
+    }
+    let ball = Observer::new(model)?;
+    let ball_fits = ball.fit_sequence(tracks)?;
+    // Perpendicular to the hinge axis at the reference pose, the second axis stays so as the
+    // child turns: `axis . turn b = 0` in every frame.
+    let mut scatter = axis * axis.transpose();
+    for f in &ball_fits {
+        let (Some(p), Some(c)) = (
+            f.poses.get(parent).copied().flatten(),
+            f.poses.get(child).copied().flatten(),
+        ) else {
+            continue;
+        };
+        let turn = ((p.inverse() * c).rotation * reference.rotation.inverse()).to_rotation_matrix();
+        let row = turn.matrix().transpose() * axis;
+        scatter += row * row.transpose();
+    }
+    let e = scatter.symmetric_eigen();
+    let second = e.eigenvectors.column(e.eigenvalues.imin()).into_owned();
+    {
+        let joint = &mut model.joints[k];
+        joint.joint_type = JointType::Universal;
+        joint.dof = 2;
+        joint.axis_in_parent = Some(arr(axis));
+        joint.axis = Some(arr(cam_parent.rotation * axis));
+        joint.second_axis_in_parent = Some(arr(second));
+        joint.second_axis = Some(arr(cam_parent.rotation * second));
+    }
+    let mut trial = Observer::new(model)?;
+    let mut trial_fits = trial.fit_sequence(tracks)?;
+    if let Some(adjusted) = adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
+        (trial, trial_fits) = adjusted;
+    }
+    // Over the frames where both joints have positions: where the universal joint's angles
+    // are undetermined, the fit leaves its child's points looser than the hinge did.
+    let (mut frames, mut gain) = (0.0, 0.0);
+    for (u, h) in trial_fits.iter().zip(fits) {
+        if u.angles[k].is_some() && h.positions[k].is_some() {
+            frames += 1.0;
+            gain += h.sum_sq_m2 - u.sum_sq_m2;
+        }
+    }
+    let gain = gain / model.noise.sigma_m.powi(2);
+    let excess = trial.joint_excess(tracks, &trial_fits)?;
+    let z = (gain - frames) / (2.0 * frames).sqrt();
+    if frames > 0.0
+        && z > limits.min_universal_gain_in_std
+        && !excess
+            .iter()
+            .any(|e| e.is_some_and(|e| e > limits.others_max_excess))
+    {
+        model.warnings.push(Warning::JointTypedByFit {
+            parent,
+            child,
+            joint_type: JointType::Universal,
+            excess_in_sigma2: excess[k].unwrap_or(0.0),
+        });
+        return Ok(Some((trial, trial_fits)));
+    }
+    (model.joints, model.warnings) = original;
+    Ok(None)
+}
+
+/// The hinges of `model` typed universal by [`universal_from_hinge`], parents first (the
+/// joints are in tree order), each on the fit the typings before it left: a parent's missed
+/// second axis shows in its children's fit too.
+fn universals_from_hinges(
+    model: &mut Model,
+    tracks: &Tracks,
+    observer: Observer,
+    fits: Vec<FrameFit>,
+    limits: &TypeByFitLimits,
+) -> Result<(Observer, Vec<FrameFit>, Vec<usize>)> {
+    let (mut observer, mut fits) = (observer, fits);
+    let mut typed = Vec::new();
+    for k in 0..observer.joints.len() {
+        if model.joints[k].joint_type != JointType::Revolute
+            || observer.freed[k]
+            || !matches!(observer.joints[k].measure, Measure::Revolute(..))
+        {
+            continue;
+        }
+        let mut trial_model = model.clone();
+        if let Some((o, f)) =
+            universal_from_hinge(&mut trial_model, k, tracks, &observer, &fits, limits)?
+        {
+            *model = trial_model;
+            (observer, fits) = (o, f);
+            typed.push(k);
+        }
+    }
+    Ok((observer, fits, typed))
 }
 
 /// Drops what a joint typed anew no longer has: a universal joint's second axis and every

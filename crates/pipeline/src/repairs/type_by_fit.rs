@@ -33,6 +33,13 @@ pub struct TypeByFitParams {
     /// `sqrt(2 K)` (a chance gain's standard deviation), or, freed, when the fit follows the
     /// ball (default 5).
     pub min_ball_gain_in_std: f64,
+    /// Whether every hinge the fit follows is tried as a universal joint, parents first
+    /// (default false: each trial costs two whole-tree fits and a bundle adjustment).
+    pub hinges_as_universal: bool,
+    /// Such a hinge is typed universal when the second axis lowers the fit's squared
+    /// residual, in noise variances, by more than the `K` frames where both joints have
+    /// positions plus this many `sqrt(2 K)` (default 5).
+    pub min_universal_gain_in_std: f64,
     /// A candidate whose excess before its bundle adjustment is above this is dropped
     /// unadjusted (default 1000; `docs/decisions.md`).
     pub max_excess_to_adjust: f64,
@@ -55,6 +62,8 @@ impl Default for TypeByFitParams {
             max_translation_rank: l.max_translation_rank,
             max_ball_off_axis_in_std: l.max_ball_off_axis_in_std,
             min_ball_gain_in_std: l.min_ball_gain_in_std,
+            hinges_as_universal: l.hinges_as_universal,
+            min_universal_gain_in_std: l.min_universal_gain_in_std,
             max_excess_to_adjust: l.max_excess_to_adjust,
             bundle_max_steps: l.bundle.max_steps,
             bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
@@ -90,6 +99,13 @@ impl TypeByFitParams {
             NAME,
             "min_ball_gain_in_std",
             self.min_ball_gain_in_std,
+            0.0,
+            1e6,
+        )?;
+        in_range(
+            NAME,
+            "min_universal_gain_in_std",
+            self.min_universal_gain_in_std,
             0.0,
             1e6,
         )?;
@@ -146,6 +162,8 @@ impl Repair for TypeByFit {
             max_translation_rank: p.max_translation_rank,
             max_ball_off_axis_in_std: p.max_ball_off_axis_in_std,
             min_ball_gain_in_std: p.min_ball_gain_in_std,
+            hinges_as_universal: p.hinges_as_universal,
+            min_universal_gain_in_std: p.min_universal_gain_in_std,
             max_excess_to_adjust: p.max_excess_to_adjust,
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
