@@ -533,12 +533,7 @@ fn universal_by_fit(
     let this = |p: &usize, c: &usize| *p == parent && *c == child;
     let freed = observer.freed[k];
     let original = (model.joints.clone(), model.warnings.clone());
-    let joint = &mut model.joints[k];
-    joint.joint_type = JointType::Spherical;
-    joint.dof = 3;
-    joint.fit = JointFit::TypedByFit;
-    (joint.axis, joint.axis_in_parent) = (None, None);
-    clear_coordinates(joint);
+    make_ball(&mut model.joints[k]);
     model.warnings.retain(
         |w| !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if this(p, c)),
     );
@@ -546,9 +541,7 @@ fn universal_by_fit(
     let trial_fits = trial.fit_sequence(tracks)?;
     let excess = trial.joint_excess(tracks, &trial_fits)?;
     let keep = if freed {
-        !excess
-            .iter()
-            .any(|e| e.is_some_and(|e| e > limits.others_max_excess))
+        !any_above(&excess, limits.others_max_excess)
     } else {
         let frames = fits.iter().filter(|f| f.angles[k].is_some()).count() as f64;
         let sum = |f: &[FrameFit]| f.iter().map(|f| f.sum_sq_m2).sum::<f64>();
@@ -614,16 +607,11 @@ fn universal_from_hinge(
     let centre = pivot + axis * axis.dot(&(seen - pivot));
     let original = (model.joints.clone(), model.warnings.clone());
     let arr = |v: Vector3<f64>| [v.x, v.y, v.z];
-    {
-        let joint = &mut model.joints[k];
-        joint.joint_type = JointType::Spherical;
-        joint.dof = 3;
-        joint.fit = JointFit::TypedByFit;
-        (joint.axis, joint.axis_in_parent) = (None, None);
-        joint.point_in_parent = Some(arr(centre.coords));
-        joint.point = Some(arr((cam_parent * centre).coords));
-        clear_coordinates(joint);
-    }
+    // Field by field, not through `store_centred_joint`: its reference pose, carried through
+    // an isometry, would change in the last bits, and the fits downstream with it.
+    make_ball(&mut model.joints[k]);
+    model.joints[k].point_in_parent = Some(arr(centre.coords));
+    model.joints[k].point = Some(arr((cam_parent * centre).coords));
     let ball = Observer::new(model)?;
     let ball_fits = ball.fit_sequence(tracks)?;
     // Perpendicular to the hinge axis at the reference pose, the second axis stays so as the
@@ -670,9 +658,7 @@ fn universal_from_hinge(
     let z = (gain - frames) / (2.0 * frames).sqrt();
     if frames > 0.0
         && z > limits.min_universal_gain_in_std
-        && !excess
-            .iter()
-            .any(|e| e.is_some_and(|e| e > limits.others_max_excess))
+        && !any_above(&excess, limits.others_max_excess)
     {
         model.warnings.push(Warning::JointTypedByFit {
             parent,
@@ -692,11 +678,10 @@ fn universal_from_hinge(
 fn universals_from_hinges(
     model: &mut Model,
     tracks: &Tracks,
-    observer: Observer,
-    fits: Vec<FrameFit>,
+    mut observer: Observer,
+    mut fits: Vec<FrameFit>,
     limits: &TypeByFitLimits,
 ) -> Result<(Observer, Vec<FrameFit>, Vec<usize>)> {
-    let (mut observer, mut fits) = (observer, fits);
     let mut typed = Vec::new();
     for k in 0..observer.joints.len() {
         if model.joints[k].joint_type != JointType::Revolute
@@ -715,6 +700,21 @@ fn universals_from_hinges(
         }
     }
     Ok((observer, fits, typed))
+}
+
+/// Makes `joint` a ball to be fitted: no axes, no coordinates, typed by the fit (its centre
+/// stays where it is).
+fn make_ball(joint: &mut kinetree_core::model::Joint) {
+    joint.joint_type = JointType::Spherical;
+    joint.dof = 3;
+    joint.fit = JointFit::TypedByFit;
+    (joint.axis, joint.axis_in_parent) = (None, None);
+    clear_coordinates(joint);
+}
+
+/// Whether any joint's excess is above `bound` (a joint the fit no longer follows).
+fn any_above(excess: &[Option<f64>], bound: f64) -> bool {
+    excess.iter().any(|e| e.is_some_and(|e| e > bound))
 }
 
 /// Drops what a joint typed anew no longer has: a universal joint's second axis and every
@@ -1146,10 +1146,7 @@ fn type_by_fit(
         let Some(own) = excess[k].filter(|&e| e <= limits.max_excess) else {
             continue;
         };
-        if excess
-            .iter()
-            .any(|e| e.is_some_and(|e| e > limits.others_max_excess))
-        {
+        if any_above(&excess, limits.others_max_excess) {
             continue;
         }
         model.warnings.retain(
