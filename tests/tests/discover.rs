@@ -90,13 +90,12 @@ fn discovered(params: &RandomParams) -> (kinetree_synth::SynthData, kinetree_cor
 #[test]
 fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
     use kinetree_core::Warning;
-    // A 7-joint tree in which the clustering merges true bodies 2 and 3 (a 2.4 rad revolute
-    // joint; body 2 shows only four points, in 22-86 frames): the merged body fits at about
-    // 13 sigma and must be split, and its parts must not be merged back.
+    // A 3-joint chain seen for 20 frames in which the clustering merges two bodies: the
+    // merged body fits at about 8 sigma and must be split, and its parts must not be merged
+    // back.
     let params = RandomParams {
-        n_joints: 7,
-        tree: true,
-        seed: 3,
+        n_frames: 20,
+        seed: 5,
         ..RandomParams::default()
     };
     let (data, model) = discovered(&params);
@@ -109,7 +108,7 @@ fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
         m.warnings
     );
     let e = evaluate(m, &data.truth);
-    assert_eq!(e.n_bodies_found, 8, "{e:?}");
+    assert_eq!(e.n_bodies_found, 4, "{e:?}");
     assert!(e.ari > 0.95, "{e:?}");
     let sigma = m.noise.sigma_m;
     for b in &m.bodies {
@@ -123,17 +122,16 @@ fn a_body_mixing_two_bodies_is_split_and_not_merged_back() {
     }
 }
 
-/// Occlusion sweep, 20 frames, seed 0 (3-joint chain): a body mixing links 2 and 3 fits at
-/// 2.76 sigma, and one of its parts again at 2.86. Rigid bodies fit under 1.5 sigma once
-/// their shapes are refined, so both are split; every joint is then found and every
-/// identifiable point placed. At the old bound of 3 sigma, links stayed mixed (ARI 0.65) and
-/// two of the three joints were missed.
+/// A 3-joint chain seen for 20 frames (seed 13): a body mixing two links fits at 2.57 sigma.
+/// Rigid bodies fit under 1.5 sigma once their shapes are refined, and the split's test for
+/// two bodies in one finds them even under a residual bound of 3 sigma, so the body is split;
+/// every joint is then found and every identifiable point placed.
 #[test]
 fn a_mixed_body_fitting_under_three_sigma_is_split() {
     use kinetree_core::Warning;
     let params = RandomParams {
         n_frames: 20,
-        seed: 0,
+        seed: 13,
         ..RandomParams::default()
     };
     let (data, model) = discovered(&params);

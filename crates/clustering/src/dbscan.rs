@@ -294,6 +294,7 @@ impl Dbscan {
         let Ok(groups) = linkage.cluster(&ClusteringInput {
             dissimilarity: &sub,
             seed: 0,
+            pair_frames: None,
         }) else {
             return;
         };

@@ -236,6 +236,7 @@ mod tests {
                         .cluster(&ClusteringInput {
                             dissimilarity: &m,
                             seed,
+                            pair_frames: None,
                         })
                         .expect("clusters")
                 };

@@ -10,6 +10,7 @@ mod spectral;
 #[cfg(test)]
 mod test_support;
 mod unknown;
+mod weighted;
 
 pub use dbscan::{Dbscan, DbscanParams};
 pub use diagnostics::{SegmentationDiagnostics, diagnostics};

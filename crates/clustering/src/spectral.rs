@@ -719,6 +719,7 @@ mod tests {
                     .cluster(&ClusteringInput {
                         dissimilarity: &m,
                         seed: 1,
+                        pair_frames: None,
                     })
                     .expect("clusters");
                 assert_eq!(

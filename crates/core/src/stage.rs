@@ -35,6 +35,10 @@ pub struct ClusteringInput<'a> {
     pub dissimilarity: &'a DissimilarityMatrix,
     /// Seed for any random choice.
     pub seed: u64,
+    /// Frames in which each pair was seen together, condensed like the matrix
+    /// ([`crate::PairStats::count`]): how much evidence stands behind each value. A clusterer
+    /// may weigh pairs by it; `None` when unknown (a matrix not built from pair statistics).
+    pub pair_frames: Option<&'a [u32]>,
 }
 
 /// Groups points into rigid bodies.

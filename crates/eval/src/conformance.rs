@@ -170,6 +170,7 @@ pub fn check_clustering(
         stage.cluster(&ClusteringInput {
             dissimilarity: m,
             seed,
+            pair_frames: None,
         })
     };
     let Some(Ok(seg)) = guarded("cluster", &mut v, || run(&m, 7)) else {

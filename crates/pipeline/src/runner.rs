@@ -170,6 +170,7 @@ pub(crate) fn segment(
     let s = p.clustering.cluster(&ClusteringInput {
         dissimilarity: &d,
         seed: p.seed,
+        pair_frames: Some(&stats.count),
     })?;
     if !p.runner.point_check {
         return Ok((d, s));

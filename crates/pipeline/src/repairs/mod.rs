@@ -268,6 +268,7 @@ pub(crate) fn cut_in_two(
     let parts = ctx.stages.halves.cluster(&ClusteringInput {
         dissimilarity: sub,
         seed: 0,
+        pair_frames: None,
     })?;
     Ok(parts
         .members()
