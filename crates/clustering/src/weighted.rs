@@ -1,7 +1,5 @@
 //! Average linkage with a weight per pair, by the nearest-neighbour chain.
 
-use kinetree_core::condensed_index;
-
 /// One merge of the weighted average linkage: the clusters holding points `a` and `b` join at
 /// height `height`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -16,32 +14,45 @@ pub(crate) struct Merge {
 /// The update `d(A + B, C) = (W_AC d_AC + W_BC d_BC) / (W_AC + W_BC)`, with `W` the summed
 /// weights, lies between `d_AC` and `d_BC`, so the linkage is reducible and the
 /// nearest-neighbour chain finds the same merges as the greedy closest-pair loop (Müllner
-/// 2011, Sec. 3) in O(k^2) time. Pairs of zero total weight fall back to the unweighted mean.
+/// 2011, Sec. 3) in O(k^2) time and memory. Pairs of zero total weight fall back to the
+/// unweighted mean.
 ///
 /// Returns the `k - 1` merges sorted by height (ties in the order found), each naming one
 /// point of either group; union-find over them in that order rebuilds the dendrogram.
 pub(crate) fn weighted_average_linkage(values: &[f64], weights: &[f64], k: usize) -> Vec<Merge> {
-    let mut d = values.to_vec();
-    let mut w = weights.to_vec();
-    let mut active = vec![true; k];
+    // Dense symmetric copies (16 k^2 bytes): the chain reads one group's row per step, which
+    // in the condensed triangle is a walk down a column with a cache miss per pair.
+    let mut d = vec![0.0; k * k];
+    let mut w = vec![0.0; k * k];
+    let mut c = 0;
+    for i in 0..k {
+        for j in i + 1..k {
+            d[i * k + j] = values[c];
+            d[j * k + i] = values[c];
+            w[i * k + j] = weights[c];
+            w[j * k + i] = weights[c];
+            c += 1;
+        }
+    }
+    // The groups still open, by their slot, in increasing order.
+    let mut alive: Vec<usize> = (0..k).collect();
     let mut merges = Vec::with_capacity(k.saturating_sub(1));
     let mut chain: Vec<usize> = Vec::new();
-    let mut left = k;
-    while left > 1 {
+    while alive.len() > 1 {
         if chain.is_empty() {
-            let first = active.iter().position(|&a| a).unwrap_or(0);
-            chain.push(first);
+            chain.push(alive[0]);
         }
         let top = chain[chain.len() - 1];
         let prev = (chain.len() >= 2).then(|| chain[chain.len() - 2]);
-        // The nearest active neighbour of `top`; a tie keeps the chain's previous element so
+        // The nearest open neighbour of `top`; a tie keeps the chain's previous element so
         // that the chain ends in a reciprocal pair instead of cycling.
+        let row = &d[top * k..(top + 1) * k];
         let mut best = (f64::INFINITY, usize::MAX);
         if let Some(p) = prev {
-            best = (d[condensed_index(k, top, p)], p);
+            best = (row[p], p);
         }
-        for c in (0..k).filter(|&c| active[c] && c != top) {
-            let v = d[condensed_index(k, top, c)];
+        for &c in alive.iter().filter(|&&c| c != top) {
+            let v = row[c];
             if v < best.0 || best.1 == usize::MAX {
                 best = (v, c);
             }
@@ -54,18 +65,20 @@ pub(crate) fn weighted_average_linkage(values: &[f64], weights: &[f64], k: usize
         chain.truncate(chain.len() - 2);
         // Merge `near` into `top`'s slot.
         let (keep, gone) = (top.min(near), top.max(near));
-        for c in (0..k).filter(|&c| active[c] && c != keep && c != gone) {
-            let (ik, ig) = (condensed_index(k, keep, c), condensed_index(k, gone, c));
+        for &c in alive.iter().filter(|&&c| c != keep && c != gone) {
+            let (ik, ig) = (keep * k + c, gone * k + c);
             let (wk, wg) = (w[ik], w[ig]);
-            d[ik] = if wk + wg > 0.0 {
+            let value = if wk + wg > 0.0 {
                 (wk * d[ik] + wg * d[ig]) / (wk + wg)
             } else {
                 0.5 * (d[ik] + d[ig])
             };
+            d[ik] = value;
+            d[c * k + keep] = value;
             w[ik] = wk + wg;
+            w[c * k + keep] = wk + wg;
         }
-        active[gone] = false;
-        left -= 1;
+        alive.retain(|&c| c != gone);
         merges.push(Merge {
             a: keep,
             b: gone,
@@ -79,7 +92,7 @@ pub(crate) fn weighted_average_linkage(values: &[f64], weights: &[f64], k: usize
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinetree_core::n_pairs;
+    use kinetree_core::{condensed_index, n_pairs};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
