@@ -542,7 +542,7 @@ fn sizes_beyond_memory_are_refused_before_they_are_allocated() {
     );
 
     // 20 000 points in 3 frames: a small file, but a discovery on every point of about
-    // 12 GiB (the default discovers on a sample of them instead).
+    // 18 GiB (the default discovers on a sample of them instead).
     let n = 20_000;
     let xyz: Vec<f64> = (0..3 * n * 3).map(|k| (k % 97) as f64 * 1e-2).collect();
     let tracks = kinetree_core::Tracks::new(3, n, xyz).expect("tracks");
@@ -551,7 +551,7 @@ fn sizes_beyond_memory_are_refused_before_they_are_allocated() {
     let e = Pipeline::from_config(&every_point)
         .expect("pipeline")
         .run(&tracks)
-        .expect_err("12 GiB");
+        .expect_err("18 GiB");
     match &e {
         Error::TooLarge { what, limit, .. } => {
             assert!(what.contains("20000 points"), "{e}");

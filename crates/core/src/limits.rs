@@ -9,7 +9,7 @@
 
 use crate::{Error, Result};
 
-/// Default memory limit, GiB: a third of a 24 GiB workstation, enough for about 16 000
+/// Default memory limit, GiB: a third of a 24 GiB workstation, enough for about 13 000
 /// keypoints in one discovery.
 pub const DEFAULT_MAX_MEMORY_GIB: f64 = 8.0;
 
@@ -23,11 +23,12 @@ pub fn tracks_bytes(n_frames: u64, n_points: u64) -> f64 {
 
 /// Peak bytes of one discovery of `n_frames x n_points`: the pairwise statistics, the
 /// dissimilarity matrix and the clusterer's copies grow with the pairs (measured up to 27
-/// bytes a point squared, bounded here by 32), the tracks and their per-body copies with the
+/// bytes a point squared with kodama's linkage; the frame-weighted average linkage's dense
+/// rows add 16, so bounded here by 48), the tracks and their per-body copies with the
 /// observations (bounded by 200 bytes each).
 pub fn discovery_bytes(n_frames: u64, n_points: u64) -> f64 {
     let n = n_points as f64;
-    32.0 * n * n + 200.0 * n_frames as f64 * n
+    48.0 * n * n + 200.0 * n_frames as f64 * n
 }
 
 /// Default work limit, minutes of estimated work: a discovery estimated to take longer is
@@ -192,11 +193,11 @@ mod tests {
         .expect_err("20000 points");
         let text = e.to_string();
         assert!(
-            text.contains("11.9 GiB") && text.contains("8.0 GiB"),
+            text.contains("17.9 GiB") && text.contains("8.0 GiB"),
             "{text}"
         );
         assert!(text.contains("--max-memory"), "{text}");
-        check_memory("x", discovery_bytes(3, 20_000), 16.0).expect("raised limit");
+        check_memory("x", discovery_bytes(3, 20_000), 24.0).expect("raised limit");
         assert!(tracks_bytes(u64::MAX, u64::MAX).is_finite());
         assert!(validate_limit("max_memory_gib", f64::NAN).is_err());
         assert!(validate_limit("max_memory_gib", 0.0).is_err());
