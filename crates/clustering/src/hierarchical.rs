@@ -2,7 +2,7 @@
 //! average linkage weighted by the pairs' frames, kinetree's own nearest-neighbour chain.
 
 use crate::unknown::fill_unknown;
-use crate::weighted::weighted_average_linkage;
+use crate::weighted::{Merge, weighted_average_linkage};
 use kinetree_core::{
     Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation, condensed_index,
 };
@@ -157,12 +157,6 @@ impl Clustering for Hierarchical {
             raw[keep[0]] = Some(0);
             return Ok(Segmentation::from_raw(&raw, self.params.min_points));
         }
-        let mut condensed = Vec::with_capacity(k * (k - 1) / 2);
-        for (a, &i) in keep.iter().enumerate() {
-            for &j in &keep[a + 1..] {
-                condensed.push(filled[condensed_index(m.n_points, i, j)]);
-            }
-        }
         let frames = match input.pair_frames {
             Some(f) if self.params.weigh_by_frames && self.params.linkage == Linkage::Average => {
                 if f.len() != m.values.len() {
@@ -175,46 +169,48 @@ impl Clustering for Hierarchical {
             }
             _ => None,
         };
-        // Each merge as the two points standing for its groups, in order of height.
-        let merges: Vec<(usize, usize, f64)> = match frames {
-            Some(frames) => {
-                let mut weights = Vec::with_capacity(condensed.len());
-                for (a, &i) in keep.iter().enumerate() {
-                    for &j in &keep[a + 1..] {
-                        let c = condensed_index(m.n_points, i, j);
-                        let seen = if m.values[c].is_nan() { 1 } else { frames[c] };
-                        weights.push(f64::from(seen.max(1)));
-                    }
+        let mut condensed = Vec::with_capacity(k * (k - 1) / 2);
+        let mut weights = Vec::with_capacity(if frames.is_some() { k * (k - 1) / 2 } else { 0 });
+        for (a, &i) in keep.iter().enumerate() {
+            for &j in &keep[a + 1..] {
+                let c = condensed_index(m.n_points, i, j);
+                condensed.push(filled[c]);
+                if let Some(frames) = frames {
+                    let seen = if m.values[c].is_nan() { 1 } else { frames[c] };
+                    weights.push(f64::from(seen.max(1)));
                 }
-                weighted_average_linkage(&condensed, &weights, k)
-                    .into_iter()
-                    .map(|s| (s.a, s.b, s.height))
-                    .collect()
             }
-            None => {
-                let dendrogram = kodama::linkage(&mut condensed, k, self.params.linkage.method());
-                // kodama names a merged group `k + step`; carry one point of each group.
-                let mut rep: Vec<usize> = (0..k).collect();
-                dendrogram
-                    .steps()
-                    .iter()
-                    .map(|s| {
-                        let (a, b) = (rep[s.cluster1], rep[s.cluster2]);
-                        rep.push(a);
-                        (a, b, s.dissimilarity)
-                    })
-                    .collect()
-            }
+        }
+        // Each merge names one point of either group, in order of height.
+        let merges: Vec<Merge> = if frames.is_some() {
+            weighted_average_linkage(&condensed, &weights, k)
+        } else {
+            let dendrogram = kodama::linkage(&mut condensed, k, self.params.linkage.method());
+            // kodama names a merged group `k + step`; carry one point of each group.
+            let mut rep: Vec<usize> = (0..k).collect();
+            dendrogram
+                .steps()
+                .iter()
+                .map(|s| {
+                    let (a, b) = (rep[s.cluster1], rep[s.cluster2]);
+                    rep.push(a);
+                    Merge {
+                        a,
+                        b,
+                        height: s.dissimilarity,
+                    }
+                })
+                .collect()
         };
         let n_merges = match (self.params.n_clusters, self.params.cut) {
             (Some(c), _) => k.saturating_sub(c.min(k)),
             (None, cut) => {
                 let cut = cut.unwrap_or(m.suggested_cut);
-                merges.iter().take_while(|s| s.2 <= cut).count()
+                merges.iter().take_while(|s| s.height <= cut).count()
             }
         };
         let mut parent: Vec<usize> = (0..k).collect();
-        for &(a, b, _) in &merges[..n_merges] {
+        for &Merge { a, b, .. } in &merges[..n_merges] {
             let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
             parent[rb] = ra;
         }

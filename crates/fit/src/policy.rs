@@ -551,12 +551,7 @@ fn universal_by_fit(
         frames > 0.0 && gain > frames + limits.min_ball_gain_in_std * (2.0 * frames).sqrt()
     };
     if keep {
-        model.warnings.push(Warning::JointTypedByFit {
-            parent,
-            child,
-            joint_type: JointType::Spherical,
-            excess_in_sigma2: excess[k].unwrap_or(0.0),
-        });
+        record_typed_by_fit(model, k, excess[k].unwrap_or(0.0));
         return Ok(Some((trial, trial_fits)));
     }
     if least_angle_spread_in_std(fits, k).is_some_and(|r| r <= limits.max_ball_off_axis_in_std)
@@ -660,12 +655,7 @@ fn universal_from_hinge(
         && z > limits.min_universal_gain_in_std
         && !any_above(&excess, limits.others_max_excess)
     {
-        model.warnings.push(Warning::JointTypedByFit {
-            parent,
-            child,
-            joint_type: JointType::Universal,
-            excess_in_sigma2: excess[k].unwrap_or(0.0),
-        });
+        record_typed_by_fit(model, k, excess[k].unwrap_or(0.0));
         return Ok(Some((trial, trial_fits)));
     }
     (model.joints, model.warnings) = original;
@@ -710,6 +700,19 @@ fn make_ball(joint: &mut kinetree_core::model::Joint) {
     joint.fit = JointFit::TypedByFit;
     (joint.axis, joint.axis_in_parent) = (None, None);
     clear_coordinates(joint);
+}
+
+/// Records in `model`'s warnings that the fit typed joint `k` as it now stands, with its
+/// excess in noise variances.
+fn record_typed_by_fit(model: &mut Model, k: usize, excess_in_sigma2: f64) {
+    let j = &model.joints[k];
+    let warning = Warning::JointTypedByFit {
+        parent: j.parent,
+        child: j.child,
+        joint_type: j.joint_type,
+        excess_in_sigma2,
+    };
+    model.warnings.push(warning);
 }
 
 /// Whether any joint's excess is above `bound` (a joint the fit no longer follows).
@@ -1152,12 +1155,7 @@ fn type_by_fit(
         model.warnings.retain(
             |w| !matches!(w, Warning::MultiDofJoint { parent: p, child: c, .. } if this(p, c)),
         );
-        model.warnings.push(Warning::JointTypedByFit {
-            parent,
-            child,
-            joint_type: model.joints[k].joint_type,
-            excess_in_sigma2: own,
-        });
+        record_typed_by_fit(model, k, own);
         return Ok(Some((trial, trial_fits)));
     }
     (model.joints, model.warnings) = original;
