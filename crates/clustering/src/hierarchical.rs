@@ -2,7 +2,7 @@
 //! average linkage weighted by the pairs' frames, kinetree's own nearest-neighbour chain.
 
 use crate::unknown::fill_unknown;
-use crate::weighted::{Merge, weighted_average_linkage};
+use crate::weighted::{Merge, kodama_linkage, weighted_average_linkage};
 use kinetree_core::{
     Clustering, ClusteringInput, Error, MIN_BODY_POINTS, Result, Segmentation, condensed_index,
 };
@@ -185,22 +185,7 @@ impl Clustering for Hierarchical {
         let merges: Vec<Merge> = if frames.is_some() {
             weighted_average_linkage(&condensed, &weights, k)
         } else {
-            let dendrogram = kodama::linkage(&mut condensed, k, self.params.linkage.method());
-            // kodama names a merged group `k + step`; carry one point of each group.
-            let mut rep: Vec<usize> = (0..k).collect();
-            dendrogram
-                .steps()
-                .iter()
-                .map(|s| {
-                    let (a, b) = (rep[s.cluster1], rep[s.cluster2]);
-                    rep.push(a);
-                    Merge {
-                        a,
-                        b,
-                        height: s.dissimilarity,
-                    }
-                })
-                .collect()
+            kodama_linkage(&mut condensed, k, self.params.linkage.method())
         };
         let n_merges = match (self.params.n_clusters, self.params.cut) {
             (Some(c), _) => k.saturating_sub(c.min(k)),

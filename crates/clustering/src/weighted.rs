@@ -1,4 +1,5 @@
-//! Average linkage with a weight per pair, by the nearest-neighbour chain.
+//! Average linkage with a weight per pair, by the nearest-neighbour chain, and kodama's
+//! linkages in the same form.
 
 /// One merge of the weighted average linkage: the clusters holding points `a` and `b` join at
 /// height `height`.
@@ -87,6 +88,27 @@ pub(crate) fn weighted_average_linkage(values: &[f64], weights: &[f64], k: usize
     }
     merges.sort_by(|x, y| x.height.total_cmp(&y.height));
     merges
+}
+
+/// kodama's dendrogram of the condensed `values` (which it overwrites) by `method`, as merges
+/// naming one point of either group, in kodama's order (by height).
+pub(crate) fn kodama_linkage(values: &mut [f64], k: usize, method: kodama::Method) -> Vec<Merge> {
+    let dendrogram = kodama::linkage(values, k, method);
+    // kodama names a merged group `k + step`; carry one point of each group.
+    let mut rep: Vec<usize> = (0..k).collect();
+    dendrogram
+        .steps()
+        .iter()
+        .map(|s| {
+            let (a, b) = (rep[s.cluster1], rep[s.cluster2]);
+            rep.push(a);
+            Merge {
+                a,
+                b,
+                height: s.dissimilarity,
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -180,25 +202,11 @@ mod tests {
             let (d, w) = random_matrix(k, 100 + seed, false);
             let merges = weighted_average_linkage(&d, &w, k);
             let mut condensed = d.clone();
-            let dendrogram = kodama::linkage(&mut condensed, k, kodama::Method::Average);
-            for (m, s) in merges.iter().zip(dendrogram.steps()) {
-                assert!((m.height - s.dissimilarity).abs() < 1e-12);
+            let kodama_merges = kodama_linkage(&mut condensed, k, kodama::Method::Average);
+            for (m, s) in merges.iter().zip(&kodama_merges) {
+                assert!((m.height - s.height).abs() < 1e-12);
             }
             // The same partition at every height between merges.
-            let mut rep: Vec<usize> = (0..k).collect();
-            let kodama_merges: Vec<Merge> = dendrogram
-                .steps()
-                .iter()
-                .map(|s| {
-                    let (a, b) = (rep[s.cluster1], rep[s.cluster2]);
-                    rep.push(a);
-                    Merge {
-                        a,
-                        b,
-                        height: s.dissimilarity,
-                    }
-                })
-                .collect();
             for cut in [0.2, 0.4, 0.45, 0.5, 0.55, 0.6] {
                 assert_eq!(
                     groups_at(&merges, k, cut),
