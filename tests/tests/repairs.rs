@@ -523,6 +523,10 @@ fn repair_parameter_rules_name_the_key() {
             "pipeline.repairs.type_by_fit.bundle_max_steps",
         ),
         (
+            "[repairs.type_by_fit]\nmax_local_excess = -1.0",
+            "pipeline.repairs.type_by_fit.max_local_excess",
+        ),
+        (
             "[repairs.attach]\nslack = 0.0",
             "pipeline.repairs.attach.slack",
         ),

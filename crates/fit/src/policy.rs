@@ -272,7 +272,7 @@ pub fn bundle_adjust(
     state: FitState,
     limits: &BundleLimits,
 ) -> Result<(FitState, bool)> {
-    match adjust_model(model, &state.observer, tracks, &state.fits, limits)? {
+    match adjust_model(model, &state.observer, tracks, &state.fits, limits, None)? {
         Some((observer, fits)) => Ok((FitState::of(model, observer, fits), true)),
         None => Ok((state, false)),
     }
@@ -372,6 +372,12 @@ pub struct TypeByFitLimits {
     /// candidate's excess at most 178-fold, so such a candidate cannot reach `max_excess`,
     /// and its adjustment is most of a typing trial's cost (`docs/decisions.md`).
     pub max_excess_to_adjust: f64,
+    /// Whether a candidate is first bundle-adjusted with only the joints that share a body
+    /// with it, and dropped when its excess is then above `max_local_excess` (default on).
+    pub screen_locally: bool,
+    /// That bound (default 9, three times `max_excess`; `docs/decisions.md`,
+    /// `type_by_fit.max_local_excess`).
+    pub max_local_excess: f64,
     /// The bundle adjustment of each candidate type.
     pub bundle: BundleLimits,
 }
@@ -388,6 +394,8 @@ impl Default for TypeByFitLimits {
             hinges_as_universal: false,
             min_universal_gain_in_std: BALL_GAIN_IN_STD,
             max_excess_to_adjust: TYPE_EXCESS_TO_ADJUST,
+            screen_locally: true,
+            max_local_excess: LOCAL_EXCESS,
             bundle: BundleLimits::default(),
         }
     }
@@ -636,7 +644,8 @@ fn universal_from_hinge(
     }
     let mut trial = Observer::new(model)?;
     let mut trial_fits = trial.fit_sequence(tracks)?;
-    if let Some(adjusted) = adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
+    if let Some(adjusted) = adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle, None)?
+    {
         (trial, trial_fits) = adjusted;
     }
     // Over the frames where both joints have positions: where the universal joint's angles
@@ -1026,16 +1035,18 @@ fn span(values: impl Iterator<Item = f64>) -> Option<[f64; 2]> {
 }
 
 /// Bundle-adjusts the joints `observer` (built from `model`; `known` is its fit of `tracks`)
-/// follows ([`crate::bundle`]) and writes them into `model`; returns the observer rebuilt from
-/// the model and its fit, or `None` (the model unchanged) when the adjustment changed nothing.
+/// follows ([`crate::bundle`]; with `only`, those of them in it) and writes them into
+/// `model`; returns the observer rebuilt from the model and its fit, or `None` (the model
+/// unchanged) when the adjustment changed nothing.
 fn adjust_model(
     model: &mut Model,
     observer: &Observer,
     tracks: &Tracks,
     known: &[FrameFit],
     limits: &BundleLimits,
+    only: Option<&[usize]>,
 ) -> Result<Option<(Observer, Vec<FrameFit>)>> {
-    let Some(adjusted) = crate::bundle::adjust(observer, tracks, known, limits)? else {
+    let Some(adjusted) = crate::bundle::adjust(observer, tracks, known, limits, only)? else {
         return Ok(None);
     };
     // The joints are stored against their parents' poses at their reference frames, so only
@@ -1136,10 +1147,15 @@ fn type_by_fit(
         let mut trial = Observer::new(model)?;
         let mut trial_fits = trial.fit_sequence(tracks)?;
         let unadjusted = trial.joint_excess(tracks, &trial_fits)?;
-        if unadjusted[k].is_some_and(|e| e > limits.max_excess_to_adjust) {
+        // A candidate without an excess (its child never shows three points where the fit
+        // poses it) gets none from an adjustment either, so it cannot be kept.
+        if unadjusted[k].is_none_or(|e| e > limits.max_excess_to_adjust) {
             continue;
         }
-        let excess = match adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle)? {
+        if limits.screen_locally && !near_enough(model, k, tracks, &trial, &trial_fits, limits)? {
+            continue;
+        }
+        let excess = match adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle, None)? {
             Some(adjusted) => {
                 (trial, trial_fits) = adjusted;
                 trial.joint_excess(tracks, &trial_fits)?
@@ -1160,6 +1176,45 @@ fn type_by_fit(
     }
     (model.joints, model.warnings) = original;
     Ok(None)
+}
+
+/// Whether candidate joint `k` of `model` (fitted by `trial` as `fits`) passes the screen of
+/// [`type_by_fit`]: its excess after a bundle adjustment of only the joints that share a
+/// body with it is within `max_local_excess`, or that adjustment changes nothing. Such an
+/// adjustment costs a fraction of one of every joint, and over every sweep it put a
+/// candidate's excess within 0.3-2.7 times where the adjustment of every joint put it
+/// (`docs/decisions.md`, `type_by_fit.max_local_excess`).
+fn near_enough(
+    model: &Model,
+    k: usize,
+    tracks: &Tracks,
+    trial: &Observer,
+    fits: &[FrameFit],
+    limits: &TypeByFitLimits,
+) -> Result<bool> {
+    let (parent, child) = (model.joints[k].parent, model.joints[k].child);
+    let near: Vec<usize> = (0..model.joints.len())
+        .filter(|&x| {
+            let j = &model.joints[x];
+            [j.parent, j.child]
+                .iter()
+                .any(|&b| b == parent || b == child)
+        })
+        .collect();
+    let mut screened = model.clone();
+    let Some((observer, screened_fits)) = adjust_model(
+        &mut screened,
+        trial,
+        tracks,
+        fits,
+        &limits.bundle,
+        Some(&near),
+    )?
+    else {
+        return Ok(true);
+    };
+    let excess = observer.joint_excess(tracks, &screened_fits)?;
+    Ok(excess[k].is_none_or(|e| e <= limits.max_local_excess))
 }
 
 /// A single-DoF joint's parameters (in the parent's frame) fitted to relative poses
@@ -1226,6 +1281,10 @@ const TYPE_EXCESS: f64 = 3.0;
 /// Default of [`TypeByFitLimits::max_excess_to_adjust`] (`docs/decisions.md`,
 /// `type_by_fit.max_excess_to_adjust`).
 const TYPE_EXCESS_TO_ADJUST: f64 = 1000.0;
+
+/// Default of [`TypeByFitLimits::max_local_excess`] (`docs/decisions.md`,
+/// `type_by_fit.max_local_excess`).
+const LOCAL_EXCESS: f64 = 9.0;
 
 /// Default of [`TypeByFitLimits::max_ball_off_axis_in_std`] (`docs/decisions.md`,
 /// `type_by_fit.max_ball_off_axis_in_std`).

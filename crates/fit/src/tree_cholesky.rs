@@ -136,12 +136,17 @@ impl<'a> TreeCholesky<'a> {
     }
 
     /// Solves `L^T y = b` in place (`y` holds `b` on entry), from the last parameter up:
-    /// `b^T N^-1 c = y_b . y_c`.
+    /// `b^T N^-1 c = y_b . y_c`. A zero entry changes nothing up its path, so it is passed
+    /// over: the bundle adjustment's columns are zero off the parameters that move with
+    /// their joint.
     pub(crate) fn half_solve_mut(&self, y: &mut [f64]) {
         for k in (0..self.pattern.len()).rev() {
             let (path, row) = self.row(k);
             let yk = y[k] / row[path.len()];
             y[k] = yk;
+            if yk == 0.0 {
+                continue;
+            }
             for (&a, &l) in path.iter().zip(row) {
                 y[a] -= l * yk;
             }

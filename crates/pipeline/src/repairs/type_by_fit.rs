@@ -43,6 +43,12 @@ pub struct TypeByFitParams {
     /// A candidate whose excess before its bundle adjustment is above this is dropped
     /// unadjusted (default 1000; `docs/decisions.md`).
     pub max_excess_to_adjust: f64,
+    /// Whether a candidate is first bundle-adjusted with only the joints that share a body
+    /// with it, and dropped when its excess is then above `max_local_excess` (default true;
+    /// a fraction of the cost of adjusting every joint).
+    pub screen_locally: bool,
+    /// That bound (default 9; `docs/decisions.md`).
+    pub max_local_excess: f64,
     /// Most bundle-adjustment steps on each candidate type (default 20, as
     /// `bundle_adjust.max_steps`).
     pub bundle_max_steps: usize,
@@ -65,6 +71,8 @@ impl Default for TypeByFitParams {
             hinges_as_universal: l.hinges_as_universal,
             min_universal_gain_in_std: l.min_universal_gain_in_std,
             max_excess_to_adjust: l.max_excess_to_adjust,
+            screen_locally: l.screen_locally,
+            max_local_excess: l.max_local_excess,
             bundle_max_steps: l.bundle.max_steps,
             bundle_min_gain_in_variances: l.bundle.min_gain_in_variances,
         }
@@ -116,6 +124,7 @@ impl TypeByFitParams {
             0.0,
             1e300,
         )?;
+        in_range(NAME, "max_local_excess", self.max_local_excess, 0.0, 1e300)?;
         count_in_range(NAME, "bundle_max_steps", self.bundle_max_steps, 1, 1000)?;
         in_range(
             NAME,
@@ -165,6 +174,8 @@ impl Repair for TypeByFit {
             hinges_as_universal: p.hinges_as_universal,
             min_universal_gain_in_std: p.min_universal_gain_in_std,
             max_excess_to_adjust: p.max_excess_to_adjust,
+            screen_locally: p.screen_locally,
+            max_local_excess: p.max_local_excess,
             bundle: kinetree_fit::BundleLimits {
                 max_steps: p.bundle_max_steps,
                 min_gain_in_variances: p.bundle_min_gain_in_variances,
