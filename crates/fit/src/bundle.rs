@@ -639,8 +639,8 @@ impl<'a> ReducedSum<'a> {
     /// The normal matrix and right-hand side; `None` when no frame had a usable
     /// linearisation.
     fn finish(mut self) -> Option<(DMatrix<f64>, DVector<f64>)> {
-        // The Gram products went into the upper triangle only (the joint-joint blocks into
-        // both): the lower one is copied from it.
+        // The lower triangle is copied from the upper, so the matrix is symmetric to the
+        // bit whatever order the Gram products summed each triangle in.
         self.normal.fill_lower_triangle_with_upper_triangle();
         self.used.then_some((self.normal, self.rhs))
     }
@@ -666,7 +666,7 @@ enum FrameTerm {
     Unused,
     /// Linearised, but the frame's own normal matrix could not be factored: it adds nothing.
     Unfactored,
-    /// `A_t - B_t D_t^-1 B_t^T` (on and above the diagonal) and `g_t - B_t D_t^-1 l_t`.
+    /// `A_t - B_t D_t^-1 B_t^T` (its upper triangle is what counts) and `g_t - B_t D_t^-1 l_t`.
     Term(DMatrix<f64>, DVector<f64>),
 }
 
@@ -755,33 +755,20 @@ fn frame_term(
     chol.half_solve_columns_mut(&mut cross);
     let mut z = lin.rhs.clone();
     chol.half_solve_mut(z.as_mut_slice());
-    subtract_gram_upper(&mut normal, &cross);
+    subtract_gram(&mut normal, &cross);
     rhs.gemv_tr(-1.0, &cross, &z, 1.0);
     FrameTerm::Term(normal, rhs)
 }
 
-/// `normal -= y^T y` on and above the diagonal (the product is symmetric), by faer's
-/// triangular product: on a frame's `y` of the 21-body scenes (25 x 114) it took a quarter of
-/// the time of a dot product per entry, which was a third of the bundle adjustment.
-fn subtract_gram_upper(normal: &mut DMatrix<f64>, y: &DMatrix<f64>) {
-    use faer::linalg::matmul::triangular::{BlockStructure, matmul};
-    let (rows, n) = y.shape();
-    if rows == 0 || n == 0 {
+/// `normal -= y^T y`, through nalgebra's `gemm` (matrixmultiply's blocked kernel): on a
+/// frame's `y` of the 21-body scenes (25 x 114) a dot product per entry of the upper triangle
+/// was a third of the bundle adjustment. Only the upper triangle is read (`ReducedSum::finish`).
+fn subtract_gram(normal: &mut DMatrix<f64>, y: &DMatrix<f64>) {
+    if y.nrows() == 0 {
         return;
     }
-    let y = faer::MatRef::from_column_major_slice(y.as_slice(), rows, n);
-    let out = faer::MatMut::from_column_major_slice_mut(normal.as_mut_slice(), n, n);
-    matmul(
-        out,
-        BlockStructure::TriangularUpper,
-        faer::Accum::Add,
-        y.transpose(),
-        BlockStructure::Rectangular,
-        y,
-        BlockStructure::Rectangular,
-        -1.0,
-        faer::Par::Seq,
-    );
+    let yt = y.transpose();
+    normal.gemm(-1.0, &yt, y, 1.0);
 }
 
 /// The twists (camera-frame motions about `origin`, see [`Observer::linearise`]) of one
@@ -822,26 +809,20 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_upper_gram_product_is_nalgebras_on_and_above_the_diagonal() {
-        // A small product and one of a frame's size on the 21-body scenes, where faer
-        // works in blocks.
+    fn the_gram_product_is_subtracted() {
+        // A small product and one of a frame's size on the 21-body scenes, checked entry by
+        // entry against dot products of the columns.
         for (rows, n) in [(7, 5), (25, 114)] {
             let y = DMatrix::from_fn(rows, n, |i, j| ((i * n + j) as f64 * 0.71).sin());
             let start = DMatrix::from_fn(n, n, |i, j| (i + 2 * j) as f64);
-            let mut expected = start.clone();
-            expected.gemm_tr(-1.0, &y, &y, 1.0);
-            let mut upper = start.clone();
-            subtract_gram_upper(&mut upper, &y);
+            let mut out = start.clone();
+            subtract_gram(&mut out, &y);
             for j in 0..n {
                 for i in 0..n {
-                    let want = if i <= j {
-                        expected[(i, j)]
-                    } else {
-                        start[(i, j)]
-                    };
+                    let want = start[(i, j)] - y.column(i).dot(&y.column(j));
                     let scale = 1.0 + want.abs();
                     assert!(
-                        (upper[(i, j)] - want).abs() < 1e-12 * scale,
+                        (out[(i, j)] - want).abs() < 1e-12 * scale,
                         "entry ({i}, {j}) of {rows} x {n}"
                     );
                 }
