@@ -125,6 +125,39 @@ fn hinge_sse(
     sse
 }
 
+/// Two orthonormal directions across unit axis `a`: the axis tilts and the pivot shifts
+/// along them.
+fn across(a: &Vector3<f64>) -> [Vector3<f64>; 2] {
+    let b1 = a
+        .cross(&if a.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        })
+        .normalize();
+    [b1, a.cross(&b1)]
+}
+
+/// A sample's derivatives by the axis tilted along each of `basis` and the pivot shifted
+/// along each (the columns), for a keypoint at `v` from the pivot at angle 0, turned by `rot`
+/// (angle `th`) about unit axis `a`.
+fn line_jacobian(
+    a: &Vector3<f64>,
+    basis: &[Vector3<f64>; 2],
+    v: &Vector3<f64>,
+    rot: &Matrix3<f64>,
+    th: f64,
+) -> Matrix3x4<f64> {
+    let (sn, cs) = th.sin_cos();
+    let mut line = Matrix3x4::zeros();
+    for (j, b) in basis.iter().enumerate() {
+        let da = -(b.cross(v) * sn + (b * a.dot(v) + a * b.dot(v)) * (1.0 - cs));
+        line.set_column(j, &da);
+        line.set_column(2 + j, &-(b - rot * b));
+    }
+    line
+}
+
 /// Gauss-Newton on every unknown of the hinge at once: axis direction (2), pivot across the
 /// axis (2), the shape at angle 0 (3 per keypoint) and one angle per posed frame, the angles
 /// eliminated frame by frame (each is one unknown, so its block is a scalar). A ridge of
@@ -157,15 +190,7 @@ fn normal_equations(
     pivot: &Point3<f64>,
 ) -> Normal {
     let g = 4 + 3 * shape.len();
-    let b1 = a
-        .cross(&if a.x.abs() < 0.9 {
-            Vector3::x()
-        } else {
-            Vector3::y()
-        })
-        .normalize();
-    let b2 = a.cross(&b1);
-    let basis = [b1, b2];
+    let basis = across(a);
     let axis = Unit::new_normalize(*a);
     let mut schur = DMatrix::<f64>::zeros(g, g);
     let mut rhs = DVector::<f64>::zeros(g);
@@ -174,9 +199,6 @@ fn normal_equations(
         let Some(th) = *th else { continue };
         let h = turn(&axis, pivot, th);
         let rot = h.rotation.to_rotation_matrix().into_inner();
-        let (sn, cs) = th.sin_cos();
-        // The pivot's columns do not depend on the keypoint.
-        let dp = [-(b1 - rot * b1), -(b2 - rot * b2)];
         let mut agt = DVector::<f64>::zeros(g);
         let (mut d, mut bt) = (0.0, 0.0);
         for (k, zk) in z.iter().enumerate() {
@@ -186,12 +208,7 @@ fn normal_equations(
             let jt = -a.cross(&(rot * v));
             // A sample's Jacobian is nonzero only in the 4 line columns and in its own
             // keypoint's 3 (there `-R`), so each block is summed on its own.
-            let mut line = Matrix3x4::zeros();
-            for (j, b) in basis.iter().enumerate() {
-                let da = -(b.cross(&v) * sn + (b * a.dot(&v) + a * b.dot(&v)) * (1.0 - cs));
-                line.set_column(j, &da);
-                line.set_column(2 + j, &dp[j]);
-            }
+            let line = line_jacobian(a, &basis, &v, &rot, th);
             let o = 4 + 3 * k;
             let cross = -(line.transpose() * rot);
             let mut ll = schur.fixed_view_mut::<4, 4>(0, 0);
@@ -764,16 +781,7 @@ mod tests {
         pivot: &Point3<f64>,
     ) -> (DMatrix<f64>, DVector<f64>) {
         let g = 4 + 3 * shape.len();
-        let (b1, b2) = {
-            let b1 = a
-                .cross(&if a.x.abs() < 0.9 {
-                    Vector3::x()
-                } else {
-                    Vector3::y()
-                })
-                .normalize();
-            (b1, a.cross(&b1))
-        };
+        let basis = across(a);
         let axis = Unit::new_normalize(*a);
         let mut schur = DMatrix::<f64>::zeros(g, g);
         let mut rhs = DVector::<f64>::zeros(g);
@@ -781,7 +789,6 @@ mod tests {
             let Some(th) = *th else { continue };
             let h = turn(&axis, pivot, th);
             let rot = h.rotation.to_rotation_matrix().into_inner();
-            let (sn, cs) = th.sin_cos();
             let mut coupling = DVector::<f64>::zeros(g);
             let (mut d, mut bt) = (0.0, 0.0);
             for (k, zk) in z.iter().enumerate() {
@@ -790,12 +797,8 @@ mod tests {
                 let r = p - h * shape[k];
                 let jt = -a.cross(&(rot * v));
                 let mut jg = DMatrix::<f64>::zeros(3, g);
-                for (j, b) in [b1, b2].iter().enumerate() {
-                    let da = -(b.cross(&v) * sn + (b * a.dot(&v) + a * b.dot(&v)) * (1.0 - cs));
-                    let dp = -(b - rot * b);
-                    jg.set_column(j, &da);
-                    jg.set_column(2 + j, &dp);
-                }
+                jg.view_mut((0, 0), (3, 4))
+                    .copy_from(&line_jacobian(a, &basis, &v, &rot, th));
                 jg.view_mut((0, 4 + 3 * k), (3, 3)).copy_from(&(-rot));
                 let jt = DVector::from_column_slice(jt.as_slice());
                 let res = DVector::from_column_slice(r.as_slice());
