@@ -138,22 +138,28 @@ fn across(a: &Vector3<f64>) -> [Vector3<f64>; 2] {
     [b1, a.cross(&b1)]
 }
 
+/// The derivatives of a frame's samples by the pivot shifted along each of `basis`, for the
+/// frame's turn `rot`: the same for every keypoint.
+fn pivot_columns(basis: &[Vector3<f64>; 2], rot: &Matrix3<f64>) -> [Vector3<f64>; 2] {
+    basis.map(|b| -(b - rot * b))
+}
+
 /// A sample's derivatives by the axis tilted along each of `basis` and the pivot shifted
-/// along each (the columns), for a keypoint at `v` from the pivot at angle 0, turned by `rot`
-/// (angle `th`) about unit axis `a`.
+/// along each (the columns; the latter are its frame's `pivot`, [`pivot_columns`]), for a
+/// keypoint at `v` from the pivot at angle 0, turned by an angle of sine and cosine
+/// `(sn, cs)` about unit axis `a`.
 fn line_jacobian(
     a: &Vector3<f64>,
     basis: &[Vector3<f64>; 2],
     v: &Vector3<f64>,
-    rot: &Matrix3<f64>,
-    th: f64,
+    (sn, cs): (f64, f64),
+    pivot: &[Vector3<f64>; 2],
 ) -> Matrix3x4<f64> {
-    let (sn, cs) = th.sin_cos();
     let mut line = Matrix3x4::zeros();
     for (j, b) in basis.iter().enumerate() {
         let da = -(b.cross(v) * sn + (b * a.dot(v) + a * b.dot(v)) * (1.0 - cs));
         line.set_column(j, &da);
-        line.set_column(2 + j, &-(b - rot * b));
+        line.set_column(2 + j, &pivot[j]);
     }
     line
 }
@@ -199,6 +205,7 @@ fn normal_equations(
         let Some(th) = *th else { continue };
         let h = turn(&axis, pivot, th);
         let rot = h.rotation.to_rotation_matrix().into_inner();
+        let (turn_sc, pivot_cols) = (th.sin_cos(), pivot_columns(&basis, &rot));
         let mut agt = DVector::<f64>::zeros(g);
         let (mut d, mut bt) = (0.0, 0.0);
         for (k, zk) in z.iter().enumerate() {
@@ -208,7 +215,7 @@ fn normal_equations(
             let jt = -a.cross(&(rot * v));
             // A sample's Jacobian is nonzero only in the 4 line columns and in its own
             // keypoint's 3 (there `-R`), so each block is summed on its own.
-            let line = line_jacobian(a, &basis, &v, &rot, th);
+            let line = line_jacobian(a, &basis, &v, turn_sc, &pivot_cols);
             let o = 4 + 3 * k;
             let cross = -(line.transpose() * rot);
             let mut ll = schur.fixed_view_mut::<4, 4>(0, 0);
@@ -789,6 +796,7 @@ mod tests {
             let Some(th) = *th else { continue };
             let h = turn(&axis, pivot, th);
             let rot = h.rotation.to_rotation_matrix().into_inner();
+            let (turn_sc, pivot_cols) = (th.sin_cos(), pivot_columns(&basis, &rot));
             let mut coupling = DVector::<f64>::zeros(g);
             let (mut d, mut bt) = (0.0, 0.0);
             for (k, zk) in z.iter().enumerate() {
@@ -797,8 +805,13 @@ mod tests {
                 let r = p - h * shape[k];
                 let jt = -a.cross(&(rot * v));
                 let mut jg = DMatrix::<f64>::zeros(3, g);
-                jg.view_mut((0, 0), (3, 4))
-                    .copy_from(&line_jacobian(a, &basis, &v, &rot, th));
+                jg.view_mut((0, 0), (3, 4)).copy_from(&line_jacobian(
+                    a,
+                    &basis,
+                    &v,
+                    turn_sc,
+                    &pivot_cols,
+                ));
                 jg.view_mut((0, 4 + 3 * k), (3, 3)).copy_from(&(-rot));
                 let jt = DVector::from_column_slice(jt.as_slice());
                 let res = DVector::from_column_slice(r.as_slice());
