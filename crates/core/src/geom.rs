@@ -295,7 +295,9 @@ mod tests {
     /// Pairs of point sets, source and noisy destination: in general position, flat, of three
     /// points, nearly collinear, and so noisy that the best rotation is close to a
     /// reflection's.
-    fn cross_covariances() -> Vec<(Vec<Point3<f64>>, Vec<Point3<f64>>)> {
+    type PointSets = Vec<(Vec<Point3<f64>>, Vec<Point3<f64>>)>;
+
+    fn point_set_pairs() -> PointSets {
         use rand::SeedableRng;
         use rand_distr::{Distribution, StandardNormal};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
@@ -336,9 +338,9 @@ mod tests {
     #[test]
     fn the_polar_rotation_is_the_svds() {
         let mut newton = 0;
-        for (src, dst) in cross_covariances() {
+        for (src, dst) in point_set_pairs() {
             let h = cross_covariance(&src, &dst);
-            let by_svd = kabsch_rotation_by_svd(&h, 0.0).unwrap();
+            let by_svd = kabsch_rotation_by_svd(&h, 0.0).expect("an SVD of a finite matrix");
             let Some(r) = proper_rotation_of(&h) else {
                 continue;
             };
@@ -368,7 +370,7 @@ mod tests {
     #[test]
     fn the_rank_check_decides_as_the_svd() {
         for min_ratio in [1e-6, 1e-3] {
-            for (src, dst) in cross_covariances() {
+            for (src, dst) in point_set_pairs() {
                 let h = cross_covariance(&src, &dst);
                 let fitted = kabsch_with_rank_check(&src, &dst, min_ratio);
                 let by_svd = kabsch_rotation_by_svd(&h, min_ratio);
