@@ -220,7 +220,7 @@ const POLAR_STEP_TOLERANCE: f64 = 1e-9;
 /// come out right (`s2 < sqrt(3) s3` at worst) `det M` is not positive and this returns
 /// `None`. Adding the cofactor keeps `M` well conditioned for flat point sets, whose `H` is
 /// nearly singular. The iteration is about 2.7 times faster than nalgebra's 3 x 3 SVD for
-/// the same rotation, and Kabsch fits were a fifth of a long recording's discovery
+/// the same rotation; with the SVD, Kabsch fits are a fifth of a long recording's discovery
 /// (`docs/decisions.md`).
 pub fn proper_rotation_of(h: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     let k = h.norm();
