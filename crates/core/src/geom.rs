@@ -68,6 +68,20 @@ pub fn relative_poses(
         .collect()
 }
 
+/// `count` unit vectors spread evenly over the half sphere `z >= 0` (a Fibonacci spiral): a
+/// direction and its opposite are one axis.
+pub fn hemisphere(count: usize) -> Vec<Vector3<f64>> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..count)
+        .map(|i| {
+            let z = (i as f64 + 0.5) / count as f64;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let phi = golden * i as f64;
+            Vector3::new(r * phi.cos(), r * phi.sin(), z)
+        })
+        .collect()
+}
+
 /// Two unit vectors `(e1, e2)` spanning the plane perpendicular to the unit vector `v`, with
 /// `(e1, e2, v)` right-handed: `e1 = v x x` normalised (`v x y` when `v` is within 26 deg of
 /// x, where that cross product would be short).

@@ -183,6 +183,20 @@ pub enum Warning {
         /// Estimated degrees of freedom of the pair.
         dof: usize,
     },
+    /// Two bodies whose relative motion is two hinges through a link that no keypoint shows
+    /// well enough to pose it: body `body`, without points, was put between them, turning on
+    /// `parent` about the first hinge and carrying `child` about the second
+    /// (`[pipeline.unseen_links]`).
+    UnseenLink {
+        /// The seen body above the link (model numbering).
+        parent: usize,
+        /// The body put in for the link (model numbering).
+        body: usize,
+        /// The seen body below it (model numbering).
+        child: usize,
+        /// Shortest distance between the two hinge axes, metres.
+        offset_m: f64,
+    },
     /// The whole-tree fit could not follow a joint: the child's keypoints miss their
     /// positions predicted through the joint by far more than they miss the child's own pose.
     /// The joint's positions come from the two bodies' fitted poses instead.
@@ -478,6 +492,16 @@ impl std::fmt::Display for Warning {
             Warning::MultiDofJoint { parent, child, dof } => write!(
                 f,
                 "bodies {parent} -> {child} are linked in the tree but their relative motion has {dof} DoF, not one"
+            ),
+            Warning::UnseenLink {
+                parent,
+                body,
+                child,
+                offset_m,
+            } => write!(
+                f,
+                "bodies {parent} -> {child} turn on two hinges {:.1} mm apart; body {body}, which no keypoint shows, was put between them",
+                offset_m * 1e3
             ),
             Warning::JointNotFollowed {
                 parent,

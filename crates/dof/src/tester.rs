@@ -453,7 +453,7 @@ fn axes_test(c: &PairColumns) -> Option<(f64, f64, Vector3<f64>, Vector3<f64>)> 
     // The residual has many local minima in the axes: a coarse search over the first axis,
     // each direction with its best second axis (the smallest direction of the weighted,
     // centred `R_k^T n`), and a descent from the best few.
-    let mut scored: Vec<(f64, Vector3<f64>, Vector3<f64>)> = hemisphere(AXES_GRID)
+    let mut scored: Vec<(f64, Vector3<f64>, Vector3<f64>)> = kinetree_core::geom::hemisphere(AXES_GRID)
         .into_iter()
         .filter_map(|n| {
             let pulled: Vec<Vector3<f64>> =
@@ -527,20 +527,6 @@ fn relaxed_axes(c: &PairColumns) -> Vec<(Vector3<f64>, Vector3<f64>)> {
                 split.u?.column(top).into_owned(),
                 split.v_t?.row(top).transpose(),
             ))
-        })
-        .collect()
-}
-
-/// `count` unit vectors spread evenly over the half sphere `z >= 0` (a Fibonacci spiral): a
-/// direction and its opposite are one axis.
-fn hemisphere(count: usize) -> Vec<Vector3<f64>> {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    (0..count)
-        .map(|i| {
-            let z = (i as f64 + 0.5) / count as f64;
-            let r = (1.0 - z * z).max(0.0).sqrt();
-            let phi = golden * i as f64;
-            Vector3::new(r * phi.cos(), r * phi.sin(), z)
         })
         .collect()
 }

@@ -105,9 +105,12 @@ pub struct Evaluation {
     pub joints: Vec<JointEval>,
 }
 
-/// The true body holding most of each model body's points (the lower id on a tie).
+/// The true body holding most of each model body's points (the lower id on a tie). A body
+/// without points (a link no keypoint shows, put in by the model between two bodies) stands
+/// for the true body between the ones its parent and its child stand for, where the truth has
+/// one there; otherwise for body 0.
 pub fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
-    model
+    let mut map: Vec<usize> = model
         .bodies
         .iter()
         .map(|b| {
@@ -119,7 +122,30 @@ pub fn body_map(model: &Model, truth: &GroundTruth) -> Vec<usize> {
                 .max_by_key(|&k| (votes[k], std::cmp::Reverse(k)))
                 .unwrap_or(0)
         })
-        .collect()
+        .collect();
+    for (b, body) in model.bodies.iter().enumerate() {
+        if !body.points.is_empty() {
+            continue;
+        }
+        let parent = body.parent.map(|p| map[p]);
+        let child = model
+            .joints
+            .iter()
+            .find(|j| j.parent == b)
+            .map(|j| map[j.child]);
+        let between = truth.mechanism.joints.iter().find(|above| {
+            Some(above.parent) == parent
+                && truth
+                    .mechanism
+                    .joints
+                    .iter()
+                    .any(|below| below.parent == above.child && Some(below.child) == child)
+        });
+        if let Some(j) = between {
+            map[b] = j.child;
+        }
+    }
+    map
 }
 
 /// The rigid transform from model body `body`'s frame to true body `true_body`'s frame, by
@@ -183,7 +209,13 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
     } else {
         model.static_body.is_some_and(|s| map[s] == 0)
     };
-    let mut all_ok = model.bodies.len() == n_seen && root_ok && {
+    // Bodies without keypoints that the model put in where the truth has one.
+    let unseen_matched = model
+        .bodies
+        .iter()
+        .filter(|b| b.points.is_empty() && !has_points[map[b.id]])
+        .count();
+    let mut all_ok = model.bodies.len() == n_seen + unseen_matched && root_ok && {
         let mut m = map.clone();
         m.sort_unstable();
         m.dedup();

@@ -42,6 +42,11 @@ struct Block {
 enum Params {
     /// A revolute or prismatic joint.
     Single(JointParams),
+    /// A revolute joint into a body without keypoints (a link no keypoint shows, between
+    /// two hinges): its axis and pivot only. That body's frame is a choice no keypoint
+    /// constrains, so its reference pose is held; adjusting it too would leave the normal
+    /// equations singular.
+    Held(JointParams),
     /// A ball joint: its centre and the child's pose at rotation zero.
     Ball {
         centre: Point3<f64>,
@@ -58,9 +63,11 @@ enum Params {
 }
 
 impl Params {
-    /// From an observer's joint; `None` when it has no position (multi-DoF).
-    fn of(j: &ObservedJoint) -> Option<Self> {
+    /// From an observer's joint; `None` when it has no position (multi-DoF). `unseen_child`:
+    /// whether the joint's child has no placed keypoint.
+    fn of(j: &ObservedJoint, unseen_child: bool) -> Option<Self> {
         match j.measure {
+            Measure::Revolute(..) if unseen_child => JointParams::of(j).map(Self::Held),
             Measure::Spherical(centre) => Some(Self::Ball {
                 centre,
                 reference: j.reference,
@@ -76,6 +83,7 @@ impl Params {
     }
 
     /// Free parameters in the adjustment: revolute 9 (axis tilt 2, pivot across the axis 2,
+    /// then the reference pose's 5 below; 4 when held),
     /// reference pose turned about the two directions across the axis and shifted 3),
     /// prismatic 7 (tilt 2, turn 3, shift across the axis 2), ball 6 (centre 3, reference
     /// pose shifted 3), universal 11 (first axis tilted 2, second tilted towards or away from
@@ -90,6 +98,7 @@ impl Params {
         match self {
             Params::Single(p) if p.revolute => 9,
             Params::Single(_) => 7,
+            Params::Held(_) => 4,
             Params::Ball { .. } => 6,
             Params::Cardan { .. } => 11,
         }
@@ -113,6 +122,11 @@ impl Params {
                     full[5..8].copy_from_slice(shift.as_slice());
                 }
                 Params::Single(p.moved(&full[..p.len()]))
+            }
+            Params::Held(p) => {
+                let mut full = [0.0; 10];
+                full[..4].copy_from_slice(&d[..4]);
+                Params::Held(p.moved(&full))
             }
             Params::Ball { centre, reference } => Params::Ball {
                 centre: centre + Vector3::new(d[0], d[1], d[2]),
@@ -143,7 +157,7 @@ impl Params {
             Translation3::from(c.coords) * turn * Translation3::from(-c.coords) * reference
         };
         match self {
-            Params::Single(p) => Some(p.transform(state.q[k]?)),
+            Params::Single(p) | Params::Held(p) => Some(p.transform(state.q[k]?)),
             Params::Ball { centre, reference } => Some(about(centre, state.turn[k]?, reference)),
             Params::Cardan {
                 first,
@@ -165,6 +179,7 @@ impl Params {
     fn canonical(self) -> Self {
         match self {
             Params::Single(p) => Params::Single(p.canonical()),
+            Params::Held(p) => Params::Held(p.canonical()),
             other => other,
         }
     }
@@ -172,7 +187,7 @@ impl Params {
     /// The measure an observer's joint takes from these parameters.
     fn measure(&self) -> Measure {
         match *self {
-            Params::Single(p) => p.measure(),
+            Params::Single(p) | Params::Held(p) => p.measure(),
             Params::Ball { centre, .. } => Measure::Spherical(centre),
             Params::Cardan {
                 first,
@@ -186,7 +201,7 @@ impl Params {
     /// `parent_from_child` at coordinates zero.
     fn reference(&self) -> Isometry3<f64> {
         match self {
-            Params::Single(p) => p.reference,
+            Params::Single(p) | Params::Held(p) => p.reference,
             Params::Ball { reference, .. } | Params::Cardan { reference, .. } => *reference,
         }
     }
@@ -401,7 +416,8 @@ fn blocks_of(observer: &Observer, only: Option<&[usize]>) -> (Vec<Block>, usize)
         if observer.joint_col[k].is_none() || only.is_some_and(|o| !o.contains(&k)) {
             continue;
         }
-        if let Some(params) = Params::of(j) {
+        let unseen_child = observer.bodies[j.child].shape.is_empty();
+        if let Some(params) = Params::of(j, unseen_child) {
             blocks.push(Block {
                 joint: k,
                 params,
@@ -504,7 +520,7 @@ pub(crate) fn joint_precision(
         // Each reduced parameter vector ([`Params::len`]) starts with what moves the axis or
         // the centre along orthonormal directions.
         let precision = match b.params {
-            Params::Single(p) => JointPrecision {
+            Params::Single(p) | Params::Held(p) => JointPrecision {
                 axis_std_rad: rms(&[o, o + 1], &unit[..2]),
                 pivot_std_m: if p.revolute {
                     rms(&[o + 2, o + 3], &unit[..2])

@@ -5,11 +5,12 @@
 //! the fit ([`fit_model_positions`], `policy.rs`), the positions smoothed over time
 //! (`smooth.rs`), and the fitted motions that judge points against every body
 //! ([`FittedMotions`], `motions.rs`), and the joint positions of new frames with each
-//! frame's fit ([`observe`], `observation.rs`), and whether the motion can tell each joint's
-//! type from the others ([`identifiability_warnings`], `identify.rs`).
+//! frame's fit ([`observe`], `observation.rs`), whether the motion can tell each joint's
+//! type from the others ([`identifiability_warnings`], `identify.rs`), and links no keypoint
+//! shows put between two hinges ([`unseen_links`], `unseen.rs`).
 //!
 //! Module dependencies run one way: `tree_cholesky` <- `solver` <- `refine` <- `bundle` <-
-//! `policy`; `smooth` and `motions` use `solver` only.
+//! `policy` <- `unseen`; `smooth` and `motions` use `solver` only.
 
 mod bundle;
 mod identify;
@@ -20,6 +21,7 @@ mod refine;
 mod smooth;
 mod solver;
 mod tree_cholesky;
+mod unseen;
 
 pub use bundle::BundleLimits;
 pub use identify::identifiability_warnings;
@@ -38,3 +40,4 @@ pub use policy::{
 };
 pub use smooth::{PositionColumn, SmoothedPositions, smooth_fitted_positions, smooth_positions};
 pub use solver::{FrameFit, Observer};
+pub use unseen::{UnseenLinkLimits, unseen_links};

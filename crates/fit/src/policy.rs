@@ -725,7 +725,7 @@ fn record_typed_by_fit(model: &mut Model, k: usize, excess_in_sigma2: f64) {
 }
 
 /// Whether any joint's excess is above `bound` (a joint the fit no longer follows).
-fn any_above(excess: &[Option<f64>], bound: f64) -> bool {
+pub(crate) fn any_above(excess: &[Option<f64>], bound: f64) -> bool {
     excess.iter().any(|e| e.is_some_and(|e| e > bound))
 }
 
@@ -1038,7 +1038,7 @@ fn span(values: impl Iterator<Item = f64>) -> Option<[f64; 2]> {
 /// follows ([`crate::bundle`]; with `only`, those of them in it) and writes them into
 /// `model`; returns the observer rebuilt from the model and its fit, or `None` (the model
 /// unchanged) when the adjustment changed nothing.
-fn adjust_model(
+pub(crate) fn adjust_model(
     model: &mut Model,
     observer: &Observer,
     tracks: &Tracks,

@@ -230,6 +230,9 @@ pub struct PipelineConfig {
     /// When a discovery runs on a sample of the points and assigns the others to its bodies
     /// afterwards (`[pipeline.sampling]`: tracks with more than 500 points).
     pub sampling: crate::sampling::SamplingParams,
+    /// When a multi-DoF joint becomes two hinges through a link no keypoint shows, put into
+    /// the tree as a body without points (`[pipeline.unseen_links]`).
+    pub unseen_links: crate::unseen::UnseenLinksParams,
     /// Memory a run may use, GiB (default
     /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose
     /// estimate exceeds it is refused before it allocates.
@@ -262,6 +265,7 @@ impl Default for PipelineConfig {
             tree: kinetree_core::TreeCosts::default(),
             outliers: crate::outliers::OutlierParams::default(),
             sampling: crate::sampling::SamplingParams::default(),
+            unseen_links: crate::unseen::UnseenLinksParams::default(),
             max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
             max_minutes: kinetree_core::limits::DEFAULT_MAX_MINUTES,
             hinged_bodies: (),
@@ -337,6 +341,7 @@ impl PipelineConfig {
         kinetree_core::limits::validate_minutes("pipeline.max_minutes", self.max_minutes)?;
         self.outliers.validate()?;
         self.sampling.validate()?;
+        self.unseen_links.validate()?;
         self.tree.validate("pipeline.tree")?;
         self.positions.validate("pipeline.positions")
     }

@@ -15,6 +15,7 @@ mod run;
 pub mod runner;
 pub mod sampling;
 pub mod sweep;
+pub mod unseen;
 
 pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};
 pub use experiment::{ExperimentOutcome, load_data, run_experiment, write_results};

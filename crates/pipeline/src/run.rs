@@ -49,6 +49,8 @@ pub struct Pipeline {
     pub outliers: crate::outliers::OutlierParams,
     /// When the discovery runs on a sample of the points ([`PipelineConfig::sampling`]).
     pub sampling: crate::sampling::SamplingParams,
+    /// When a link no keypoint shows is put into the tree ([`PipelineConfig::unseen_links`]).
+    pub unseen_links: crate::unseen::UnseenLinksParams,
 }
 
 /// Everything a run produces: the model and the intermediate results behind it.
@@ -60,9 +62,11 @@ pub struct Discovery {
     pub stats: PairStats,
     /// The dissimilarity matrix used for the final segmentation.
     pub dissimilarity: DissimilarityMatrix,
-    /// Final segmentation, in the model's body numbering (body `k` is the model's body `k`).
+    /// Final segmentation, in the model's body numbering (body `k` is the model's body `k`;
+    /// bodies the model puts in for links no keypoint shows, `unseen_link`, come after the
+    /// segmentation's and have no points).
     pub segmentation: Segmentation,
-    /// Poses per body, in the model's body numbering.
+    /// Poses per body of the segmentation, in the model's body numbering.
     pub poses: BodyPoses,
     /// The points the pair statistics and the dissimilarity are over, ascending, when the
     /// tracks had more than `[pipeline.sampling] max_points` (their entry `k` is this
@@ -128,6 +132,7 @@ impl Pipeline {
             max_minutes: c.max_minutes,
             outliers: c.outliers,
             sampling: c.sampling,
+            unseen_links: c.unseen_links,
         })
     }
 
@@ -284,10 +289,16 @@ impl Pipeline {
     ) -> Result<Discovery> {
         let (cleaned, warnings) = self.without_impossible_samples(tracks)?;
         let tracks = cleaned.as_ref().unwrap_or(tracks);
-        if let Some(d) = crate::sampling::discover_sampled(self, tracks, &warnings, observer)? {
-            return Ok(d);
+        let mut d = match crate::sampling::discover_sampled(self, tracks, &warnings, observer)? {
+            Some(d) => d,
+            None => self.discover_clean(tracks, warnings, observer)?,
+        };
+        if self.unseen_links.enabled {
+            observer.stage("unseen links");
+            crate::unseen::put_unseen_links(self, &mut d.model, tracks)?;
+            d.model.validate()?;
         }
-        self.discover_clean(tracks, warnings, observer)
+        Ok(d)
     }
 
     /// The discovery of `tracks`, their impossible samples dropped, on every point;

@@ -1,0 +1,106 @@
+//! Links that no keypoint shows well enough to pose (an arm's wrist link buried between its
+//! neighbours, or seen by a few keypoints in a few frames): after the discovery, a
+//! multi-DoF joint the whole-tree fit follows as two hinges through a body without
+//! keypoints gets that body ([`kinetree_fit::unseen_links`]), and the positions are written
+//! from the new model's fit.
+
+use crate::run::Pipeline;
+use kinetree_core::limits::{check_count, check_within};
+use kinetree_core::{Model, Result, Tracks};
+use kinetree_fit::{BundleLimits, UnseenLinkLimits};
+use serde::{Deserialize, Serialize};
+
+/// `[pipeline.unseen_links]`: when a link no keypoint shows is put between two bodies.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct UnseenLinksParams {
+    /// Whether multi-DoF joints are tried as two hinges through an unseen link (default
+    /// true).
+    pub enabled: bool,
+    /// Frames in which the whole-tree fit poses both bodies, at least (default 30).
+    pub min_frames: usize,
+    /// The start's RMS miss of the child's keypoints, in noise standard deviations, above
+    /// which the pair is not tried further (default 20).
+    pub max_start_rms_in_sigma: f64,
+    /// The child's joint excess after the bundle adjustment must be within this (default 3,
+    /// as `type_by_fit.max_excess`) ...
+    pub max_excess: f64,
+    /// ... and every other joint's within this (default 30, the freeing bound).
+    pub others_max_excess: f64,
+    /// The two hinge axes must pass at least this many noise standard deviations apart
+    /// (default 3): nearer, the pair is a universal joint.
+    pub min_offset_in_sigma: f64,
+    /// ... and be at least this many degrees apart (default 10).
+    pub min_axes_angle_deg: f64,
+}
+
+impl Default for UnseenLinksParams {
+    fn default() -> Self {
+        let l = UnseenLinkLimits::default();
+        Self {
+            enabled: true,
+            min_frames: l.min_frames,
+            max_start_rms_in_sigma: l.max_start_rms_in_sigma,
+            max_excess: l.max_excess,
+            others_max_excess: l.others_max_excess,
+            min_offset_in_sigma: l.min_offset_in_sigma,
+            min_axes_angle_deg: l.min_axes_angle_deg,
+        }
+    }
+}
+
+impl UnseenLinksParams {
+    /// Checks the ranges: `min_frames` 8 to 10^9, the bounds positive and finite, the angle
+    /// below 90 degrees.
+    ///
+    /// # Errors
+    /// [`kinetree_core::Error::InvalidParameter`] naming `pipeline.unseen_links.<key>`.
+    pub fn validate(&self) -> Result<()> {
+        const AT: &str = "pipeline.unseen_links";
+        check_count(&format!("{AT}.min_frames"), self.min_frames, 8, 1_000_000_000)?;
+        for (key, value) in [
+            ("max_start_rms_in_sigma", self.max_start_rms_in_sigma),
+            ("max_excess", self.max_excess),
+            ("others_max_excess", self.others_max_excess),
+            ("min_offset_in_sigma", self.min_offset_in_sigma),
+        ] {
+            check_within(&format!("{AT}.{key}"), value, 0.0, 1e12)?;
+        }
+        check_within(
+            &format!("{AT}.min_axes_angle_deg"),
+            self.min_axes_angle_deg,
+            0.0,
+            89.0,
+        )
+    }
+
+    fn limits(&self) -> UnseenLinkLimits {
+        UnseenLinkLimits {
+            min_frames: self.min_frames,
+            max_start_rms_in_sigma: self.max_start_rms_in_sigma,
+            max_excess: self.max_excess,
+            others_max_excess: self.others_max_excess,
+            min_offset_in_sigma: self.min_offset_in_sigma,
+            min_axes_angle_deg: self.min_axes_angle_deg,
+            bundle: BundleLimits::default(),
+        }
+    }
+}
+
+/// Puts the unseen links `pipeline` asks for into `model` (discovered on `tracks`) and, when
+/// there are any, writes the positions, their precision and the re-prediction from the new
+/// model's fit.
+///
+/// # Errors
+/// As [`kinetree_fit::unseen_links`] and the positions' writing.
+pub(crate) fn put_unseen_links(pipeline: &Pipeline, model: &mut Model, tracks: &Tracks) -> Result<()> {
+    if !pipeline.unseen_links.enabled {
+        return Ok(());
+    }
+    let added = kinetree_fit::unseen_links(model, tracks, &pipeline.unseen_links.limits())?;
+    if added.is_empty() {
+        return Ok(());
+    }
+    let state = kinetree_fit::FitState::new(model, tracks)?;
+    crate::runner::write_fit(pipeline, model, &state, tracks)
+}
