@@ -44,6 +44,10 @@ pub struct UnseenLinkLimits {
     /// ... and at least this angle apart, degrees (default 10): the angles of two nearly
     /// parallel hinges are not told apart by the rotation this start reads them from.
     pub min_axes_angle_deg: f64,
+    /// A universal joint becomes two hinges only when they lower the fit's squared
+    /// residual by more than this many noise variances (default 100; `docs/decisions.md`,
+    /// `[pipeline.unseen_links]`): the axes' distance is one more parameter.
+    pub min_gain_over_universal: f64,
     /// The bundle adjustment of each candidate.
     pub bundle: BundleLimits,
 }
@@ -57,6 +61,7 @@ impl Default for UnseenLinkLimits {
             others_max_excess: crate::MAX_JOINT_EXCESS,
             min_offset_in_sigma: 3.0,
             min_axes_angle_deg: 10.0,
+            min_gain_over_universal: 100.0,
             bundle: BundleLimits::default(),
         }
     }
@@ -69,8 +74,9 @@ const AXES_STARTS: usize = 6;
 /// Alternating eigenvector steps from each start.
 const AXES_ROUNDS: usize = 40;
 
-/// Every multi-DoF joint of `model` that the whole-tree fit follows as two hinges through a
-/// body without keypoints gets that body, in the tree between its parent and child (appended
+/// Every multi-DoF or universal joint of `model` that the whole-tree fit follows as two hinges
+/// through a body without keypoints (a universal joint: better than through its centre) gets
+/// that body, in the tree between its parent and child (appended
 /// to `model.bodies`), and two revolute joints in its place, with an `unseen_link` warning
 /// in place of its `multi_dof_joint` one. Returns the bodies put in. The positions are not
 /// written: the caller writes them from a fit of the new model.
@@ -85,7 +91,7 @@ pub fn unseen_links(
     let pairs: Vec<(usize, usize)> = model
         .joints
         .iter()
-        .filter(|j| j.joint_type == JointType::MultiDof)
+        .filter(|j| matches!(j.joint_type, JointType::MultiDof | JointType::Universal))
         .map(|j| (j.parent, j.child))
         .collect();
     let mut added = Vec::new();
@@ -123,7 +129,20 @@ fn try_link(
     let sigma = model.noise.sigma_m;
     let (parent, child) = (model.joints[k].parent, model.joints[k].child);
     let reference = model.joints[k].reference_frame;
-    let relative: Vec<(usize, Isometry3<f64>)> = fits
+    let universal = model.joints[k].joint_type == JointType::Universal;
+    let before: f64 = fits.iter().map(|f| f.sum_sq_m2).sum();
+    // A universal joint's fit poses the child through the joint, whose axes meet: the start
+    // needs the child posed freely.
+    let freed_fits;
+    let posed = if universal {
+        let mut freed = Observer::new(model)?;
+        freed.free_joint(k);
+        freed_fits = freed.fit_sequence(tracks)?;
+        &freed_fits
+    } else {
+        fits
+    };
+    let relative: Vec<(usize, Isometry3<f64>)> = posed
         .iter()
         .enumerate()
         .filter_map(|(t, f)| {
@@ -142,7 +161,7 @@ fn try_link(
     else {
         return Ok(None);
     };
-    let Some(cam_parent) = fits
+    let Some(cam_parent) = posed
         .get(reference)
         .and_then(|f| f.poses.get(parent).copied().flatten())
     else {
@@ -191,6 +210,12 @@ fn try_link(
         && !any_above(&excess, limits.others_max_excess);
     let offset = line_distance(&observer, k);
     if !followed || offset.is_none_or(|d| d < limits.min_offset_in_sigma * sigma) {
+        return Ok(None);
+    }
+    // A universal joint is two hinges whose axes meet: the hinges' one more parameter, the
+    // axes' distance, must lower the squared residual by more than chance would.
+    let gain = (before - fits.iter().map(|f| f.sum_sq_m2).sum::<f64>()) / (sigma * sigma);
+    if universal && gain < limits.min_gain_over_universal {
         return Ok(None);
     }
     model.bodies[body].frames_registered = fits

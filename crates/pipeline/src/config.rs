@@ -275,9 +275,11 @@ impl Default for PipelineConfig {
 
 /// The pipeline for motion-capture markers on skin (the `[pipeline]` table's contents):
 /// the noise level from each marker's most rigid partners, the distance std-dev cut at three
-/// noise std-devs as dissimilarity, 3 mm / 0.02 rad of joint model error in the DoF test, and
-/// no hidden hinges (skin moving over a segment turns its markers with the neighbour's
-/// motion; `docs/decisions.md`, `dof.hidden_hinge_ratio`).
+/// noise std-devs as dissimilarity, 3 mm / 0.02 rad of joint model error in the DoF test, no
+/// hidden hinges (skin moving over a segment turns its markers with the neighbour's motion;
+/// `docs/decisions.md`, `dof.hidden_hinge_ratio`) and no unseen links (every segment of a
+/// person carries markers, and skin moving over a hip can let a ball joint pass for two
+/// hinges far apart; `docs/decisions.md`, `[pipeline.unseen_links]`).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 
@@ -290,6 +292,9 @@ kind = "chi2_rank"
 model_error_m = 0.003
 model_error_rad = 0.02
 hidden_hinge_ratio = 0.0
+
+[unseen_links]
+enabled = false
 "#;
 
 impl PipelineConfig {

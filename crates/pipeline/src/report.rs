@@ -127,6 +127,8 @@ pub fn summary(model: &Model) -> String {
             "static"
         } else if b.parent.is_none() {
             "root"
+        } else if b.points.is_empty() {
+            "a link no keypoint shows"
         } else {
             "moving"
         };

@@ -14,8 +14,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct UnseenLinksParams {
-    /// Whether multi-DoF joints are tried as two hinges through an unseen link (default
-    /// true).
+    /// Whether multi-DoF and universal joints are tried as two hinges through an unseen link
+    /// (default true).
     pub enabled: bool,
     /// Frames in which the whole-tree fit poses both bodies, at least (default 30).
     pub min_frames: usize,
@@ -32,6 +32,9 @@ pub struct UnseenLinksParams {
     pub min_offset_in_sigma: f64,
     /// ... and be at least this many degrees apart (default 10).
     pub min_axes_angle_deg: f64,
+    /// A universal joint becomes two hinges when they lower the fit's squared residual by
+    /// more than this many noise variances (default 100).
+    pub min_gain_over_universal: f64,
 }
 
 impl Default for UnseenLinksParams {
@@ -45,6 +48,7 @@ impl Default for UnseenLinksParams {
             others_max_excess: l.others_max_excess,
             min_offset_in_sigma: l.min_offset_in_sigma,
             min_axes_angle_deg: l.min_axes_angle_deg,
+            min_gain_over_universal: l.min_gain_over_universal,
         }
     }
 }
@@ -63,6 +67,7 @@ impl UnseenLinksParams {
             ("max_excess", self.max_excess),
             ("others_max_excess", self.others_max_excess),
             ("min_offset_in_sigma", self.min_offset_in_sigma),
+            ("min_gain_over_universal", self.min_gain_over_universal),
         ] {
             check_within(&format!("{AT}.{key}"), value, 0.0, 1e12)?;
         }
@@ -82,6 +87,7 @@ impl UnseenLinksParams {
             others_max_excess: self.others_max_excess,
             min_offset_in_sigma: self.min_offset_in_sigma,
             min_axes_angle_deg: self.min_axes_angle_deg,
+            min_gain_over_universal: self.min_gain_over_universal,
             bundle: BundleLimits::default(),
         }
     }

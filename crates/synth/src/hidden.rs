@@ -15,7 +15,8 @@ pub struct HiddenLinkParams {
     pub n_joints: usize,
     /// Which link is hidden, 1-based along the chain (0: the last but one, as a wrist link).
     pub hidden_link: usize,
-    /// Keypoints on the hidden link.
+    /// Keypoints on the hidden link (0: a link buried between its neighbours, which no
+    /// keypoint shows).
     pub hidden_points: usize,
     /// Fraction of the frames in which the hidden link can be seen at all.
     pub hidden_fraction: f64,
@@ -58,7 +59,7 @@ impl HiddenLinkParams {
         use kinetree_core::limits::{check_count, check_within};
         check_count("data.n_joints", self.n_joints, 2, 12)?;
         check_count("data.hidden_link", self.hidden_link, 0, self.n_joints)?;
-        check_count("data.hidden_points", self.hidden_points, 3, 1000)?;
+        check_count("data.hidden_points", self.hidden_points, 0, 1000)?;
         check_within("data.hidden_fraction", self.hidden_fraction, 0.0, 1.0)?;
         check_count("data.hidden_windows", self.hidden_windows, 1, 100)?;
         check_count("data.n_frames", self.n_frames, 2, 1_000_000)?;

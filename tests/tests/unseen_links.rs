@@ -1,0 +1,136 @@
+//! Arms whose wrist link no keypoint shows well enough to pose (`HiddenLinkParams`): seen by a
+//! few keypoints in a tenth of the frames, or buried without any. The links on either side
+//! move against each other with two coordinates about two hinges whose axes do not meet; the
+//! model puts a body without points between them, carried by the first hinge and carrying
+//! the second (`[pipeline.unseen_links]`, an `unseen_link` warning).
+
+use kinetree_core::model::JointType;
+use kinetree_core::{Model, Warning};
+use kinetree_eval::{Evaluation, evaluate};
+use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_synth::{
+    HiddenLinkParams, SkeletonParams, SynthData, hidden_link_arm, simulate, skeleton_scenario,
+};
+
+fn arm(seed: u64, hidden_points: usize, hidden_fraction: f64) -> SynthData {
+    simulate(&hidden_link_arm(&HiddenLinkParams {
+        seed,
+        hidden_points,
+        hidden_fraction,
+        ..HiddenLinkParams::default()
+    }))
+    .expect("simulate")
+}
+
+fn discover(data: &SynthData, unseen_links: bool) -> Model {
+    let mut cfg = PipelineConfig::default();
+    cfg.unseen_links.enabled = unseen_links;
+    kinetree_tests::discover_with(&data.tracks, &cfg)
+}
+
+/// Whether true joints 4 and 5 (into and out of the hidden link) are found with their type
+/// and an axis within `max_axis_deg` of the truth.
+fn link_joints_right(e: &Evaluation, max_axis_deg: f64) -> bool {
+    e.joints[4..6].iter().all(|j| {
+        j.found && j.type_ok && j.axis_error_deg.is_some_and(|a| a <= max_axis_deg)
+    })
+}
+
+fn unseen_link_warnings(model: &Model) -> usize {
+    model
+        .warnings
+        .iter()
+        .filter(|w| matches!(w, Warning::UnseenLink { .. }))
+        .count()
+}
+
+#[test]
+fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
+    let seeds = [0u64, 1, 2, 3];
+    let mut without = 0;
+    for seed in seeds {
+        let data = arm(seed, 8, 0.1);
+        let model = discover(&data, true);
+        let e = evaluate(&model, &data.truth);
+        assert!(e.joints_exact, "seed {seed}: {e:?}");
+        assert!(link_joints_right(&e, 1.5), "seed {seed}: {e:?}");
+        assert_eq!(unseen_link_warnings(&model), 1, "seed {seed}");
+        let link: Vec<_> = model.bodies.iter().filter(|b| b.points.is_empty()).collect();
+        assert_eq!(link.len(), 1, "seed {seed}");
+        // Both hinges have positions in most frames: the link's pose follows from them.
+        for j in model.joints.iter().filter(|j| {
+            j.child == link[0].id || j.parent == link[0].id
+        }) {
+            assert_eq!(j.joint_type, JointType::Revolute);
+            let known = j.positions.iter().flatten().count();
+            assert!(known * 2 > model.n_frames, "seed {seed}: {known} positions");
+        }
+        let off = discover(&data, false);
+        without += usize::from(link_joints_right(&evaluate(&off, &data.truth), 1.5));
+        assert_eq!(unseen_link_warnings(&off), 0);
+    }
+    // Without the unseen link the two hinges are one multi-DoF joint (a universal one where
+    // their axes pass 5 mm apart, seed 1).
+    assert_eq!(without, 0, "{without} draws right without it");
+}
+
+#[test]
+fn a_buried_link_without_keypoints_is_put_in() {
+    for seed in 0..4u64 {
+        let data = arm(seed, 0, 0.27);
+        let model = discover(&data, true);
+        let e = evaluate(&model, &data.truth);
+        assert!(e.joints_exact, "seed {seed}: {e:?}");
+        assert!(link_joints_right(&e, 1.5), "seed {seed}: {e:?}");
+        assert_eq!(model.bodies.len(), 7, "seed {seed}");
+    }
+}
+
+#[test]
+fn universal_joints_stay_universal() {
+    // Skeletons with universal wrists and ankles at 1 mm: the fitted axes of two hinges meet
+    // within the offset bound, so no link is put in. With the bound and the gain over the
+    // universal joint both at zero, two hinges a fraction of a millimetre apart replace
+    // some universal joint.
+    let mut loose = PipelineConfig::default();
+    loose.unseen_links.min_offset_in_sigma = 0.0;
+    loose.unseen_links.min_gain_over_universal = 0.0;
+    let mut loosened = 0;
+    for seed in 0..2u64 {
+        let data = simulate(&skeleton_scenario(&SkeletonParams {
+            seed,
+            universal_wrists_and_ankles: true,
+            ..SkeletonParams::default()
+        }))
+        .expect("simulate");
+        let model = discover(&data, true);
+        assert_eq!(unseen_link_warnings(&model), 0, "seed {seed}");
+        let universal = model
+            .joints
+            .iter()
+            .filter(|j| j.joint_type == JointType::Universal)
+            .count();
+        assert!(universal >= 3, "seed {seed}: {universal} universal joints");
+        loosened += unseen_link_warnings(&kinetree_tests::discover_with(&data.tracks, &loose));
+    }
+    assert!(loosened > 0, "no link put in with the bounds at zero");
+}
+
+#[test]
+fn unseen_link_parameters_out_of_range_are_errors_that_name_them() {
+    for (key, value) in [
+        ("min_frames", "2"),
+        ("max_excess", "-1.0"),
+        ("min_offset_in_sigma", "nan"),
+        ("min_axes_angle_deg", "95.0"),
+    ] {
+        let toml = format!("[unseen_links]\n{key} = {value}\n");
+        let c: PipelineConfig = toml::from_str(&toml).expect("parses");
+        let err = Pipeline::from_config(&c)
+            .expect_err("out of range")
+            .to_string();
+        assert!(err.contains(&format!("pipeline.unseen_links.{key}")), "{err}");
+    }
+    let unknown: Result<PipelineConfig, _> = toml::from_str("[unseen_links]\nmin_frame = 5\n");
+    assert!(unknown.is_err_and(|e| e.to_string().contains("min_frame")));
+}
