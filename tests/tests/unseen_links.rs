@@ -31,9 +31,9 @@ fn discover(data: &SynthData, unseen_links: bool) -> Model {
 /// Whether true joints 4 and 5 (into and out of the hidden link) are found with their type
 /// and an axis within `max_axis_deg` of the truth.
 fn link_joints_right(e: &Evaluation, max_axis_deg: f64) -> bool {
-    e.joints[4..6].iter().all(|j| {
-        j.found && j.type_ok && j.axis_error_deg.is_some_and(|a| a <= max_axis_deg)
-    })
+    e.joints[4..6]
+        .iter()
+        .all(|j| j.found && j.type_ok && j.axis_error_deg.is_some_and(|a| a <= max_axis_deg))
 }
 
 fn unseen_link_warnings(model: &Model) -> usize {
@@ -55,12 +55,18 @@ fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
         assert!(e.joints_exact, "seed {seed}: {e:?}");
         assert!(link_joints_right(&e, 1.5), "seed {seed}: {e:?}");
         assert_eq!(unseen_link_warnings(&model), 1, "seed {seed}");
-        let link: Vec<_> = model.bodies.iter().filter(|b| b.points.is_empty()).collect();
+        let link: Vec<_> = model
+            .bodies
+            .iter()
+            .filter(|b| b.points.is_empty())
+            .collect();
         assert_eq!(link.len(), 1, "seed {seed}");
         // Both hinges have positions in most frames: the link's pose follows from them.
-        for j in model.joints.iter().filter(|j| {
-            j.child == link[0].id || j.parent == link[0].id
-        }) {
+        for j in model
+            .joints
+            .iter()
+            .filter(|j| j.child == link[0].id || j.parent == link[0].id)
+        {
             assert_eq!(j.joint_type, JointType::Revolute);
             let known = j.positions.iter().flatten().count();
             assert!(known * 2 > model.n_frames, "seed {seed}: {known} positions");
@@ -129,7 +135,10 @@ fn unseen_link_parameters_out_of_range_are_errors_that_name_them() {
         let err = Pipeline::from_config(&c)
             .expect_err("out of range")
             .to_string();
-        assert!(err.contains(&format!("pipeline.unseen_links.{key}")), "{err}");
+        assert!(
+            err.contains(&format!("pipeline.unseen_links.{key}")),
+            "{err}"
+        );
     }
     let unknown: Result<PipelineConfig, _> = toml::from_str("[unseen_links]\nmin_frame = 5\n");
     assert!(unknown.is_err_and(|e| e.to_string().contains("min_frame")));

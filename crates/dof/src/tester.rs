@@ -453,18 +453,19 @@ fn axes_test(c: &PairColumns) -> Option<(f64, f64, Vector3<f64>, Vector3<f64>)> 
     // The residual has many local minima in the axes: a coarse search over the first axis,
     // each direction with its best second axis (the smallest direction of the weighted,
     // centred `R_k^T n`), and a descent from the best few.
-    let mut scored: Vec<(f64, Vector3<f64>, Vector3<f64>)> = kinetree_core::geom::hemisphere(AXES_GRID)
-        .into_iter()
-        .filter_map(|n| {
-            let pulled: Vec<Vector3<f64>> =
-                c.x_abs.iter().map(|(r, _)| r.transpose() * n).collect();
-            let uniform = vec![1.0; k];
-            let m = smallest_spread(&pulled, &uniform)?;
-            let m = smallest_spread(&pulled, &axes_weights(c, &n, &m))?;
-            Some((axes_chi2(c, &n, &m), n, m))
-        })
-        .filter(|(chi2, ..)| chi2.is_finite())
-        .collect();
+    let mut scored: Vec<(f64, Vector3<f64>, Vector3<f64>)> =
+        kinetree_core::geom::hemisphere(AXES_GRID)
+            .into_iter()
+            .filter_map(|n| {
+                let pulled: Vec<Vector3<f64>> =
+                    c.x_abs.iter().map(|(r, _)| r.transpose() * n).collect();
+                let uniform = vec![1.0; k];
+                let m = smallest_spread(&pulled, &uniform)?;
+                let m = smallest_spread(&pulled, &axes_weights(c, &n, &m))?;
+                Some((axes_chi2(c, &n, &m), n, m))
+            })
+            .filter(|(chi2, ..)| chi2.is_finite())
+            .collect();
     scored.sort_by(|a, b| a.0.total_cmp(&b.0));
     // Wrong basins are broad and fill the top of the list; the starts are the best
     // directions at least `AXES_SEPARATION_RAD` from each other.

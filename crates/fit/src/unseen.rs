@@ -76,10 +76,10 @@ const AXES_ROUNDS: usize = 40;
 
 /// Every multi-DoF or universal joint of `model` that the whole-tree fit follows as two hinges
 /// through a body without keypoints (a universal joint: better than through its centre) gets
-/// that body, in the tree between its parent and child (appended
-/// to `model.bodies`), and two revolute joints in its place, with an `unseen_link` warning
-/// in place of its `multi_dof_joint` one. Returns the bodies put in. The positions are not
-/// written: the caller writes them from a fit of the new model.
+/// that body, in the tree between its parent and child (appended to `model.bodies`), and two
+/// revolute joints in its place, with an `unseen_link` warning in place of its
+/// `multi_dof_joint` one. Returns the bodies put in. The positions and their precision are
+/// not written: the caller writes them from a fit of the new model.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
@@ -199,9 +199,8 @@ fn try_link(
     }
     let body = model.bodies.len();
     insert_link(model, k, body, &start, &zero, &cam_parent, reference);
-    let observer = Observer::new(model)?;
+    let mut observer = Observer::new(model)?;
     let mut fits = observer.fit_sequence(tracks)?;
-    let mut observer = observer;
     if let Some(adjusted) = adjust_model(model, &observer, tracks, &fits, &limits.bundle, None)? {
         (observer, fits) = adjusted;
     }
@@ -280,7 +279,12 @@ impl TwoHinges {
     }
 
     fn axes_angle_deg(&self) -> f64 {
-        self.first.dot(&self.second).abs().min(1.0).acos().to_degrees()
+        self.first
+            .dot(&self.second)
+            .abs()
+            .min(1.0)
+            .acos()
+            .to_degrees()
     }
 
     fn offset(&self) -> f64 {
@@ -295,7 +299,8 @@ impl TwoHinges {
 
 /// The rotation by `q` about the line through `pivot` along the unit `axis`.
 fn turn_about(axis: &Vector3<f64>, pivot: &Point3<f64>, q: f64) -> Isometry3<f64> {
-    let r = UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_unchecked(*axis), q);
+    let r =
+        UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_unchecked(*axis), q);
     Isometry3::from_parts((pivot.coords - r * pivot.coords).into(), r)
 }
 
@@ -376,8 +381,7 @@ fn two_axes(turns: &[Matrix3<f64>]) -> Option<(Vector3<f64>, Vector3<f64>)> {
         let i = e.eigenvalues.imin();
         (e.eigenvectors.column(i).into_owned(), e.eigenvalues[i])
     };
-    let best_second =
-        |a: &Vector3<f64>| smallest(&mut turns.iter().map(|m| m.transpose() * a));
+    let best_second = |a: &Vector3<f64>| smallest(&mut turns.iter().map(|m| m.transpose() * a));
     let best_first = |b: &Vector3<f64>| smallest(&mut turns.iter().map(|m| m * b));
     let mut scored: Vec<(f64, Vector3<f64>)> = hemisphere(AXES_GRID)
         .into_iter()
@@ -444,8 +448,7 @@ fn insert_link(
     first.dof = 1;
     first.fit = JointFit::TypedByFit;
     first.reference_frame = reference;
-    first.second_axis = None;
-    first.second_axis_in_parent = None;
+    (first.second_axis, first.second_axis_in_parent) = (None, None);
     for c in [
         &mut first.coordinates,
         &mut first.coordinate_std,

@@ -61,7 +61,12 @@ impl UnseenLinksParams {
     /// [`kinetree_core::Error::InvalidParameter`] naming `pipeline.unseen_links.<key>`.
     pub fn validate(&self) -> Result<()> {
         const AT: &str = "pipeline.unseen_links";
-        check_count(&format!("{AT}.min_frames"), self.min_frames, 8, 1_000_000_000)?;
+        check_count(
+            &format!("{AT}.min_frames"),
+            self.min_frames,
+            8,
+            1_000_000_000,
+        )?;
         for (key, value) in [
             ("max_start_rms_in_sigma", self.max_start_rms_in_sigma),
             ("max_excess", self.max_excess),
@@ -99,7 +104,11 @@ impl UnseenLinksParams {
 ///
 /// # Errors
 /// As [`kinetree_fit::unseen_links`] and the positions' writing.
-pub(crate) fn put_unseen_links(pipeline: &Pipeline, model: &mut Model, tracks: &Tracks) -> Result<()> {
+pub(crate) fn put_unseen_links(
+    pipeline: &Pipeline,
+    model: &mut Model,
+    tracks: &Tracks,
+) -> Result<()> {
     if !pipeline.unseen_links.enabled {
         return Ok(());
     }
