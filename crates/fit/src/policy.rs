@@ -731,7 +731,7 @@ pub(crate) fn any_above(excess: &[Option<f64>], bound: f64) -> bool {
 
 /// Drops what a joint typed anew no longer has: a universal joint's second axis and every
 /// coordinate of more than one (the fit writes the new type's).
-fn clear_coordinates(joint: &mut kinetree_core::model::Joint) {
+pub(crate) fn clear_coordinates(joint: &mut kinetree_core::model::Joint) {
     (joint.second_axis, joint.second_axis_in_parent) = (None, None);
     for coordinates in [
         &mut joint.coordinates,

@@ -14,7 +14,7 @@
 //! translations, `(I - R_1) p_1 + R_1 (I - R_2) p_2`, by linear least squares.
 
 use crate::bundle::BundleLimits;
-use crate::policy::{FitState, adjust_model, any_above, store_joint};
+use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
 use crate::solver::{FrameFit, Observer, universal_angles};
 use kinetree_core::geom::hemisphere;
@@ -448,15 +448,7 @@ fn insert_link(
     first.dof = 1;
     first.fit = JointFit::TypedByFit;
     first.reference_frame = reference;
-    (first.second_axis, first.second_axis_in_parent) = (None, None);
-    for c in [
-        &mut first.coordinates,
-        &mut first.coordinate_std,
-        &mut first.smoothed_coordinates,
-        &mut first.smoothed_coordinate_std,
-    ] {
-        c.clear();
-    }
+    clear_coordinates(&mut first);
     let mut second = first.clone();
     second.parent = body;
     second.child = child;
