@@ -211,9 +211,11 @@ its neighbours move against each other about two hinges whose axes do not meet, 
 tests call multi-DoF (universal where the axes pass within a few millimetres). The model
 then puts a body without keypoints between them, carried by one hinge and carrying the other
 (`[pipeline.unseen_links]`, docs/method.md), and the joints come out exact in all but a few
-arms; turned off, in 16 of the 40. The link's own keypoints stay where the clustering put
-them, so the structure is rarely exact, and the mean ARI counts keypoints never seen (the
-links' undersides) as misplaced.
+arms; turned off, in 16 of the 40. The keypoints whose tracks the new body's fitted motion
+explains clearly best then join it, which puts every identifiable keypoint on its body in
+most arms; keypoints seen in a handful of frames fit a neighbour as well and stay there, so
+the structure is rarely exact, and the mean ARI counts keypoints never seen (the links'
+undersides) as misplaced.
 
 ### Slender rods (experiments/sweeps/slender.toml)
 

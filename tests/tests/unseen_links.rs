@@ -36,6 +36,14 @@ fn link_joints_right(e: &Evaluation, max_axis_deg: f64) -> bool {
         .all(|j| j.found && j.type_ok && j.axis_error_deg.is_some_and(|a| a <= max_axis_deg))
 }
 
+/// The body of the model's first `unseen_link` warning and the keypoints it names.
+fn unseen_link(model: &Model) -> Option<(usize, Vec<usize>)> {
+    model.warnings.iter().find_map(|w| match w {
+        Warning::UnseenLink { body, points, .. } => Some((*body, points.clone())),
+        _ => None,
+    })
+}
+
 fn unseen_link_warnings(model: &Model) -> usize {
     model
         .warnings
@@ -48,6 +56,7 @@ fn unseen_link_warnings(model: &Model) -> usize {
 fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
     let seeds = [0u64, 1, 2, 3];
     let mut without = 0;
+    let mut given = 0;
     for seed in seeds {
         let data = arm(seed, 8, 0.1);
         let model = discover(&data, true);
@@ -55,17 +64,18 @@ fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
         assert!(e.joints_exact, "seed {seed}: {e:?}");
         assert!(link_joints_right(&e, 1.5), "seed {seed}: {e:?}");
         assert_eq!(unseen_link_warnings(&model), 1, "seed {seed}");
-        let link: Vec<_> = model
-            .bodies
-            .iter()
-            .filter(|b| b.points.is_empty())
-            .collect();
-        assert_eq!(link.len(), 1, "seed {seed}");
+        let (link, points) = unseen_link(&model).expect("a link");
+        // The keypoints given to the link are on it, and are the true link's.
+        assert_eq!(model.bodies[link].points, points, "seed {seed}");
+        given += points.len();
+        for &p in &points {
+            assert_eq!(data.truth.point_body[p], 5, "seed {seed}: point {p}");
+        }
         // Both hinges have positions in most frames: the link's pose follows from them.
         for j in model
             .joints
             .iter()
-            .filter(|j| j.child == link[0].id || j.parent == link[0].id)
+            .filter(|j| j.child == link || j.parent == link)
         {
             assert_eq!(j.joint_type, JointType::Revolute);
             let known = j.positions.iter().flatten().count();
@@ -78,6 +88,7 @@ fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
     // Without the unseen link the two hinges are one multi-DoF joint (a universal one where
     // their axes pass 5 mm apart, seed 1).
     assert_eq!(without, 0, "{without} draws right without it");
+    assert!(given >= 4, "{given} keypoints given to the links");
 }
 
 #[test]
@@ -89,6 +100,11 @@ fn a_buried_link_without_keypoints_is_put_in() {
         assert!(e.joints_exact, "seed {seed}: {e:?}");
         assert!(link_joints_right(&e, 1.5), "seed {seed}: {e:?}");
         assert_eq!(model.bodies.len(), 7, "seed {seed}");
+        assert_eq!(
+            unseen_link(&model).map(|l| l.1),
+            Some(Vec::new()),
+            "seed {seed}"
+        );
     }
 }
 

@@ -196,6 +196,10 @@ pub enum Warning {
         child: usize,
         /// Shortest distance between the two hinge axes, metres.
         offset_m: f64,
+        /// Keypoints whose tracks the link's fitted motion explains clearly best, given to
+        /// it (none for a link buried between its neighbours).
+        #[serde(default)]
+        points: Vec<usize>,
     },
     /// The whole-tree fit could not follow a joint: the child's keypoints miss their
     /// positions predicted through the joint by far more than they miss the child's own pose.
@@ -338,6 +342,7 @@ impl Warning {
             | Warning::PointsUnassigned { points }
             | Warning::PointsMakingJointsMultiDof { points }
             | Warning::PointsReassigned { points }
+            | Warning::UnseenLink { points, .. }
             | Warning::BodySplit { points, .. }
             | Warning::BodyDropped { points, .. }
             | Warning::TracksSampled {
@@ -498,11 +503,19 @@ impl std::fmt::Display for Warning {
                 body,
                 child,
                 offset_m,
-            } => write!(
-                f,
-                "bodies {parent} -> {child} turn on two hinges {:.1} mm apart; body {body}, which no keypoint shows, was put between them",
-                offset_m * 1e3
-            ),
+                points,
+            } => {
+                write!(
+                    f,
+                    "bodies {parent} -> {child} turn on two hinges {:.1} mm apart; body {body}, a link too little seen to pose, was put between them",
+                    offset_m * 1e3
+                )?;
+                if points.is_empty() {
+                    Ok(())
+                } else {
+                    write!(f, " with the keypoints it explains, {points:?}")
+                }
+            }
             Warning::JointNotFollowed {
                 parent,
                 child,
@@ -632,6 +645,15 @@ mod tests {
                 groups: vec![vec![1], vec![3, 5]],
             }
         );
+        let w = Warning::UnseenLink {
+            parent: 4,
+            body: 6,
+            child: 5,
+            offset_m: 0.04,
+            points: vec![2, 3],
+        }
+        .map_points(twice);
+        assert!(matches!(w, Warning::UnseenLink { points, body: 6, .. } if points == vec![5, 7]));
         let w = Warning::PointNeverVisible { point: 3 }.map_points(twice);
         assert_eq!(w.points_left_out(), &[7]);
         let w = Warning::NoiseEstimated { sigma_m: 0.001 };

@@ -42,10 +42,10 @@ struct Block {
 enum Params {
     /// A revolute or prismatic joint.
     Single(JointParams),
-    /// A revolute joint into a body without keypoints (a link no keypoint shows, between
-    /// two hinges): its axis and pivot only. That body's frame is a choice no keypoint
-    /// constrains, so its reference pose is held; adjusting it too would leave the normal
-    /// equations singular.
+    /// A revolute joint into a link put in between two hinges (too little seen to pose):
+    /// its axis and pivot only. The link's frame is a choice its keypoints, none or a few,
+    /// need not fix, so its reference pose is held; adjusting it too would leave the normal
+    /// equations singular where they do not fix it.
     Held(JointParams),
     /// A ball joint: its centre and the child's pose at rotation zero.
     Ball {
@@ -64,7 +64,7 @@ enum Params {
 
 impl Params {
     /// From an observer's joint; `None` when it has no position (multi-DoF). `unseen_child`:
-    /// whether the joint's child has no placed keypoint.
+    /// whether the joint's child is a link put in between two hinges.
     fn of(j: &ObservedJoint, unseen_child: bool) -> Option<Self> {
         match j.measure {
             Measure::Revolute(..) if unseen_child => JointParams::of(j).map(Self::Held),
@@ -83,8 +83,8 @@ impl Params {
     }
 
     /// Free parameters in the adjustment: revolute 9 (axis tilt 2, pivot across the axis 2,
-    /// then the reference pose's 5 below; 4 when held),
-    /// reference pose turned about the two directions across the axis and shifted 3),
+    /// reference pose turned about the two directions across the axis and shifted 3; held,
+    /// the first 4),
     /// prismatic 7 (tilt 2, turn 3, shift across the axis 2), ball 6 (centre 3, reference
     /// pose shifted 3), universal 11 (first axis tilted 2, second tilted towards or away from
     /// the first 1, centre 3, reference pose turned about the two directions across the
@@ -416,7 +416,7 @@ fn blocks_of(observer: &Observer, only: Option<&[usize]>) -> (Vec<Block>, usize)
         if observer.joint_col[k].is_none() || only.is_some_and(|o| !o.contains(&k)) {
             continue;
         }
-        let unseen_child = observer.bodies[j.child].shape.is_empty();
+        let unseen_child = observer.bodies[j.child].unseen_link;
         if let Some(params) = Params::of(j, unseen_child) {
             blocks.push(Block {
                 joint: k,

@@ -543,6 +543,52 @@ impl FittedMotions {
         (clear && welcome && best <= bound(k)).then_some(b)
     }
 
+    /// Points that body `body` (model numbering) explains clearly best against these motions:
+    /// on no body, or on one that keeps at least three points after them; seen with the
+    /// body's fitted pose in `min_frames_to_place` frames; with a `chi^2 / k` within the bound
+    /// of [`FittedMotions::points_fitting_another_body`] and by its margin below every other
+    /// body's, their own included. For a body without keypoints of its own (a link put in
+    /// between two hinges), whose median misfit that method's rules need.
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the motions were not fitted for `model` on `tracks`.
+    pub fn points_for_body(
+        &self,
+        model: &Model,
+        tracks: &Tracks,
+        body: usize,
+    ) -> Result<Vec<usize>> {
+        self.check(model, tracks)?;
+        let l = &self.limits;
+        let sigma = model.noise.sigma_m;
+        let poses = &self.fitted.body_poses;
+        let mut left: Vec<usize> = model.bodies.iter().map(|b| b.points.len()).collect();
+        let mut out = Vec::new();
+        for i in 0..model.point_body.len().min(tracks.n_points()) {
+            let own = body_of(model, tracks, i);
+            if own == Some(body) || own.is_some_and(|b| left[b] <= MIN_BODY_POINTS) {
+                continue;
+            }
+            let Some((best, k)) = poses
+                .get(body)
+                .and_then(|p| misfit(p, tracks, i, sigma, l.min_frames_to_place))
+            else {
+                continue;
+            };
+            let clear = (0..poses.len()).filter(|&c| c != body).all(|c| {
+                misfit(&poses[c], tracks, i, sigma, l.min_frames_to_place)
+                    .is_none_or(|(other, _)| other - best > margin(k, l))
+            });
+            if clear && best <= bound(k) {
+                out.push(i);
+                if let Some(b) = own {
+                    left[b] -= 1;
+                }
+            }
+        }
+        Ok(out)
+    }
+
     /// Whether each of `points` fits its own body in `model` at least as well as any other
     /// body, against the whole-tree fit's poses: the check that points moved by
     /// [`FittedMotions::points_fitting_another_body`] settled where they went. A point that

@@ -100,6 +100,11 @@ impl FitState {
     pub fn fits(&self) -> &[FrameFit] {
         &self.fits
     }
+
+    /// The observer that fitted them.
+    pub(crate) fn observer(&self) -> &Observer {
+        &self.observer
+    }
 }
 
 /// Replaces the joint positions of `model` (discovered on `tracks`) with the kinematic fit of

@@ -15,6 +15,9 @@ use rayon::prelude::*;
 pub(crate) struct ObservedBody {
     /// `(point index, position in the body frame)` for every placed point.
     pub(crate) shape: Vec<(usize, Point3<f64>)>,
+    /// Whether it is a link put in between two hinges (an `unseen_link` warning names it),
+    /// whose frame is a choice its few keypoints need not fix.
+    pub(crate) unseen_link: bool,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -180,7 +183,11 @@ impl Observer {
                     .filter(|&(&i, _)| i < model.n_points)
                     .filter_map(|(&i, s)| s.map(|s| (i, Point3::from(vector(s)))))
                     .collect();
-                Ok(ObservedBody { shape })
+                let unseen_link = model
+                    .warnings
+                    .iter()
+                    .any(|w| matches!(w, Warning::UnseenLink { body, .. } if *body == b.id));
+                Ok(ObservedBody { shape, unseen_link })
             })
             .collect::<Result<Vec<_>>>()?;
         let nb = bodies.len();

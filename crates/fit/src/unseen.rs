@@ -2,7 +2,8 @@
 //! link by two hinges move against each other with two coordinates, which the pair test
 //! can only call multi-DoF (the hinges' axes do not meet, so it is no universal joint). Such
 //! a pair is fitted as two hinges through a body without keypoints, put into the tree
-//! between them; it is kept when the whole-tree fit follows the child through both.
+//! between them; it is kept when the whole-tree fit follows the child through both, and it
+//! takes the keypoints its fitted motion explains clearly best.
 //!
 //! The start comes from the two bodies' fitted poses. With the child's motion from its pose
 //! at the reference frame `D_t = R_1(q_1) R_2(q_2)` (rotations about the first axis `a_1`,
@@ -14,6 +15,7 @@
 //! translations, `(I - R_1) p_1 + R_1 (I - R_2) p_2`, by linear least squares.
 
 use crate::bundle::BundleLimits;
+use crate::motions::FittedMotions;
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
 use crate::solver::{FrameFit, Observer, universal_angles};
@@ -77,7 +79,8 @@ const AXES_ROUNDS: usize = 40;
 /// Every multi-DoF or universal joint of `model` that the whole-tree fit follows as two hinges
 /// through a body without keypoints (a universal joint: better than through its centre) gets
 /// that body, in the tree between its parent and child (appended to `model.bodies`), and two
-/// revolute joints in its place, with an `unseen_link` warning in place of its
+/// revolute joints in its place, and the keypoints its fitted motion explains clearly best
+/// ([`FittedMotions::points_for_body`]), with an `unseen_link` warning in place of its
 /// `multi_dof_joint` one. Returns the bodies put in. The positions and their precision are
 /// not written: the caller writes them from a fit of the new model.
 ///
@@ -225,13 +228,77 @@ fn try_link(
     model
         .warnings
         .retain(|w| !matches!(w, Warning::MultiDofJoint { parent: p, child: c, .. } if this(p, c)));
-    model.warnings.push(Warning::UnseenLink {
-        parent,
-        body,
-        child,
-        offset_m: offset.unwrap_or(0.0),
-    });
-    Ok(Some(FitState::new(model, tracks)?))
+    let without_points = model.clone();
+    let points = give_points(model, tracks, body)?;
+    let mut state = FitState::new(model, tracks)?;
+    if !points.is_empty() {
+        // The link's keypoints must leave the fit following every joint as before.
+        let excess = state.observer().joint_excess(tracks, state.fits())?;
+        if excess[k + 1].is_none_or(|e| e > limits.max_excess)
+            || any_above(&excess, limits.others_max_excess)
+        {
+            *model = without_points;
+            state = FitState::new(model, tracks)?;
+        }
+    }
+    let points = model.bodies[body].points.clone();
+    for w in &mut model.warnings {
+        if let Warning::UnseenLink {
+            body: b,
+            offset_m,
+            points: p,
+            ..
+        } = w
+            && *b == body
+        {
+            *offset_m = offset.unwrap_or(0.0);
+            *p = points.clone();
+        }
+    }
+    Ok(Some(state))
+}
+
+/// Gives the link `body` of `model` the keypoints whose tracks its fitted motion explains
+/// clearly best ([`FittedMotions::points_for_body`]; a link seen in a few frames by a few
+/// keypoints), each placed at its mean position in the link's frame; keypoints shared by
+/// two bodies stay where they are. Returns them.
+fn give_points(model: &mut Model, tracks: &Tracks, body: usize) -> Result<Vec<usize>> {
+    let motions = FittedMotions::new(model, tracks)?;
+    let points: Vec<usize> = motions
+        .points_for_body(model, tracks, body)?
+        .into_iter()
+        .filter(|&i| !model.shared_points.iter().any(|s| s[0] == i))
+        .collect();
+    let poses = &motions.into_fitted().body_poses[body];
+    for &i in &points {
+        let seen: Vec<Vector3<f64>> = poses
+            .iter()
+            .enumerate()
+            .filter_map(|(t, p)| {
+                Some(
+                    p.as_ref()?
+                        .inverse_transform_point(&tracks.get(t, i)?)
+                        .coords,
+                )
+            })
+            .collect();
+        let place = seen.iter().sum::<Vector3<f64>>() / seen.len().max(1) as f64;
+        if let Ok(old) = usize::try_from(model.point_body[i])
+            && let Some(b) = model.bodies.get_mut(old)
+            && let Some(at) = b.points.iter().position(|&p| p == i)
+        {
+            b.points.remove(at);
+            if at < b.shape.len() {
+                b.shape.remove(at);
+            }
+        }
+        model.point_body[i] = body as i64;
+        let link = &mut model.bodies[body];
+        let at = link.points.partition_point(|&p| p < i);
+        link.points.insert(at, i);
+        link.shape.insert(at, Some([place.x, place.y, place.z]));
+    }
+    Ok(points)
 }
 
 /// Shortest distance between the axes of the observer's revolute joints `k` and `k + 1`, in
@@ -437,6 +504,15 @@ fn insert_link(
         internal_dissimilarity: None,
     });
     model.bodies[child].parent = Some(body);
+    // The warning names the link from the start: the fit holds its frame (its offset and
+    // keypoints are written once it is kept).
+    model.warnings.push(Warning::UnseenLink {
+        parent,
+        body,
+        child,
+        offset_m: 0.0,
+        points: Vec::new(),
+    });
     if let Some(chain) = model.chain.as_mut()
         && let Some(at) = chain.iter().position(|&b| b == child)
     {
