@@ -80,7 +80,23 @@ fn misfit(
     sigma: f64,
     min_frames: usize,
 ) -> Option<(f64, f64)> {
-    let z: Vec<Vector3<f64>> = poses
+    let z = in_body_frame(poses, tracks, point);
+    if z.len() < min_frames.max(2) || sigma <= 0.0 {
+        return None;
+    }
+    let mean = z.iter().sum::<Vector3<f64>>() / z.len() as f64;
+    let k = 3.0 * (z.len() - 1) as f64;
+    let chi2 = z.iter().map(|v| (v - mean).norm_squared()).sum::<f64>() / (sigma * sigma);
+    Some((chi2 / k, k))
+}
+
+/// `point`'s observations in the body frame of `poses`, over the frames that have both.
+pub(crate) fn in_body_frame(
+    poses: &[Option<Isometry3<f64>>],
+    tracks: &Tracks,
+    point: usize,
+) -> Vec<Vector3<f64>> {
+    poses
         .iter()
         .enumerate()
         .filter_map(|(t, pose)| {
@@ -90,14 +106,7 @@ fn misfit(
                     .coords,
             )
         })
-        .collect();
-    if z.len() < min_frames.max(2) || sigma <= 0.0 {
-        return None;
-    }
-    let mean = z.iter().sum::<Vector3<f64>>() / z.len() as f64;
-    let k = 3.0 * (z.len() - 1) as f64;
-    let chi2 = z.iter().map(|v| (v - mean).norm_squared()).sum::<f64>() / (sigma * sigma);
-    Some((chi2 / k, k))
+        .collect()
 }
 
 /// How much better than the next body a point's best body must fit it, in `chi^2 / k`:

@@ -15,7 +15,7 @@
 //! translations, `(I - R_1) p_1 + R_1 (I - R_2) p_2`, by linear least squares.
 
 use crate::bundle::BundleLimits;
-use crate::motions::FittedMotions;
+use crate::motions::{FittedMotions, in_body_frame};
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
 use crate::solver::{FrameFit, Observer, universal_angles};
@@ -271,17 +271,7 @@ fn give_points(model: &mut Model, tracks: &Tracks, body: usize) -> Result<Vec<us
         .collect();
     let poses = &motions.into_fitted().body_poses[body];
     for &i in &points {
-        let seen: Vec<Vector3<f64>> = poses
-            .iter()
-            .enumerate()
-            .filter_map(|(t, p)| {
-                Some(
-                    p.as_ref()?
-                        .inverse_transform_point(&tracks.get(t, i)?)
-                        .coords,
-                )
-            })
-            .collect();
+        let seen = in_body_frame(poses, tracks, i);
         let place = seen.iter().sum::<Vector3<f64>>() / seen.len().max(1) as f64;
         if let Ok(old) = usize::try_from(model.point_body[i])
             && let Some(b) = model.bodies.get_mut(old)
