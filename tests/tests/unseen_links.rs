@@ -105,6 +105,11 @@ fn a_buried_link_without_keypoints_is_put_in() {
             Some(Vec::new()),
             "seed {seed}"
         );
+        let summary = kinetree_pipeline::report::inspect(&model);
+        assert!(
+            summary.contains("(a link put in between two hinges): 0 points"),
+            "{summary}"
+        );
     }
 }
 

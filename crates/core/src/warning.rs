@@ -184,8 +184,8 @@ pub enum Warning {
         dof: usize,
     },
     /// Two bodies whose relative motion is two hinges through a link that no keypoint shows
-    /// well enough to pose it: body `body`, without points, was put between them, turning on
-    /// `parent` about the first hinge and carrying `child` about the second
+    /// well enough to pose it: body `body` was put between them, turning on `parent` about
+    /// the first hinge and carrying `child` about the second, with the keypoints `points`
     /// (`[pipeline.unseen_links]`).
     UnseenLink {
         /// The seen body above the link (model numbering).

@@ -230,8 +230,8 @@ pub struct PipelineConfig {
     /// When a discovery runs on a sample of the points and assigns the others to its bodies
     /// afterwards (`[pipeline.sampling]`: tracks with more than 500 points).
     pub sampling: crate::sampling::SamplingParams,
-    /// When a multi-DoF joint becomes two hinges through a link no keypoint shows, put into
-    /// the tree as a body without points (`[pipeline.unseen_links]`).
+    /// When a multi-DoF or universal joint becomes two hinges through a link too little seen
+    /// to pose, put into the tree as a body (`[pipeline.unseen_links]`).
     pub unseen_links: crate::unseen::UnseenLinksParams,
     /// Memory a run may use, GiB (default
     /// [`kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB`]): a discovery or a simulation whose

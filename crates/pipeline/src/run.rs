@@ -49,7 +49,8 @@ pub struct Pipeline {
     pub outliers: crate::outliers::OutlierParams,
     /// When the discovery runs on a sample of the points ([`PipelineConfig::sampling`]).
     pub sampling: crate::sampling::SamplingParams,
-    /// When a link no keypoint shows is put into the tree ([`PipelineConfig::unseen_links`]).
+    /// When a link too little seen to pose is put into the tree
+    /// ([`PipelineConfig::unseen_links`]).
     pub unseen_links: crate::unseen::UnseenLinksParams,
 }
 
@@ -63,8 +64,9 @@ pub struct Discovery {
     /// The dissimilarity matrix used for the final segmentation.
     pub dissimilarity: DissimilarityMatrix,
     /// Final segmentation, in the model's body numbering (body `k` is the model's body `k`;
-    /// bodies the model puts in for links no keypoint shows, `unseen_link`, come after the
-    /// segmentation's and have no points).
+    /// bodies the model puts in for links too little seen to pose, `unseen_link`, come after
+    /// the segmentation's, and the keypoints given to them are on their neighbours or on
+    /// none here).
     pub segmentation: Segmentation,
     /// Poses per body of the segmentation, in the model's body numbering.
     pub poses: BodyPoses,

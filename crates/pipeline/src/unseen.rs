@@ -1,8 +1,8 @@
 //! Links that no keypoint shows well enough to pose (an arm's wrist link buried between its
 //! neighbours, or seen by a few keypoints in a few frames): after the discovery, a
-//! multi-DoF joint the whole-tree fit follows as two hinges through a body without
-//! keypoints gets that body ([`kinetree_fit::unseen_links`]), and the positions are written
-//! from the new model's fit.
+//! multi-DoF or universal joint the whole-tree fit follows as two hinges through a body
+//! gets that body, with the keypoints its motion explains ([`kinetree_fit::unseen_links`]),
+//! and the positions are written from the new model's fit.
 
 use crate::run::Pipeline;
 use kinetree_core::limits::{check_count, check_within};
@@ -10,7 +10,7 @@ use kinetree_core::{Model, Result, Tracks};
 use kinetree_fit::{BundleLimits, UnseenLinkLimits};
 use serde::{Deserialize, Serialize};
 
-/// `[pipeline.unseen_links]`: when a link no keypoint shows is put between two bodies.
+/// `[pipeline.unseen_links]`: when a link too little seen to pose is put between two bodies.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct UnseenLinksParams {
