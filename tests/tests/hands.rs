@@ -173,3 +173,49 @@ fn pairs_seen_together_briefly_do_not_join_phalanges() {
         );
     }
 }
+
+/// The first links of the fingers and thumb whose model parent is the palm.
+fn first_links_on_the_palm(model: &Model, data: &SynthData) -> usize {
+    let map = body_map(model, &data.truth);
+    let name = |b: usize| data.truth.mechanism.bodies[map[b]].name.as_str();
+    model
+        .joints
+        .iter()
+        .filter(|j| name(j.parent) == "palm" && name(j.child).ends_with("_1"))
+        .count()
+}
+
+/// All fingers flex about parallel axes, so a phalanx of one finger and one of its
+/// neighbour move against each other with two DoF, an untyped pair. A finger's first link
+/// turns on the palm by a universal joint, and the tree must take that typed joint over the
+/// two-DoF pair that would hang the finger on its neighbour. At 0.1 mm the universal
+/// knuckles are typed; with a universal edge priced above the two-DoF pairs
+/// (`universal_cost` 4), fewer fingers hang on the palm over these draws.
+#[test]
+fn fingers_on_universal_knuckles_hang_on_the_palm() {
+    let mut dear = PipelineConfig::default();
+    dear.tree.universal_cost = 4.0;
+    let mut on_palm = [0; 2];
+    for seed in 0..3 {
+        let params = HandParams {
+            noise_sigma_m: 0.0001,
+            seed,
+            ..HandParams::default()
+        };
+        let data = simulate(&hand_scenario(&params)).expect("simulate");
+        for (k, config) in [PipelineConfig::default(), dear.clone()].iter().enumerate() {
+            let model = Pipeline::from_config(config)
+                .expect("pipeline")
+                .run(&data.tracks)
+                .expect("discover")
+                .model;
+            on_palm[k] += first_links_on_the_palm(&model, &data);
+        }
+    }
+    assert!(
+        on_palm[0] >= on_palm[1] + 2,
+        "{} first links on the palm with the default cost, {} with 4 (of 15)",
+        on_palm[0],
+        on_palm[1]
+    );
+}

@@ -23,6 +23,12 @@ pub struct TreeCosts {
     /// slides), which hangs it on the grandparent (default 0.3). Ties beyond it are left to a
     /// whole-tree fit (the `sibling_ties` repair).
     pub tie_fit_margin: f64,
+    /// Base cost of a universal edge (default 2.5); its fit ratio and missed share add up to
+    /// one more, as on a single-DoF edge, so it costs 2.5-3.5: above every single-DoF edge
+    /// (1-2) and below the untyped multi-DoF edges of two DoF (3-4). A typed joint to its true
+    /// parent then wins over a two-DoF pair with a body of another branch whose axes are
+    /// parallel to its own (the fingers of a hand).
+    pub universal_cost: f64,
     /// Bodies whose pairs with the static root are all of no joint type and of at least this
     /// many DoF are a subject moving freely past the scene, which the tree hangs by its own
     /// root, as it would with nothing static (default 5: a noisy arm's first link can test at
@@ -36,6 +42,7 @@ impl Default for TreeCosts {
             adjacency_weight: 0.2,
             adjacency_cap: 2.0,
             tie_fit_margin: 0.3,
+            universal_cost: 2.5,
             min_free_dof: 5,
         }
     }
@@ -51,6 +58,7 @@ impl TreeCosts {
             ("adjacency_weight", self.adjacency_weight, 1e3),
             ("adjacency_cap", self.adjacency_cap, 1e6),
             ("tie_fit_margin", self.tie_fit_margin, 1e3),
+            ("universal_cost", self.universal_cost, 1e3),
         ] {
             if !(v.is_finite() && (0.0..=max).contains(&v)) {
                 return Err(crate::Error::InvalidParameter {
@@ -78,9 +86,14 @@ mod tests {
             tie_fit_margin: f64::NAN,
             ..TreeCosts::default()
         };
+        let universal = TreeCosts {
+            universal_cost: f64::INFINITY,
+            ..TreeCosts::default()
+        };
         for (bad, key) in [
             (weight, "pipeline.tree.adjacency_weight"),
             (margin, "pipeline.tree.tie_fit_margin"),
+            (universal, "pipeline.tree.universal_cost"),
         ] {
             let e = bad
                 .validate("pipeline.tree")

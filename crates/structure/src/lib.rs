@@ -93,14 +93,18 @@ pub struct Tree {
 /// smallest (the nearest to a joint). Without that last term, equal costs left the choice to
 /// the order of the edges, which follows the numbering of the points. A spherical joint (a
 /// centre fixed in both bodies) costs 4-5, by its fit and missed share as a single-DoF
-/// joint, as does a universal joint (two intersecting axes): two hinged siblings about one
-/// anchor are a universal pair, and below the multi-DoF edges of two DoF such a pair would
-/// take a hidden link from its parent.
-fn edge_cost(p: &PairDof, missed: f64) -> f64 {
+/// joint: below the multi-DoF edges of two DoF a ball between two siblings turning about
+/// one anchor took a hidden link from its parent. A universal joint (two intersecting axes)
+/// costs [`TreeCosts::universal_cost`] more than its fit and missed share, 2.5-3.5 by
+/// default.
+fn edge_cost(p: &PairDof, missed: f64, costs: &TreeCosts) -> f64 {
+    let fit = (p.fit_ratio.min(0.999) + missed) / 2.0;
     if p.joint.is_single_dof() {
-        1.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
-    } else if let JointKind::Spherical { .. } | JointKind::Universal { .. } = p.joint {
-        4.0 + (p.fit_ratio.min(0.999) + missed) / 2.0
+        1.0 + fit
+    } else if let JointKind::Universal { .. } = p.joint {
+        costs.universal_cost + fit
+    } else if let JointKind::Spherical { .. } = p.joint {
+        4.0 + fit
     } else {
         let extra: f64 = [&p.translation.whitened, &p.rotation.whitened]
             .iter()
@@ -663,7 +667,11 @@ impl CostScale {
             }
             _ => 0.0,
         };
-        edge_cost(p, missed_share(p, self.posed[a].min(self.posed[p.b]))) + near
+        edge_cost(
+            p,
+            missed_share(p, self.posed[a].min(self.posed[p.b])),
+            &self.costs,
+        ) + near
     }
 }
 
@@ -998,6 +1006,42 @@ mod tests {
         let tree =
             spanning_tree_without(3, &pairs, &[(0, 2)], &TreeCosts::default()).expect("tree");
         assert_eq!(tree.parent, vec![None, Some(0), Some(1)]);
+    }
+
+    /// Two fingers on a static palm (body 0), each a proximal link on a universal joint (1 and
+    /// 3) and a distal link on a hinge (2 and 4). The distal links flex about parallel axes,
+    /// so their pair tests at two DoF: the tree still hangs the second finger on the palm by
+    /// its universal joint, unless a universal edge costs more than a two-DoF one.
+    #[test]
+    fn a_universal_joint_to_the_palm_beats_a_two_dof_pair_between_fingers() {
+        let universal = || JointKind::Universal {
+            axis: Vector3::x(),
+            child_axis: Vector3::y(),
+            centre: Point3::origin(),
+        };
+        let hinge = || JointKind::Revolute {
+            axis: Vector3::x(),
+            pivot: Point3::origin(),
+        };
+        let mut across = pair(Some(2), 4, JointKind::MultiDof, 0.0);
+        across.dof = 2;
+        let mut pairs = vec![pair(None, 0, JointKind::Rigid, 0.1)];
+        pairs.extend((1..5).map(|b| pair(None, b, JointKind::MultiDof, 0.0)));
+        pairs.extend([
+            pair(Some(0), 1, universal(), 0.4),
+            pair(Some(0), 3, universal(), 0.5),
+            pair(Some(1), 2, hinge(), 0.3),
+            pair(Some(3), 4, hinge(), 0.3),
+            across,
+        ]);
+        let tree = spanning_tree(5, &pairs, &TreeCosts::default()).expect("tree");
+        assert_eq!(tree.parent, vec![None, Some(0), Some(1), Some(0), Some(3)]);
+        let dear = TreeCosts {
+            universal_cost: 4.0,
+            ..TreeCosts::default()
+        };
+        let tree = spanning_tree(5, &pairs, &dear).expect("tree");
+        assert_eq!(tree.parent[3], Some(4));
     }
 
     /// Two hinges that fit a body about as well: the tree takes the one to the nearer body;
