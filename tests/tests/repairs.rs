@@ -342,7 +342,7 @@ fn every_built_in_repair_conforms() {
     let repairs = RepairsConfig::default().build().expect("repairs");
     assert_eq!(
         repairs.len(),
-        21,
+        22,
         "one conformance line per built-in repair"
     );
     // Each repair answers to the name of its config section, in the config's order.

@@ -173,6 +173,22 @@ pub trait ModelMaker: Send + Sync + std::fmt::Debug {
         poses: &BodyPoses,
         pairs: &[PairDof],
         history: &[Warning],
+    ) -> Result<ModelDraft> {
+        self.make_without(segmentation, poses, pairs, &[], history)
+    }
+    /// [`ModelMaker::make`] with the tree's edges between the body pairs in `excluded`
+    /// (`(parent, child)` in `segmentation`'s numbering, either order) left out, the tree
+    /// repairs' alternatives included.
+    ///
+    /// # Errors
+    /// As [`ModelMaker::make`].
+    fn make_without(
+        &self,
+        segmentation: &Segmentation,
+        poses: &BodyPoses,
+        pairs: &[PairDof],
+        excluded: &[(usize, usize)],
+        history: &[Warning],
     ) -> Result<ModelDraft>;
 }
 

@@ -782,15 +782,28 @@ impl ModelMaker for Runner<'_> {
         Ok(m)
     }
 
-    fn make(
+    fn make_without(
         &self,
         segmentation: &Segmentation,
         poses: &BodyPoses,
         pairs: &[PairDof],
+        excluded: &[(usize, usize)],
         history: &[Warning],
     ) -> Result<ModelDraft> {
         let ctx = self.context();
-        let first = self.assemble(segmentation, poses, pairs, &[], history)?;
+        let first = self.assemble(segmentation, poses, pairs, excluded, history)?;
+        // The excluded edges in the first model's numbering, for the alternatives.
+        let mut model_id = vec![None; segmentation.n_bodies()];
+        for (m, &b) in first.body_order.iter().enumerate() {
+            if let Some(slot) = model_id.get_mut(b) {
+                *slot = Some(m);
+            }
+        }
+        let id = |b: usize| model_id.get(b).copied().flatten();
+        let renumbered: Vec<(usize, usize)> = excluded
+            .iter()
+            .filter_map(|&(p, c)| Some((id(p)?, id(c)?)))
+            .collect();
         let mut draft = Draft::new(segmentation.clone());
         draft.poses = Some(poses.clone());
         draft.pairs = Some(pairs.to_vec());
@@ -806,7 +819,9 @@ impl ModelMaker for Runner<'_> {
                 let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
                     return Err(Error::Degenerate("no poses to assemble from".into()));
                 };
-                let alt = self.assemble(&draft.segmentation, poses, pairs, excluded, history)?;
+                let all: Vec<(usize, usize)> =
+                    excluded.iter().chain(&renumbered).copied().collect();
+                let alt = self.assemble(&draft.segmentation, poses, pairs, &all, history)?;
                 alternatives.push((r, p, alt));
             }
         }

@@ -19,6 +19,7 @@ mod move_points;
 mod noise_refinement;
 mod readmit_joints;
 mod regroup;
+mod reroute;
 mod retest;
 mod share_points;
 mod sibling_ties;
@@ -40,6 +41,7 @@ pub use move_points::{MovePoints, MovePointsParams};
 pub use noise_refinement::{NoiseRefinement, NoiseRefinementParams};
 pub use readmit_joints::{ReadmitJoints, ReadmitJointsParams};
 pub use regroup::{Regroup, RegroupParams};
+pub use reroute::{Reroute, RerouteParams};
 pub use retest::{Retest, RetestParams};
 pub use share_points::{SharePoints, SharePointsParams};
 pub use sibling_ties::{SiblingTies, SiblingTiesParams};
@@ -148,6 +150,8 @@ repairs_config! {
     joint_spoilers: JointSpoilersParams => JointSpoilers,
     /// Model: pair tests redone on the whole-tree fit's poses.
     retest: RetestParams => Retest,
+    /// Model: the model made again without the edges of joints its fit misses by far.
+    reroute: RerouteParams => Reroute,
 }
 
 /// Checks that `value` is finite and within `[min, max]`.
