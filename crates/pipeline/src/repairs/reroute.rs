@@ -6,10 +6,8 @@
 //! frees the joint (its child misses the fit by hundreds of noise variances a point), but the
 //! tree stays; without the edge, the tree takes the finger's own joint.
 
-use super::{in_range, not_followed};
-use kinetree_core::{
-    Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result, Warning,
-};
+use super::{in_range, not_followed, tree_inputs};
+use kinetree_core::{Draft, Edit, Proposal, Repair, RepairContext, RepairPhase, Result, Warning};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`Reroute`] (`[pipeline.repairs.reroute]`).
@@ -88,18 +86,12 @@ impl Repair for Reroute {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let (Some(models), Some(found), Some(poses)) =
-            (ctx.models, draft.model.as_ref(), draft.poses.as_ref())
-        else {
-            return Err(Error::Degenerate(
-                "repair `reroute` needs a model and its poses".into(),
-            ));
-        };
         // Pair tests redone on other poses (`retest`) leave none here; the edges are then
         // those tests' to choose.
-        let Some(pairs) = draft.pairs.as_ref() else {
+        if draft.pairs.is_none() {
             return Ok(None);
-        };
+        }
+        let (models, found, poses, pairs) = tree_inputs(self.name(), ctx, draft)?;
         let mut far: Vec<(usize, usize)> = found
             .model
             .warnings
