@@ -5,6 +5,15 @@ use kinetree_eval::body_map;
 use kinetree_pipeline::{Pipeline, PipelineConfig};
 use kinetree_synth::{HandParams, SynthData, hand_scenario, simulate};
 
+/// The model `config` discovers on `data`'s tracks.
+fn discover(config: &PipelineConfig, data: &SynthData) -> Model {
+    Pipeline::from_config(config)
+        .expect("pipeline")
+        .run(&data.tracks)
+        .expect("discover")
+        .model
+}
+
 /// The model's joints from one finger's first link to another's (by the bodies' true names).
 fn first_links_on_first_links(model: &Model, data: &SynthData) -> usize {
     let map = body_map(model, &data.truth);
@@ -35,14 +44,8 @@ fn fingers_flexing_about_one_line_hang_on_the_palm() {
         let data = simulate(&hand_scenario(&params)).expect("simulate");
         let mut off = PipelineConfig::default();
         off.repairs.sibling_ties.collinear_max_angle_deg = 0.0;
-        let [on, off] = [PipelineConfig::default(), off].map(|config| {
-            let model = Pipeline::from_config(&config)
-                .expect("pipeline")
-                .run(&data.tracks)
-                .expect("discover")
-                .model;
-            first_links_on_first_links(&model, &data)
-        });
+        let [on, off] = [PipelineConfig::default(), off]
+            .map(|config| first_links_on_first_links(&discover(&config, &data), &data));
         assert!(
             on < off,
             "seed {seed}: {on} with the candidates, {off} without"
@@ -204,12 +207,7 @@ fn fingers_on_universal_knuckles_hang_on_the_palm() {
         };
         let data = simulate(&hand_scenario(&params)).expect("simulate");
         for (k, config) in [PipelineConfig::default(), dear.clone()].iter().enumerate() {
-            let model = Pipeline::from_config(config)
-                .expect("pipeline")
-                .run(&data.tracks)
-                .expect("discover")
-                .model;
-            on_palm[k] += first_links_on_the_palm(&model, &data);
+            on_palm[k] += first_links_on_the_palm(&discover(config, &data), &data);
         }
     }
     assert!(
@@ -251,13 +249,7 @@ fn edges_the_fit_misses_by_far_are_rerouted() {
     let data = simulate(&hand_scenario(&params)).expect("simulate");
     let mut off = PipelineConfig::default();
     off.repairs.reroute.enabled = false;
-    let [on, off] = [PipelineConfig::default(), off].map(|config| {
-        Pipeline::from_config(&config)
-            .expect("pipeline")
-            .run(&data.tracks)
-            .expect("discover")
-            .model
-    });
+    let [on, off] = [PipelineConfig::default(), off].map(|config| discover(&config, &data));
     assert!(
         on.trace
             .iter()

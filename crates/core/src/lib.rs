@@ -26,7 +26,7 @@ pub use repair::{
     Constraints, Draft, Edit, FittedPoses, ModelDraft, ModelMaker, Proposal, Repair, RepairContext,
     RepairLimit, RepairPhase, StageSlots, TraceEntry,
 };
-pub use segmentation::{MIN_BODY_POINTS, Segmentation};
+pub use segmentation::{MIN_BODY_POINTS, Segmentation, inverse_permutation};
 pub use stage::{
     Clustering, ClusteringInput, Dissimilarity, DissimilarityInput, DofInput, DofTester,
     PoseEstimator, PoseInput,

@@ -493,4 +493,12 @@ impl Model {
     pub fn joint_to(&self, child: usize) -> Option<&Joint> {
         self.joints.iter().find(|j| j.child == child)
     }
+
+    /// Whether body `body` is a link put in between two hinges (an `unseen_link` warning
+    /// names it).
+    pub fn is_unseen_link(&self, body: usize) -> bool {
+        self.warnings
+            .iter()
+            .any(|w| matches!(w, Warning::UnseenLink { body: b, .. } if *b == body))
+    }
 }

@@ -22,7 +22,7 @@ pub struct Segmentation {
 }
 
 /// `new_id` with `new_id[order[k]] = k`, when `order` is a permutation of `0..n`.
-pub(crate) fn inverse_permutation(order: &[usize], n: usize) -> Option<Vec<usize>> {
+pub fn inverse_permutation(order: &[usize], n: usize) -> Option<Vec<usize>> {
     if order.len() != n {
         return None;
     }

@@ -183,11 +183,10 @@ impl Observer {
                     .filter(|&(&i, _)| i < model.n_points)
                     .filter_map(|(&i, s)| s.map(|s| (i, Point3::from(vector(s)))))
                     .collect();
-                let unseen_link = model
-                    .warnings
-                    .iter()
-                    .any(|w| matches!(w, Warning::UnseenLink { body, .. } if *body == b.id));
-                Ok(ObservedBody { shape, unseen_link })
+                Ok(ObservedBody {
+                    shape,
+                    unseen_link: model.is_unseen_link(b.id),
+                })
             })
             .collect::<Result<Vec<_>>>()?;
         let nb = bodies.len();

@@ -123,18 +123,15 @@ pub fn summary(model: &Model) -> String {
         model.noise.source
     );
     for b in &model.bodies {
-        let role =
-            if b.is_static {
-                "static"
-            } else if b.parent.is_none() {
-                "root"
-            } else if model.warnings.iter().any(
-                |w| matches!(w, kinetree_core::Warning::UnseenLink { body, .. } if *body == b.id),
-            ) {
-                "a link put in between two hinges"
-            } else {
-                "moving"
-            };
+        let role = if b.is_static {
+            "static"
+        } else if b.parent.is_none() {
+            "root"
+        } else if model.is_unseen_link(b.id) {
+            "a link put in between two hinges"
+        } else {
+            "moving"
+        };
         let _ = writeln!(
             s,
             "  body {} ({role}): {} points {:?}",

@@ -792,18 +792,17 @@ impl ModelMaker for Runner<'_> {
     ) -> Result<ModelDraft> {
         let ctx = self.context();
         let first = self.assemble(segmentation, poses, pairs, excluded, history)?;
-        // The excluded edges in the first model's numbering, for the alternatives.
-        let mut model_id = vec![None; segmentation.n_bodies()];
-        for (m, &b) in first.body_order.iter().enumerate() {
-            if let Some(slot) = model_id.get_mut(b) {
-                *slot = Some(m);
-            }
-        }
-        let id = |b: usize| model_id.get(b).copied().flatten();
-        let renumbered: Vec<(usize, usize)> = excluded
-            .iter()
-            .filter_map(|&(p, c)| Some((id(p)?, id(c)?)))
-            .collect();
+        // The excluded edges in the first model's numbering, for the alternatives (a model
+        // whose body order is no permutation is refused by `adopt` below).
+        let renumbered: Vec<(usize, usize)> =
+            kinetree_core::inverse_permutation(&first.body_order, segmentation.n_bodies())
+                .map(|new_id| {
+                    excluded
+                        .iter()
+                        .filter_map(|&(p, c)| Some((*new_id.get(p)?, *new_id.get(c)?)))
+                        .collect()
+                })
+                .unwrap_or_default();
         let mut draft = Draft::new(segmentation.clone());
         draft.poses = Some(poses.clone());
         draft.pairs = Some(pairs.to_vec());
