@@ -565,3 +565,46 @@ fn a_fit_of_listed_frames_is_the_fit_of_those_frames_alone() {
         other => panic!("frame {beyond} accepted: {other:?}"),
     }
 }
+
+/// The residual of listed frames settled from a known fit is the residual of fitting those
+/// frames: from the observer's own fit, and for an observer with a joint freed, whose child
+/// then starts from the pose the joint gave it. A frame beyond the tracks, or without a
+/// known fit, is refused with a shape error that names it.
+#[test]
+fn a_settled_residual_is_the_residual_of_fitting_those_frames() {
+    let (data, model) = discovered_arm(2);
+    let observer = Observer::new(&model).expect("observer");
+    let fits = observer.fit_sequence(&data.tracks).expect("fit");
+    let frames: Vec<usize> = (0..data.tracks.n_frames()).step_by(4).collect();
+    let sum = |fits: &[kinetree_fit::FrameFit]| fits.iter().map(|f| f.sum_sq_m2).sum::<f64>();
+    let own: f64 = frames.iter().map(|&t| fits[t].sum_sq_m2).sum();
+    let settled = observer
+        .settled_miss(&data.tracks, &fits, &frames)
+        .expect("settled");
+    assert!(
+        (settled - own).abs() <= 1e-6 * own,
+        "settled {settled:e} against the fit's {own:e}"
+    );
+    let mut freed = observer.clone();
+    freed.free_joint(model.joints.len() - 1);
+    let fitted = sum(&freed.fit_frames(&data.tracks, &frames).expect("fit frames"));
+    let settled = freed
+        .settled_miss(&data.tracks, &fits, &frames)
+        .expect("settled");
+    assert!(
+        (settled - fitted).abs() <= 1e-3 * fitted,
+        "settled {settled:e} against the freed fit's {fitted:e}"
+    );
+    // Freeing a joint can only lower the residual: the child's six coordinates include the
+    // joint's one.
+    assert!(settled <= own * (1.0 + 1e-9), "{settled:e} above {own:e}");
+    let beyond = data.tracks.n_frames();
+    match observer.settled_miss(&data.tracks, &fits, &[0, beyond]) {
+        Err(Error::Shape { found, .. }) => assert!(found.contains(&beyond.to_string()), "{found}"),
+        other => panic!("frame {beyond} accepted: {other:?}"),
+    }
+    match observer.settled_miss(&data.tracks, &fits[..10], &[12]) {
+        Err(Error::Shape { found, .. }) => assert!(found.contains("12"), "{found}"),
+        other => panic!("a frame without a known fit accepted: {other:?}"),
+    }
+}

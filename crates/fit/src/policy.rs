@@ -132,8 +132,9 @@ pub struct FreeLimits {
     /// A joint whose [`Observer::joint_excess`] is above this is over the limit (default
     /// [`MAX_JOINT_EXCESS`]).
     pub max_excess: f64,
-    /// With more candidates than `screen_keep`, each is first fitted on every
-    /// `screen_stride`-th frame only (default 4; 1 fits every candidate on every frame).
+    /// With more candidates than `screen_keep`, each is first ranked on every
+    /// `screen_stride`-th frame only, each such frame's fit started from the current fit's
+    /// (default 4; 1 fits every candidate on every frame).
     pub screen_stride: usize,
     /// ... and the `screen_keep` candidates with the least residual there are fitted on every
     /// frame, the least full residual chosen among them (default 2; `docs/decisions.md`,
@@ -198,7 +199,14 @@ pub fn free_unfollowed_joints(
             })
             .collect();
         let candidates = if limits.screen_stride > 1 && candidates.len() > limits.screen_keep {
-            screened(&observer, tracks, &candidates, &screen, limits.screen_keep)?
+            screened(
+                &observer,
+                tracks,
+                &fits,
+                &candidates,
+                &screen,
+                limits.screen_keep,
+            )?
         } else {
             candidates
         };
@@ -237,10 +245,13 @@ pub fn free_unfollowed_joints(
 }
 
 /// The `keep` of `candidates` whose freeing leaves the least residual over the `frames`, in
-/// joint order (ties to the earlier joint).
+/// joint order (ties to the earlier joint). Each frame's fit starts from `known`, the fit
+/// before the freeing: a few steps a frame, where a fit from the listed frame before took two
+/// to three times as long.
 fn screened(
     observer: &Observer,
     tracks: &Tracks,
+    known: &[FrameFit],
     candidates: &[usize],
     frames: &[usize],
     keep: usize,
@@ -250,8 +261,7 @@ fn screened(
         .map(|&k| {
             let mut trial = observer.clone();
             trial.free_joint(k);
-            let fits = trial.fit_frames(tracks, frames)?;
-            Ok(fits.iter().map(|f| f.sum_sq_m2).sum::<f64>())
+            trial.settled_miss(tracks, known, frames)
         })
         .collect::<Result<Vec<f64>>>()?;
     let mut order: Vec<usize> = (0..candidates.len()).collect();
@@ -304,35 +314,76 @@ pub fn readmit_freed_joints(
         made_from,
     } = state;
     let mut readmitted = Vec::new();
-    for k in 0..observer.joints.len() {
-        if !observer.freed[k] {
-            continue;
+    // The freed joints are tried in order, each on the fit the readmissions before it left.
+    // A trial that readmits nothing leaves the model as it was, so the trials from one state
+    // run in parallel and the first that readmits its joint is taken, as a loop in joint order
+    // would take it; the joints after it are then tried again on the new fit.
+    let mut from = 0;
+    loop {
+        let tries: Vec<usize> = (from..observer.joints.len())
+            .filter(|&k| observer.freed[k])
+            .collect();
+        let trials: Vec<Result<Option<_>>> = tries
+            .par_iter()
+            .map(|&k| {
+                let mut trial_model = model.clone();
+                let found = readmitted_trial(
+                    &mut trial_model,
+                    k,
+                    tracks,
+                    (&observer, &fits),
+                    (max_excess, others_max_excess),
+                )?;
+                Ok(found.map(|f| (k, trial_model, f)))
+            })
+            .collect();
+        // In joint order: an error counts only where a loop would have met it.
+        let mut found = None;
+        for trial in trials {
+            if let Some(t) = trial? {
+                found = Some(t);
+                break;
+            }
         }
-        let (joints, warnings) = (model.joints.clone(), model.warnings.clone());
-        if !refine_joint(model, k, &observer, tracks, &fits) {
-            continue;
-        }
-        let (parent, child) = (model.joints[k].parent, model.joints[k].child);
-        model.joints[k].fit = JointFit::Followed;
-        model.warnings.retain(|w| {
-            !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if *p == parent && *c == child)
-        });
-        let trial = Observer::new(model)?;
-        let trial_fits = trial.fit_sequence(tracks)?;
-        let excess = trial.joint_excess(tracks, &trial_fits)?;
-        let followed = excess[k].is_some_and(|e| e <= max_excess)
-            && excess
-                .iter()
-                .all(|e| e.is_none_or(|e| e <= others_max_excess));
-        if followed {
-            (observer, fits) = (trial, trial_fits);
-            readmitted.push(k);
-        } else {
-            (model.joints, model.warnings) = (joints, warnings);
-        }
+        let Some((k, readmitted_model, (trial, trial_fits))) = found else {
+            break;
+        };
+        *model = readmitted_model;
+        (observer, fits) = (trial, trial_fits);
+        readmitted.push(k);
+        from = k + 1;
     }
     let state = FitState::kept(model, observer, fits, made_from, !readmitted.is_empty());
     Ok((state, readmitted))
+}
+
+/// Freed joint `k` refined against its child's keypoints and put back into `model`'s fit,
+/// with the new observer and fit, when the fit then follows it within the first bound and
+/// every other joint within the second; `None` (and `model` left in an unspecified state)
+/// otherwise.
+fn readmitted_trial(
+    model: &mut Model,
+    k: usize,
+    tracks: &Tracks,
+    (observer, fits): (&Observer, &[FrameFit]),
+    (max_excess, others_max_excess): (f64, f64),
+) -> Result<Option<(Observer, Vec<FrameFit>)>> {
+    if !refine_joint(model, k, observer, tracks, fits) {
+        return Ok(None);
+    }
+    let (parent, child) = (model.joints[k].parent, model.joints[k].child);
+    model.joints[k].fit = JointFit::Followed;
+    model.warnings.retain(|w| {
+        !matches!(w, Warning::JointNotFollowed { parent: p, child: c, .. } if *p == parent && *c == child)
+    });
+    let trial = Observer::new(model)?;
+    let trial_fits = trial.fit_sequence(tracks)?;
+    let excess = trial.joint_excess(tracks, &trial_fits)?;
+    let followed = excess[k].is_some_and(|e| e <= max_excess)
+        && excess
+            .iter()
+            .all(|e| e.is_none_or(|e| e <= others_max_excess));
+    Ok(followed.then_some((trial, trial_fits)))
 }
 
 /// The limits of [`type_joints_by_fit`].

@@ -608,6 +608,44 @@ impl Observer {
             .collect())
     }
 
+    /// Sum over `frames` of the fit's squared residual, m^2, each frame's descent started at
+    /// `known`'s fit of that frame (a fit of the same tracks by an observer of the same
+    /// bodies, whatever its joints), frames in parallel: a few steps a frame where
+    /// [`Observer::fit_frames`] descends from the listed frame before.
+    ///
+    /// # Errors
+    /// [`Error::Shape`] when the tracks do not have the model's points, or a frame has no fit
+    /// in `known`.
+    pub fn settled_miss(
+        &self,
+        tracks: &Tracks,
+        known: &[FrameFit],
+        frames: &[usize],
+    ) -> Result<f64> {
+        self.check_points(tracks.n_points())?;
+        if let Some(&t) = frames
+            .iter()
+            .find(|&&t| t >= tracks.n_frames().min(known.len()))
+        {
+            return Err(Error::Shape {
+                expected: format!("frames below {}", tracks.n_frames().min(known.len())),
+                found: format!("frame {t}"),
+            });
+        }
+        let costs: Vec<f64> = frames
+            .par_iter()
+            .map(|&t| {
+                let visible = self.visible_at(tracks, t);
+                self.descend(
+                    self.initial_state(&visible, Some(&known[t]), true),
+                    &visible,
+                )
+                .cost
+            })
+            .collect();
+        Ok(costs.iter().sum())
+    }
+
     /// [`Observer::visible`] of frame `t` of `tracks` (which has the model's points).
     pub(crate) fn visible_at(&self, tracks: &Tracks, t: usize) -> Visible {
         let frame = tracks.frame_points(t);

@@ -19,7 +19,8 @@ pub struct FreeJointsParams {
     /// its own pose, is freed (default 30).
     pub max_excess: f64,
     /// With more candidate joints than `screen_keep`, each is first fitted on every
-    /// `screen_stride`-th frame only (default 4; 1 fits every candidate on every frame) ...
+    /// `screen_stride`-th frame only, from the current fit of each such frame (default 4; 1
+    /// fits every candidate on every frame) ...
     pub screen_stride: usize,
     /// ... and only the `screen_keep` best there are fitted on every frame (default 2).
     pub screen_keep: usize,

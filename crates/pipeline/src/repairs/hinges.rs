@@ -12,6 +12,7 @@ use kinetree_core::{
     Tracks, Warning,
 };
 use kinetree_pose::Hinge;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// When a group of keypoints is taken to turn on a hinge (`best_hinge`); used by [`Hinges`]
@@ -173,7 +174,9 @@ impl Hinges {
     /// keypoints that turn on another body about one axis, with the hinge, when it poses them
     /// in at least `min_repose_gain` times as many frames. By body.
     fn reposed(&self, tracks: &Tracks, poses: &BodyPoses, sigma: f64) -> Vec<(usize, Hinge)> {
+        // Bodies in parallel; an indexed collect keeps them in order.
         (0..poses.bodies.len())
+            .into_par_iter()
             .filter_map(|b| {
                 let track = &poses.bodies[b];
                 let own = super::sparsely_registered(tracks, track, self.params.max_reposed_share)?;
@@ -213,10 +216,15 @@ impl Hinges {
         }
         let chi2 = hinge.chi2_per_dof * hinge.dof;
         let limits = self.params.bounds().fit;
-        points
+        let tried: Vec<usize> = points
             .iter()
+            .copied()
             .filter(|p| !done.contains(p))
-            .filter_map(|&p| {
+            .collect();
+        // Each keypoint's refit in parallel; the choice among them is made in order below.
+        let gains: Vec<Option<(f64, usize)>> = tried
+            .par_iter()
+            .map(|&p| {
                 let rest: Vec<usize> = points.iter().copied().filter(|&q| q != p).collect();
                 let without =
                     kinetree_pose::hinged_body(tracks, poses, hinge.parent, &rest, sigma, &limits)?;
@@ -224,6 +232,10 @@ impl Hinges {
                 let gain = (chi2 - without.chi2_per_dof * without.dof) / dof;
                 (dof >= 1.0 && gain > self.params.bounds().bound(dof)).then_some((gain, p))
             })
+            .collect();
+        gains
+            .into_iter()
+            .flatten()
             .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
             .map(|(_, p)| p)
     }
@@ -248,12 +260,18 @@ pub(crate) fn best_hinge(
     if rigidity > bounds.bound(rigidity_dof) {
         return None;
     }
-    std::iter::once(None)
+    let parents: Vec<Option<usize>> = std::iter::once(None)
         .chain((0..poses.bodies.len()).map(Some))
         .filter(|&parent| parent.is_none() || parent != skip)
-        .filter_map(|parent| {
-            kinetree_pose::hinged_body(tracks, poses, parent, group, sigma, &bounds.fit)
-        })
+        .collect();
+    // The hinge on each candidate parent is fitted in parallel; the best is chosen in order.
+    let hinges: Vec<Option<Hinge>> = parents
+        .par_iter()
+        .map(|&parent| kinetree_pose::hinged_body(tracks, poses, parent, group, sigma, &bounds.fit))
+        .collect();
+    hinges
+        .into_iter()
+        .flatten()
         .filter(|h| {
             h.chi2_per_dof <= bounds.bound(h.dof)
                 && h.arc_in_std >= bounds.min_arc_in_std
