@@ -314,47 +314,69 @@ pub fn readmit_freed_joints(
         made_from,
     } = state;
     let mut readmitted = Vec::new();
-    // The freed joints are tried in order, each on the fit the readmissions before it left.
-    // A trial that readmits nothing leaves the model as it was, so the trials from one state
-    // run in parallel and the first that readmits its joint is taken, as a loop in joint order
-    // would take it; the joints after it are then tried again on the new fit.
+    accept_in_order(
+        model,
+        (&mut observer, &mut fits),
+        &mut readmitted,
+        |_, k, observer, _| observer.freed[k],
+        |trial_model, k, observer, fits| {
+            readmitted_trial(
+                trial_model,
+                k,
+                tracks,
+                (observer, fits),
+                (max_excess, others_max_excess),
+            )
+        },
+    )?;
+    let state = FitState::kept(model, observer, fits, made_from, !readmitted.is_empty());
+    Ok((state, readmitted))
+}
+
+/// A new observer and its fit, or `None`: what a joint's trial returns.
+type Trial = Option<(Observer, Vec<FrameFit>)>;
+
+/// Joints tried in order, each on the fit the accepted trials before it left, those already
+/// `accepted` skipped; each accepted joint is appended. A trial that accepts nothing leaves
+/// the model as it was, so the trials from one state run in parallel (each on a clone of the
+/// model) and the first that accepts its joint is taken, as a loop in joint order would take
+/// it; the joints after it are then tried again on the new fit.
+fn accept_in_order(
+    model: &mut Model,
+    (observer, fits): (&mut Observer, &mut Vec<FrameFit>),
+    accepted: &mut Vec<usize>,
+    tried: impl Fn(&Model, usize, &Observer, &[FrameFit]) -> bool,
+    trial: impl Fn(&mut Model, usize, &Observer, &[FrameFit]) -> Result<Trial> + Sync,
+) -> Result<()> {
     let mut from = 0;
     loop {
         let tries: Vec<usize> = (from..observer.joints.len())
-            .filter(|&k| observer.freed[k])
+            .filter(|&k| !accepted.contains(&k) && tried(model, k, observer, fits))
             .collect();
-        let trials: Vec<Result<Option<_>>> = tries
+        let results: Vec<Result<Option<_>>> = tries
             .par_iter()
             .map(|&k| {
                 let mut trial_model = model.clone();
-                let found = readmitted_trial(
-                    &mut trial_model,
-                    k,
-                    tracks,
-                    (&observer, &fits),
-                    (max_excess, others_max_excess),
-                )?;
+                let found = trial(&mut trial_model, k, observer, fits)?;
                 Ok(found.map(|f| (k, trial_model, f)))
             })
             .collect();
         // In joint order: an error counts only where a loop would have met it.
         let mut found = None;
-        for trial in trials {
-            if let Some(t) = trial? {
+        for result in results {
+            if let Some(t) = result? {
                 found = Some(t);
                 break;
             }
         }
-        let Some((k, readmitted_model, (trial, trial_fits))) = found else {
-            break;
+        let Some((k, accepted_model, (trial_observer, trial_fits))) = found else {
+            return Ok(());
         };
-        *model = readmitted_model;
-        (observer, fits) = (trial, trial_fits);
-        readmitted.push(k);
+        *model = accepted_model;
+        (*observer, *fits) = (trial_observer, trial_fits);
+        accepted.push(k);
         from = k + 1;
     }
-    let state = FitState::kept(model, observer, fits, made_from, !readmitted.is_empty());
-    Ok((state, readmitted))
 }
 
 /// Freed joint `k` refined against its child's keypoints and put back into `model`'s fit,
@@ -486,44 +508,20 @@ pub fn type_joints_by_fit(
         (observer, fits) = (o, f);
         typed = t;
     }
-    // The joints are tried in order, each on the fit the typings before it left. A trial that
-    // types nothing leaves the model as it was, so the trials from one state run in parallel
-    // and the first that types its joint is taken, as a loop in joint order would take it;
-    // the joints after it are then tried again on the new fit.
-    let mut from = 0;
-    loop {
-        let tries: Vec<usize> = (from..observer.joints.len())
-            .filter(|&k| !typed.contains(&k) && typing_tried(model, k, &observer, &fits, limits))
-            .collect();
-        let trials: Vec<Result<Option<_>>> = tries
-            .par_iter()
-            .map(|&k| {
-                let mut trial_model = model.clone();
-                let found = if model.joints[k].joint_type == JointType::Universal {
-                    universal_by_fit(&mut trial_model, k, tracks, &observer, &fits, limits)?
-                } else {
-                    let types = typing_candidates(model, k, &observer);
-                    type_by_fit(&mut trial_model, k, tracks, &fits, types, limits)?
-                };
-                Ok(found.map(|f| (k, trial_model, f)))
-            })
-            .collect();
-        // In joint order: an error counts only where a loop would have met it.
-        let mut found = None;
-        for trial in trials {
-            if let Some(t) = trial? {
-                found = Some(t);
-                break;
+    accept_in_order(
+        model,
+        (&mut observer, &mut fits),
+        &mut typed,
+        |model, k, observer, fits| typing_tried(model, k, observer, fits, limits),
+        |trial_model, k, observer, fits| {
+            if trial_model.joints[k].joint_type == JointType::Universal {
+                universal_by_fit(trial_model, k, tracks, observer, fits, limits)
+            } else {
+                let types = typing_candidates(trial_model, k, observer);
+                type_by_fit(trial_model, k, tracks, fits, types, limits)
             }
-        }
-        let Some((k, typed_model, (trial, trial_fits))) = found else {
-            break;
-        };
-        *model = typed_model;
-        (observer, fits) = (trial, trial_fits);
-        typed.push(k);
-        from = k + 1;
-    }
+        },
+    )?;
     let state = FitState::kept(model, observer, fits, made_from, !typed.is_empty());
     Ok((state, typed))
 }
