@@ -89,6 +89,10 @@ pub struct HingesParams {
     /// ... and posed through the hinge when that poses it in at least this many times as many
     /// frames (default 1.5).
     pub min_repose_gain: f64,
+    /// A body registered in fewer frames than this (one `drop_unposed` would drop, at its
+    /// default) that no hinge poses has the keypoint taken off without which one does
+    /// (default 3; 0 turns it off; `docs/decisions.md`, `hinges.peel_below_frames`).
+    pub peel_below_frames: usize,
     /// Slack on the hinge's `chi^2` bound ([`HingeBounds::slack`], default 2.0).
     pub slack: f64,
     /// Std-devs of the hinge's `chi^2` bound ([`HingeBounds::bound_in_std`], default 4.0).
@@ -114,6 +118,7 @@ impl Default for HingesParams {
             enabled: true,
             max_reposed_share: 0.5,
             min_repose_gain: 1.5,
+            peel_below_frames: 3,
             slack: HingeBounds::default().slack,
             bound_in_std: HingeBounds::default().bound_in_std,
             min_arc_in_std: HingeBounds::default().min_arc_in_std,
@@ -134,6 +139,13 @@ impl HingesParams {
         const NAME: &str = "hinges";
         in_range(NAME, "max_reposed_share", self.max_reposed_share, 0.0, 1.0)?;
         in_range(NAME, "min_repose_gain", self.min_repose_gain, 1.0, 1e6)?;
+        super::count_in_range(
+            NAME,
+            "peel_below_frames",
+            self.peel_below_frames,
+            0,
+            1_000_000,
+        )?;
         self.bounds().validate(NAME)
     }
 
@@ -190,6 +202,53 @@ impl Hinges {
                 )?;
                 (h.track.n_registered() as f64 >= self.params.min_repose_gain * own as f64)
                     .then_some((b, h))
+            })
+            .collect()
+    }
+
+    /// Per body registered in under `peel_below_frames` frames that no hinge poses (none of
+    /// `reposed`), the keypoint without which one does (the lowest RMS residual, then the
+    /// earlier keypoint): a keypoint of another body grouped with a poorly seen link keeps
+    /// every hinge from holding, and the link, never seen by three keypoints at once, would
+    /// be dropped with all of them. Never one of `done`, never from a body of three or fewer.
+    fn peeled(
+        &self,
+        tracks: &Tracks,
+        poses: &BodyPoses,
+        reposed: &[(usize, Hinge)],
+        sigma: f64,
+        done: &[usize],
+    ) -> Vec<usize> {
+        let bounds = self.params.bounds();
+        (0..poses.bodies.len())
+            .filter(|b| reposed.iter().all(|(r, _)| r != b))
+            .filter_map(|b| {
+                let track = &poses.bodies[b];
+                if track.points.len() <= kinetree_core::MIN_BODY_POINTS
+                    || track.n_registered() >= self.params.peel_below_frames
+                {
+                    return None;
+                }
+                let tried: Vec<usize> = track
+                    .points
+                    .iter()
+                    .copied()
+                    .filter(|p| !done.contains(p))
+                    .collect();
+                let hinges: Vec<Option<(f64, usize)>> = tried
+                    .par_iter()
+                    .map(|&p| {
+                        let rest: Vec<usize> =
+                            track.points.iter().copied().filter(|&q| q != p).collect();
+                        let h = best_hinge(&bounds, tracks, poses, &rest, Some(b), sigma)?;
+                        Some((h.rms_residual_m, p))
+                    })
+                    .collect();
+                hinges
+                    .into_iter()
+                    .flatten()
+                    .min_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)))
+                    .map(|(_, p)| p)
             })
             .collect()
     }
@@ -297,16 +356,19 @@ impl Repair for Hinges {
         let poses = poses_of(self.name(), draft.poses.as_ref())?;
         let (tracks, sigma) = (ctx.tracks, ctx.noise_sigma_m);
         let reposed = self.reposed(tracks, poses, sigma);
-        if reposed.is_empty() {
-            return Ok(None);
-        }
-        let off: Vec<usize> = reposed
+        let done = &draft.constraints.off_hinge;
+        let mut off: Vec<usize> = reposed
             .iter()
             .filter_map(|(b, h)| {
-                let done = &draft.constraints.off_hinge;
                 self.off_hinge_point(tracks, poses, &poses.bodies[*b].points, h, sigma, done)
             })
             .collect();
+        if off.is_empty() {
+            off = self.peeled(tracks, poses, &reposed, sigma, done);
+        }
+        if reposed.is_empty() && off.is_empty() {
+            return Ok(None);
+        }
         if !off.is_empty() {
             let mut p = Proposal::new(
                 Edit::Segmentation(draft.segmentation.without_points(&off)),
