@@ -389,7 +389,7 @@ fn readmitted_trial(
     tracks: &Tracks,
     (observer, fits): (&Observer, &[FrameFit]),
     (max_excess, others_max_excess): (f64, f64),
-) -> Result<Option<(Observer, Vec<FrameFit>)>> {
+) -> Result<Trial> {
     if !refine_joint(model, k, observer, tracks, fits) {
         return Ok(None);
     }
