@@ -229,24 +229,12 @@ impl Hinges {
                 {
                     return None;
                 }
-                let tried: Vec<usize> = track
-                    .points
-                    .iter()
-                    .copied()
-                    .filter(|p| !done.contains(p))
-                    .collect();
-                let hinges: Vec<Option<(f64, usize)>> = tried
-                    .par_iter()
-                    .map(|&p| {
-                        let rest: Vec<usize> =
-                            track.points.iter().copied().filter(|&q| q != p).collect();
-                        let h = best_hinge(&bounds, tracks, poses, &rest, Some(b), sigma)?;
-                        Some((h.rms_residual_m, p))
-                    })
-                    .collect();
+                let hinges = scored_without_each(&track.points, done, |rest| {
+                    best_hinge(&bounds, tracks, poses, rest, Some(b), sigma)
+                        .map(|h| h.rms_residual_m)
+                });
                 hinges
                     .into_iter()
-                    .flatten()
                     .min_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)))
                     .map(|(_, p)| p)
             })
@@ -275,29 +263,41 @@ impl Hinges {
         }
         let chi2 = hinge.chi2_per_dof * hinge.dof;
         let limits = self.params.bounds().fit;
-        let tried: Vec<usize> = points
-            .iter()
-            .copied()
-            .filter(|p| !done.contains(p))
-            .collect();
-        // Each keypoint's refit in parallel; the choice among them is made in order below.
-        let gains: Vec<Option<(f64, usize)>> = tried
-            .par_iter()
-            .map(|&p| {
-                let rest: Vec<usize> = points.iter().copied().filter(|&q| q != p).collect();
-                let without =
-                    kinetree_pose::hinged_body(tracks, poses, hinge.parent, &rest, sigma, &limits)?;
-                let dof = hinge.dof - without.dof;
-                let gain = (chi2 - without.chi2_per_dof * without.dof) / dof;
-                (dof >= 1.0 && gain > self.params.bounds().bound(dof)).then_some((gain, p))
-            })
-            .collect();
+        let gains = scored_without_each(points, done, |rest| {
+            let without =
+                kinetree_pose::hinged_body(tracks, poses, hinge.parent, rest, sigma, &limits)?;
+            let dof = hinge.dof - without.dof;
+            let gain = (chi2 - without.chi2_per_dof * without.dof) / dof;
+            (dof >= 1.0 && gain > self.params.bounds().bound(dof)).then_some(gain)
+        });
         gains
             .into_iter()
-            .flatten()
             .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
             .map(|(_, p)| p)
     }
+}
+
+/// `(score, keypoint)` for each keypoint of `points` not in `done` that `score` gives a value
+/// with that keypoint left out, in the order of `points`; the keypoints are tried in
+/// parallel.
+fn scored_without_each(
+    points: &[usize],
+    done: &[usize],
+    score: impl Fn(&[usize]) -> Option<f64> + Sync,
+) -> Vec<(f64, usize)> {
+    let tried: Vec<usize> = points
+        .iter()
+        .copied()
+        .filter(|p| !done.contains(p))
+        .collect();
+    let scores: Vec<Option<(f64, usize)>> = tried
+        .par_iter()
+        .map(|&p| {
+            let rest: Vec<usize> = points.iter().copied().filter(|&q| q != p).collect();
+            score(&rest).map(|v| (v, p))
+        })
+        .collect();
+    scores.into_iter().flatten().collect()
 }
 
 /// Of the hinges of `group` on the posed bodies other than `skip` and on the camera frame
