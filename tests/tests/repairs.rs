@@ -177,19 +177,21 @@ fn hinge_groups_make_a_body_of_unassigned_points_turning_on_a_hinge() {
     assert!(l2.iter().all(|&p| off.model.point_body[p] < 0));
 }
 
-/// `tracks` with only the first two of `points` visible in three frames of four.
-fn mostly_two_at_a_time(tracks: &Tracks, points: &[usize]) -> Tracks {
+/// `tracks` with the samples `hidden(frame, point)` hidden.
+fn with_hidden(tracks: &Tracks, hidden: impl Fn(usize, usize) -> bool) -> Tracks {
     let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
         .map(|t| {
             (0..tracks.n_points())
-                .map(|i| {
-                    let hidden = t % 4 != 0 && points[2..].contains(&i);
-                    if hidden { None } else { tracks.get(t, i) }
-                })
+                .map(|i| if hidden(t, i) { None } else { tracks.get(t, i) })
                 .collect()
         })
         .collect();
     Tracks::from_points(&frames).expect("tracks")
+}
+
+/// `tracks` with only the first two of `points` visible in three frames of four.
+fn mostly_two_at_a_time(tracks: &Tracks, points: &[usize]) -> Tracks {
+    with_hidden(tracks, |t, i| t % 4 != 0 && points[2..].contains(&i))
 }
 
 #[test]
@@ -225,18 +227,10 @@ fn hinges_pose_a_link_seen_two_keypoints_at_a_time_through_its_joint() {
 
 /// `tracks` with at most two of `group` visible in every frame but frame 0, in turn.
 fn two_of_a_group_at_a_time(tracks: &Tracks, group: &[usize]) -> Tracks {
-    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..tracks.n_frames())
-        .map(|t| {
-            let shown = [group[t % group.len()], group[(t + 1) % group.len()]];
-            (0..tracks.n_points())
-                .map(|i| {
-                    let hidden = t > 0 && group.contains(&i) && !shown.contains(&i);
-                    if hidden { None } else { tracks.get(t, i) }
-                })
-                .collect()
-        })
-        .collect();
-    Tracks::from_points(&frames).expect("tracks")
+    with_hidden(tracks, |t, i| {
+        let shown = [group[t % group.len()], group[(t + 1) % group.len()]];
+        t > 0 && group.contains(&i) && !shown.contains(&i)
+    })
 }
 
 #[test]
@@ -291,17 +285,7 @@ fn drop_unposed_drops_a_body_registered_in_one_frame() {
     let l1 = points_of(&data, 1);
     let trio = [l1[0], l1[1], l1[2]];
     // The trio is seen whole only in frame 0.
-    let frames: Vec<Vec<Option<Point3<f64>>>> = (0..data.tracks.n_frames())
-        .map(|t| {
-            (0..data.tracks.n_points())
-                .map(|i| {
-                    let hidden = t > 0 && trio[t % 3] == i;
-                    if hidden { None } else { data.tracks.get(t, i) }
-                })
-                .collect()
-        })
-        .collect();
-    let tracks = Tracks::from_points(&frames).expect("tracks");
+    let tracks = with_hidden(&data.tracks, |t, i| t > 0 && trio[t % 3] == i);
     let apart = labels(&data, |l| trio.iter().for_each(|&p| l[p] = Some(3)));
     // Off, the hinges would pose the trio through link 1's joint.
     let mut c = config().with_hinges(false);

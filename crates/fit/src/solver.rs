@@ -601,8 +601,7 @@ impl Observer {
             .par_iter()
             .zip(range)
             .map(|(fit, t)| {
-                let visible = self.visible_at(tracks, t);
-                let descent = self.descend(self.initial_state(&visible, Some(fit), true), &visible);
+                let (descent, visible) = self.settle_frame(tracks, fit, t);
                 each(descent, visible)
             })
             .collect())
@@ -634,16 +633,16 @@ impl Observer {
         }
         let costs: Vec<f64> = frames
             .par_iter()
-            .map(|&t| {
-                let visible = self.visible_at(tracks, t);
-                self.descend(
-                    self.initial_state(&visible, Some(&known[t]), true),
-                    &visible,
-                )
-                .cost
-            })
+            .map(|&t| self.settle_frame(tracks, &known[t], t).0.cost)
             .collect();
         Ok(costs.iter().sum())
+    }
+
+    /// Frame `t`'s descent started at `known`, a fit of that frame, with its visible points.
+    fn settle_frame(&self, tracks: &Tracks, known: &FrameFit, t: usize) -> (Descent, Visible) {
+        let visible = self.visible_at(tracks, t);
+        let descent = self.descend(self.initial_state(&visible, Some(known), true), &visible);
+        (descent, visible)
     }
 
     /// [`Observer::visible`] of frame `t` of `tracks` (which has the model's points).

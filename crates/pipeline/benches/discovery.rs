@@ -25,6 +25,13 @@ fn discover(tracks: &Tracks) -> Model {
     discover_with(&PipelineConfig::default(), tracks)
 }
 
+/// The tracks of a random mechanism simulated from `params`.
+fn random_tracks(params: kinetree_synth::RandomParams) -> Tracks {
+    kinetree_synth::simulate(&kinetree_synth::random_scenario(&params))
+        .expect("simulate")
+        .tracks
+}
+
 #[divan::bench(sample_count = 10)]
 fn discover_9_joints_80_points_150_frames(bencher: divan::Bencher) {
     let tracks = arm_tracks();
@@ -52,16 +59,13 @@ fn discover_without_shape_steps_9_joints_80_points_150_frames(bencher: divan::Be
 /// their cost.
 #[divan::bench(args = [true, false], sample_count = 5)]
 fn discover_hidden_links_10_joints_110_points_200_frames(bencher: divan::Bencher, hinged: bool) {
-    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+    let tracks = random_tracks(kinetree_synth::RandomParams {
         n_joints: 10,
         prismatic_fraction: 0.0,
         tree: true,
         seed: 7,
         ..Default::default()
     });
-    let tracks = kinetree_synth::simulate(&scenario)
-        .expect("simulate")
-        .tracks;
     let config = PipelineConfig::default().with_hinges(hinged);
     bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
 }
@@ -71,7 +75,7 @@ fn discover_hidden_links_10_joints_110_points_200_frames(bencher: divan::Bencher
 /// bundle adjustments dominate.
 #[divan::bench(sample_count = 3)]
 fn discover_tree_20_joints_168_points_200_frames(bencher: divan::Bencher) {
-    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+    let tracks = random_tracks(kinetree_synth::RandomParams {
         n_joints: 20,
         extra_points: 0,
         tree: true,
@@ -80,9 +84,6 @@ fn discover_tree_20_joints_168_points_200_frames(bencher: divan::Bencher) {
         seed: 3,
         ..Default::default()
     });
-    let tracks = kinetree_synth::simulate(&scenario)
-        .expect("simulate")
-        .tracks;
     bencher.bench_local(|| discover(divan::black_box(&tracks)));
 }
 
@@ -92,7 +93,7 @@ fn discover_tree_20_joints_168_points_200_frames(bencher: divan::Bencher) {
 /// in every pass.
 #[divan::bench(args = [3, 0], sample_count = 3)]
 fn discover_tree_19_joints_160_points_300_frames(bencher: divan::Bencher, seed: u64) {
-    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+    let tracks = random_tracks(kinetree_synth::RandomParams {
         n_joints: 19,
         extra_points: 0,
         tree: true,
@@ -102,9 +103,6 @@ fn discover_tree_19_joints_160_points_300_frames(bencher: divan::Bencher, seed: 
         seed,
         ..Default::default()
     });
-    let tracks = kinetree_synth::simulate(&scenario)
-        .expect("simulate")
-        .tracks;
     bencher.bench_local(|| discover(divan::black_box(&tracks)));
 }
 
@@ -124,16 +122,13 @@ fn fit_model_positions_9_joints_80_points_150_frames(bencher: divan::Bencher) {
 /// used to cost time quadratic in the frames.
 #[divan::bench(sample_count = 3)]
 fn discover_hinge_1_joint_20000_frames(bencher: divan::Bencher) {
-    let scenario = kinetree_synth::random_scenario(&kinetree_synth::RandomParams {
+    let tracks = random_tracks(kinetree_synth::RandomParams {
         n_joints: 1,
         prismatic_fraction: 0.0,
         n_frames: 20_000,
         seed: 1,
         ..Default::default()
     });
-    let tracks = kinetree_synth::simulate(&scenario)
-        .expect("simulate")
-        .tracks;
     let config = PipelineConfig {
         noise_sigma_m: Some(0.001),
         ..PipelineConfig::default()

@@ -92,6 +92,7 @@ impl Repair for Reroute {
             return Ok(None);
         }
         let (models, found, poses, pairs) = tree_inputs(self.name(), ctx, draft)?;
+        let freed = not_followed(&found.model);
         let mut far: Vec<(usize, usize)> = found
             .model
             .warnings
@@ -104,11 +105,7 @@ impl Repair for Reroute {
                 } if excess_in_sigma2 > self.params.min_excess_in_sigma2 => Some((parent, child)),
                 _ => None,
             })
-            .filter(|&(p, c)| {
-                found.model.joints.iter().any(|j| {
-                    j.parent == p && j.child == c && j.fit == kinetree_core::model::JointFit::Freed
-                })
-            })
+            .filter(|edge| freed.contains(edge))
             .collect();
         far.sort_unstable();
         far.dedup();
