@@ -122,6 +122,42 @@ fn a_hub_link_seen_by_three_keypoints_in_few_frames_is_posed_through_its_hinge()
     );
 }
 
+/// A random 20-body tree (300 frames, 10 % dropout, seed 1) whose hub link, slid along its
+/// base and carrying two hinged children whose axes meet at the link's end, is seen by two of
+/// its keypoints at once in 53 frames and never by three: it gets no body, and its children
+/// hang on each other by a universal joint. That joint's cross moves against the base by one
+/// slide, so it is read as the link (`[pipeline.unseen_links] hubs`), and every joint is
+/// found; without it three are not.
+#[test]
+fn a_hub_link_that_no_three_keypoints_show_is_read_from_its_childrens_universal_joint() {
+    let data = simulate(&random_scenario(&RandomParams {
+        n_joints: 19,
+        tree: true,
+        n_frames: 300,
+        dropout: 0.1,
+        seed: 1,
+        ..RandomParams::default()
+    }))
+    .expect("simulate");
+    let model = kinetree_tests::discover_with(&data.tracks, &PipelineConfig::default());
+    let e = evaluate(&model, &data.truth);
+    assert!(e.joints.iter().all(|j| j.found && j.type_ok), "{e:?}");
+    let (hub, _) = unseen_link(&model).expect("a link put in");
+    let children = model.joints.iter().filter(|j| j.parent == hub).count();
+    assert!(children >= 2, "the link carries {children} bodies");
+    let mut off = PipelineConfig::default();
+    off.unseen_links.hubs = false;
+    let e = evaluate(
+        &kinetree_tests::discover_with(&data.tracks, &off),
+        &data.truth,
+    );
+    let right = e.joints.iter().filter(|j| j.found && j.type_ok).count();
+    assert!(
+        right < e.joints.len(),
+        "every joint right without the hubs: {e:?}"
+    );
+}
+
 #[test]
 fn a_buried_link_without_keypoints_is_put_in() {
     for seed in 0..4u64 {

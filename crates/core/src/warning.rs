@@ -186,7 +186,10 @@ pub enum Warning {
     /// Two bodies whose relative motion is two hinges through a link that no keypoint shows
     /// well enough to pose it: body `body` was put between them, turning on `parent` about
     /// the first hinge and carrying `child` about the second, with the keypoints `points`
-    /// (`[pipeline.unseen_links]`).
+    /// (`[pipeline.unseen_links]`). A link read from a universal joint between two of its
+    /// children (`[pipeline.unseen_links] hubs`) turns or slides on `parent` and carries
+    /// `child` and every other body the model hangs on it, each by a hinge; its `offset_m`
+    /// is 0.
     UnseenLink {
         /// The seen body above the link (model numbering).
         parent: usize,

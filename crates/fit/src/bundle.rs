@@ -67,7 +67,9 @@ impl Params {
     /// whether the joint's child is a link put in between two hinges.
     fn of(j: &ObservedJoint, unseen_child: bool) -> Option<Self> {
         match j.measure {
-            Measure::Revolute(..) if unseen_child => JointParams::of(j).map(Self::Held),
+            Measure::Revolute(..) | Measure::Prismatic(..) if unseen_child => {
+                JointParams::of(j).map(Self::Held)
+            }
             Measure::Spherical(centre) => Some(Self::Ball {
                 centre,
                 reference: j.reference,
@@ -98,7 +100,8 @@ impl Params {
         match self {
             Params::Single(p) if p.revolute => 9,
             Params::Single(_) => 7,
-            Params::Held(_) => 4,
+            Params::Held(p) if p.revolute => 4,
+            Params::Held(_) => 2,
             Params::Ball { .. } => 6,
             Params::Cardan { .. } => 11,
         }
@@ -125,8 +128,9 @@ impl Params {
             }
             Params::Held(p) => {
                 let mut full = [0.0; 10];
-                full[..4].copy_from_slice(&d[..4]);
-                Params::Held(p.moved(&full))
+                let held = if p.revolute { 4 } else { 2 };
+                full[..held].copy_from_slice(&d[..held]);
+                Params::Held(p.moved(&full[..p.len()]))
             }
             Params::Ball { centre, reference } => Params::Ball {
                 centre: centre + Vector3::new(d[0], d[1], d[2]),

@@ -13,6 +13,7 @@
 //! `policy` <- `unseen`; `smooth` and `motions` use `solver` only.
 
 mod bundle;
+mod hubs;
 mod identify;
 mod motions;
 mod observation;
@@ -24,6 +25,7 @@ mod tree_cholesky;
 mod unseen;
 
 pub use bundle::BundleLimits;
+pub use hubs::unseen_hubs;
 pub use identify::identifiability_warnings;
 pub use motions::{
     FittedMotions, MAX_BODY_MEDIAN, MIN_CHI2_GAIN, MIN_FRAMES, MIN_FRAMES_TO_PLACE, MIN_MARGIN,

@@ -63,7 +63,7 @@ impl FitState {
         Ok(Self::of(model, observer, fits))
     }
 
-    fn of(model: &Model, observer: Observer, fits: Vec<FrameFit>) -> Self {
+    pub(crate) fn of(model: &Model, observer: Observer, fits: Vec<FrameFit>) -> Self {
         Self {
             observer,
             fits,

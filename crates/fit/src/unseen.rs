@@ -262,7 +262,7 @@ fn try_link(
 /// clearly best ([`FittedMotions::points_for_body`]; a link seen in a few frames by a few
 /// keypoints), each placed at its mean position in the link's frame; keypoints shared by
 /// two bodies stay where they are. Returns them.
-fn give_points(model: &mut Model, tracks: &Tracks, body: usize) -> Result<Vec<usize>> {
+pub(crate) fn give_points(model: &mut Model, tracks: &Tracks, body: usize) -> Result<Vec<usize>> {
     let motions = FittedMotions::new(model, tracks)?;
     let points: Vec<usize> = motions
         .points_for_body(model, tracks, body)?
@@ -355,7 +355,7 @@ impl TwoHinges {
 }
 
 /// The rotation by `q` about the line through `pivot` along the unit `axis`.
-fn turn_about(axis: &Vector3<f64>, pivot: &Point3<f64>, q: f64) -> Isometry3<f64> {
+pub(crate) fn turn_about(axis: &Vector3<f64>, pivot: &Point3<f64>, q: f64) -> Isometry3<f64> {
     let r =
         UnitQuaternion::from_axis_angle(&kinetree_core::nalgebra::Unit::new_unchecked(*axis), q);
     Isometry3::from_parts((pivot.coords - r * pivot.coords).into(), r)

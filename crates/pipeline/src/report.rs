@@ -123,14 +123,17 @@ pub fn summary(model: &Model) -> String {
         model.noise.source
     );
     for b in &model.bodies {
+        let carried = model.joints.iter().filter(|j| j.parent == b.id).count();
         let role = if b.is_static {
-            "static"
+            "static".to_string()
         } else if b.parent.is_none() {
-            "root"
+            "root".to_string()
+        } else if model.is_unseen_link(b.id) && carried > 1 {
+            format!("a link put in, carrying {carried} bodies")
         } else if model.is_unseen_link(b.id) {
-            "a link put in between two hinges"
+            "a link put in between two hinges".to_string()
         } else {
-            "moving"
+            "moving".to_string()
         };
         let _ = writeln!(
             s,

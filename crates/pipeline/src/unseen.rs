@@ -1,8 +1,10 @@
 //! Links that no keypoint shows well enough to pose (an arm's wrist link buried between its
 //! neighbours, or seen by a few keypoints in a few frames): after the discovery, a
 //! multi-DoF or universal joint the whole-tree fit follows as two hinges through a body
-//! gets that body, with the keypoints its motion explains ([`kinetree_fit::unseen_links`]),
-//! and the positions are written from the new model's fit.
+//! gets that body, with the keypoints its motion explains ([`kinetree_fit::unseen_links`]);
+//! so does a link carrying several children whose joints meet, which the tree takes for a
+//! universal joint between two of them ([`kinetree_fit::unseen_hubs`]). The positions are
+//! then written from the new model's fit.
 
 use crate::run::Pipeline;
 use kinetree_core::limits::{check_count, check_within};
@@ -35,6 +37,10 @@ pub struct UnseenLinksParams {
     /// A universal joint becomes two hinges when they lower the fit's squared residual by
     /// more than this many noise variances (default 100).
     pub min_gain_over_universal: f64,
+    /// Whether a universal joint whose cross moves against another body about one hinge or
+    /// slide is read as a link carrying both bodies ([`kinetree_fit::unseen_hubs`]; default
+    /// true).
+    pub hubs: bool,
 }
 
 impl Default for UnseenLinksParams {
@@ -49,6 +55,7 @@ impl Default for UnseenLinksParams {
             min_offset_in_sigma: l.min_offset_in_sigma,
             min_axes_angle_deg: l.min_axes_angle_deg,
             min_gain_over_universal: l.min_gain_over_universal,
+            hubs: true,
         }
     }
 }
@@ -112,7 +119,14 @@ pub(crate) fn put_unseen_links(
     if !pipeline.unseen_links.enabled {
         return Ok(());
     }
-    let added = kinetree_fit::unseen_links(model, tracks, &pipeline.unseen_links.limits())?;
+    let mut added = kinetree_fit::unseen_links(model, tracks, &pipeline.unseen_links.limits())?;
+    if pipeline.unseen_links.hubs {
+        added.extend(kinetree_fit::unseen_hubs(
+            model,
+            tracks,
+            &pipeline.unseen_links.limits(),
+        )?);
+    }
     if added.is_empty() {
         return Ok(());
     }
