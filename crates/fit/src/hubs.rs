@@ -12,7 +12,7 @@
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
 use crate::solver::{FrameFit, Measure, Observer};
-use crate::unseen::{UnseenLinkLimits, give_points, turn_about};
+use crate::unseen::{UnseenLinkLimits, give_points, subtree, turn_about};
 use kinetree_core::geom::angle_about;
 use kinetree_core::model::{Body, JointFit, JointType};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, Vector3};
@@ -192,28 +192,6 @@ fn joint_above(model: &Model, body: usize) -> Option<usize> {
                 JointType::MultiDof | JointType::Universal | JointType::Rigid
             ) || j.fit == JointFit::Freed)
     })
-}
-
-/// Whether each body is `root` or below it in `model`'s tree.
-fn subtree(model: &Model, root: usize) -> Vec<bool> {
-    let n = model.bodies.len();
-    let mut below = vec![false; n];
-    for (b, flag) in below.iter_mut().enumerate() {
-        let mut at = Some(b);
-        let mut steps = 0;
-        while let Some(x) = at {
-            if x == root {
-                *flag = true;
-                break;
-            }
-            steps += 1;
-            if steps > n {
-                break;
-            }
-            at = model.joints.iter().find(|j| j.child == x).map(|j| j.parent);
-        }
-    }
-    below
 }
 
 /// The best one-DoF parent, among the bodies `allowed`, of a body posed at `poses` (one per
@@ -439,15 +417,19 @@ fn try_hub(
     Ok(kept)
 }
 
-/// Moves onto `hub` each body whose joint is multi-DoF, universal or not followed and whose
-/// motion against the hub is one-DoF, when the fit follows it there.
-fn adopt_children(
+/// Moves onto `hub` (a link put in) each body whose joint is multi-DoF, universal or not
+/// followed and whose motion against the link is one-DoF, when the fit follows it there
+/// (unless `limits.rehang` is off).
+pub(crate) fn adopt_children(
     model: &mut Model,
     hub: usize,
     tracks: &Tracks,
     mut state: FitState,
     limits: &UnseenLinkLimits,
 ) -> Result<FitState> {
+    if !limits.rehang {
+        return Ok(state);
+    }
     let sigma = model.noise.sigma_m;
     let doubtful: Vec<(usize, usize)> = model
         .joints

@@ -15,6 +15,7 @@
 //! translations, `(I - R_1) p_1 + R_1 (I - R_2) p_2`, by linear least squares.
 
 use crate::bundle::BundleLimits;
+use crate::hubs::adopt_children;
 use crate::motions::{FittedMotions, in_body_frame};
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
@@ -25,6 +26,7 @@ use kinetree_core::nalgebra::{
     Isometry3, Matrix3, Matrix6, Point3, UnitQuaternion, Vector3, Vector6,
 };
 use kinetree_core::{Model, Result, Tracks, Warning};
+use rayon::prelude::*;
 
 /// When [`unseen_links`] puts a link between two bodies (`[pipeline.unseen_links]`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -50,6 +52,12 @@ pub struct UnseenLinkLimits {
     /// residual by more than this many noise variances (default 100; `docs/decisions.md`,
     /// `[pipeline.unseen_links]`): the axes' distance is one more parameter.
     pub min_gain_over_universal: f64,
+    /// Whether the children of a hidden link that the tree hung elsewhere are moved (default
+    /// true): a multi-DoF joint that is not two hinges is tried with its child on the other
+    /// body whose two hinges carry it best, and once a link is put in, each body hung by a
+    /// multi-DoF or universal joint, or one the fit does not follow, is tried on it by one
+    /// hinge or slide.
+    pub rehang: bool,
     /// The bundle adjustment of each candidate.
     pub bundle: BundleLimits,
 }
@@ -64,6 +72,7 @@ impl Default for UnseenLinkLimits {
             min_offset_in_sigma: 3.0,
             min_axes_angle_deg: 10.0,
             min_gain_over_universal: 100.0,
+            rehang: true,
             bundle: BundleLimits::default(),
         }
     }
@@ -113,11 +122,89 @@ pub fn unseen_links(
         let mut trial = model.clone();
         if let Some(kept) = try_link(&mut trial, k, tracks, state.fits(), limits)? {
             *model = trial;
-            added.push(model.bodies.len() - 1);
-            state = kept;
+            let link = model.bodies.len() - 1;
+            added.push(link);
+            state = adopt_children(model, link, tracks, kept, limits)?;
+            continue;
+        }
+        // The tree may have hung the child on a neighbour of the hidden link's parent: the
+        // body whose two hinges carry the child's keypoints best is tried in its place.
+        if !limits.rehang || model.joints[k].joint_type != JointType::MultiDof {
+            continue;
+        }
+        let Some(other) = other_parent(model, k, state.fits(), limits) else {
+            continue;
+        };
+        let mut trial = model.clone();
+        trial.joints[k].parent = other;
+        trial.bodies[child].parent = Some(other);
+        trial.chain = None;
+        if let Some(kept) = try_link(&mut trial, k, tracks, state.fits(), limits)? {
+            trial.warnings.retain(|w| {
+                !matches!(w, Warning::MultiDofJoint { parent: p, child: c, .. }
+                    if *p == parent && *c == child)
+            });
+            *model = trial;
+            let link = model.bodies.len() - 1;
+            added.push(link);
+            state = adopt_children(model, link, tracks, kept, limits)?;
         }
     }
     Ok(added)
+}
+
+/// The body other than its parent, outside its own subtree, on which multi-DoF joint `k`'s
+/// child moves as two hinges carrying its keypoints best (a start within the limits; see
+/// [`try_link`]), the candidates fitted in parallel and ties to the lower body.
+fn other_parent(
+    model: &Model,
+    k: usize,
+    fits: &[FrameFit],
+    limits: &UnseenLinkLimits,
+) -> Option<usize> {
+    let (parent, child) = (model.joints[k].parent, model.joints[k].child);
+    let reference = model.joints[k].reference_frame;
+    let below = subtree(model, child);
+    let misses: Vec<Option<f64>> = (0..model.bodies.len())
+        .into_par_iter()
+        .map(|b| {
+            if b == parent || below[b] {
+                return None;
+            }
+            two_hinge_start(model, (b, child), reference, fits, limits).map(|s| s.rms_m)
+        })
+        .collect();
+    let mut best: Option<(f64, usize)> = None;
+    for (b, miss) in misses.iter().enumerate() {
+        if let Some(m) = *miss
+            && best.is_none_or(|(x, _)| m < x)
+        {
+            best = Some((m, b));
+        }
+    }
+    best.map(|(_, b)| b)
+}
+
+/// Whether each body is `root` or below it in `model`'s tree.
+pub(crate) fn subtree(model: &Model, root: usize) -> Vec<bool> {
+    let n = model.bodies.len();
+    let mut below = vec![false; n];
+    for (b, flag) in below.iter_mut().enumerate() {
+        let mut at = Some(b);
+        let mut steps = 0;
+        while let Some(x) = at {
+            if x == root {
+                *flag = true;
+                break;
+            }
+            steps += 1;
+            if steps > n {
+                break;
+            }
+            at = model.joints.iter().find(|j| j.child == x).map(|j| j.parent);
+        }
+    }
+    below
 }
 
 /// Joint `k` of `model` fitted as two hinges through a new body; the model keeps it and the
@@ -145,61 +232,16 @@ fn try_link(
     } else {
         fits
     };
-    let relative: Vec<(usize, Isometry3<f64>)> = posed
-        .iter()
-        .enumerate()
-        .filter_map(|(t, f)| {
-            let p = f.poses.get(parent).copied().flatten()?;
-            let c = f.poses.get(child).copied().flatten()?;
-            Some((t, p.inverse() * c))
-        })
-        .collect();
-    if relative.len() < limits.min_frames.max(8) {
-        return Ok(None);
-    }
-    let Some(&(reference, zero)) = relative
-        .iter()
-        .find(|(t, _)| *t == reference)
-        .or(relative.first())
+    let Some(Start {
+        hinges: start,
+        zero,
+        cam_parent,
+        reference,
+        ..
+    }) = two_hinge_start(model, (parent, child), reference, posed, limits)
     else {
         return Ok(None);
     };
-    let Some(cam_parent) = posed
-        .get(reference)
-        .and_then(|f| f.poses.get(parent).copied().flatten())
-    else {
-        return Ok(None);
-    };
-    let motions: Vec<Isometry3<f64>> = relative.iter().map(|(_, x)| x * zero.inverse()).collect();
-    let Some(start) = two_hinges(&motions, &zero) else {
-        return Ok(None);
-    };
-    if start.axes_angle_deg() < limits.min_axes_angle_deg
-        || start.offset() < limits.min_offset_in_sigma * sigma
-    {
-        return Ok(None);
-    }
-    // The start's miss of the child's placed keypoints, every frame with both poses.
-    let shape: Vec<Point3<f64>> = model.bodies[child]
-        .shape
-        .iter()
-        .flatten()
-        .map(|s| Point3::from(Vector3::from(*s)))
-        .collect();
-    if shape.is_empty() {
-        return Ok(None);
-    }
-    let (mut sum, mut count) = (0.0, 0usize);
-    for ((_, x), angles) in relative.iter().zip(&start.angles) {
-        let predicted = start.motion(angles) * zero;
-        for s in &shape {
-            sum += (predicted * s - x * s).norm_squared();
-            count += 1;
-        }
-    }
-    if (sum / count as f64).sqrt() > limits.max_start_rms_in_sigma * sigma {
-        return Ok(None);
-    }
     let body = model.bodies.len();
     insert_link(model, k, body, &start, &zero, &cam_parent, reference);
     let mut observer = Observer::new(model)?;
@@ -256,6 +298,85 @@ fn try_link(
         }
     }
     Ok(Some(state))
+}
+
+/// Two hinges fitted to a child's motion against a parent, as [`try_link`] starts from them.
+struct Start {
+    hinges: TwoHinges,
+    /// `parent_from_child` at the reference frame.
+    zero: Isometry3<f64>,
+    /// The parent's pose at the reference frame.
+    cam_parent: Isometry3<f64>,
+    reference: usize,
+    /// The child's placed keypoints' RMS miss through the two hinges, metres.
+    rms_m: f64,
+}
+
+/// The two-hinge start of `child` on `parent` from their poses in `posed`, its reference
+/// frame `reference` where both are posed there (else the first frame both are); `None` with
+/// fewer than `limits.min_frames` such frames, hinges nearly parallel or meeting (see
+/// [`UnseenLinkLimits`]), or a miss of the child's keypoints beyond
+/// `limits.max_start_rms_in_sigma`.
+fn two_hinge_start(
+    model: &Model,
+    (parent, child): (usize, usize),
+    reference: usize,
+    posed: &[FrameFit],
+    limits: &UnseenLinkLimits,
+) -> Option<Start> {
+    let sigma = model.noise.sigma_m;
+    let relative: Vec<(usize, Isometry3<f64>)> = posed
+        .iter()
+        .enumerate()
+        .filter_map(|(t, f)| {
+            let p = f.poses.get(parent).copied().flatten()?;
+            let c = f.poses.get(child).copied().flatten()?;
+            Some((t, p.inverse() * c))
+        })
+        .collect();
+    if relative.len() < limits.min_frames.max(8) {
+        return None;
+    }
+    let &(reference, zero) = relative
+        .iter()
+        .find(|(t, _)| *t == reference)
+        .or(relative.first())?;
+    let cam_parent = posed
+        .get(reference)
+        .and_then(|f| f.poses.get(parent).copied().flatten())?;
+    let motions: Vec<Isometry3<f64>> = relative.iter().map(|(_, x)| x * zero.inverse()).collect();
+    let start = two_hinges(&motions, &zero)?;
+    if start.axes_angle_deg() < limits.min_axes_angle_deg
+        || start.offset() < limits.min_offset_in_sigma * sigma
+    {
+        return None;
+    }
+    // The start's miss of the child's placed keypoints, every frame with both poses.
+    let shape: Vec<Point3<f64>> = model.bodies[child]
+        .shape
+        .iter()
+        .flatten()
+        .map(|s| Point3::from(Vector3::from(*s)))
+        .collect();
+    if shape.is_empty() {
+        return None;
+    }
+    let (mut sum, mut count) = (0.0, 0usize);
+    for ((_, x), angles) in relative.iter().zip(&start.angles) {
+        let predicted = start.motion(angles) * zero;
+        for s in &shape {
+            sum += (predicted * s - x * s).norm_squared();
+            count += 1;
+        }
+    }
+    let rms_m = (sum / count as f64).sqrt();
+    (rms_m <= limits.max_start_rms_in_sigma * sigma).then_some(Start {
+        hinges: start,
+        zero,
+        cam_parent,
+        reference,
+        rms_m,
+    })
 }
 
 /// Gives the link `body` of `model` the keypoints whose tracks its fitted motion explains

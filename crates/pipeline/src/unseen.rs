@@ -41,6 +41,11 @@ pub struct UnseenLinksParams {
     /// slide is read as a link carrying both bodies ([`kinetree_fit::unseen_hubs`]; default
     /// true).
     pub hubs: bool,
+    /// Whether the children of a hidden link that the tree hung elsewhere are moved (default
+    /// true): a multi-DoF joint that is not two hinges is tried with its child on the other
+    /// body whose two hinges carry its keypoints best, and the bodies hung by doubtful joints
+    /// are tried on each link put in by one hinge or slide.
+    pub rehang: bool,
 }
 
 impl Default for UnseenLinksParams {
@@ -56,6 +61,7 @@ impl Default for UnseenLinksParams {
             min_axes_angle_deg: l.min_axes_angle_deg,
             min_gain_over_universal: l.min_gain_over_universal,
             hubs: true,
+            rehang: l.rehang,
         }
     }
 }
@@ -100,6 +106,7 @@ impl UnseenLinksParams {
             min_offset_in_sigma: self.min_offset_in_sigma,
             min_axes_angle_deg: self.min_axes_angle_deg,
             min_gain_over_universal: self.min_gain_over_universal,
+            rehang: self.rehang,
             bundle: BundleLimits::default(),
         }
     }
@@ -119,14 +126,15 @@ pub(crate) fn put_unseen_links(
     if !pipeline.unseen_links.enabled {
         return Ok(());
     }
-    let mut added = kinetree_fit::unseen_links(model, tracks, &pipeline.unseen_links.limits())?;
-    if pipeline.unseen_links.hubs {
-        added.extend(kinetree_fit::unseen_hubs(
-            model,
-            tracks,
-            &pipeline.unseen_links.limits(),
-        )?);
-    }
+    let limits = pipeline.unseen_links.limits();
+    // Links read from universal joints first: a hub's children, each taken alone, would each
+    // get a link of their own between two hinges.
+    let mut added = if pipeline.unseen_links.hubs {
+        kinetree_fit::unseen_hubs(model, tracks, &limits)?
+    } else {
+        Vec::new()
+    };
+    added.extend(kinetree_fit::unseen_links(model, tracks, &limits)?);
     if added.is_empty() {
         return Ok(());
     }
