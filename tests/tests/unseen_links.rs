@@ -158,6 +158,39 @@ fn a_hub_link_that_no_three_keypoints_show_is_read_from_its_childrens_universal_
     );
 }
 
+/// A random 20-body tree (300 frames, 10 % dropout, seed 6) with a hidden link that carries
+/// one child, which the tree hangs by a multi-DoF joint on another link of the base, and a
+/// hidden hub whose children hang by a universal joint. With `rehang` the child is tried on
+/// the body whose two hinges carry it best (the base, through a link put in), and every joint
+/// is found; without it, not.
+#[test]
+fn a_hidden_links_child_hung_on_a_neighbour_is_moved_onto_it() {
+    let data = simulate(&random_scenario(&RandomParams {
+        n_joints: 19,
+        tree: true,
+        n_frames: 300,
+        dropout: 0.1,
+        seed: 6,
+        ..RandomParams::default()
+    }))
+    .expect("simulate");
+    let model = kinetree_tests::discover_with(&data.tracks, &PipelineConfig::default());
+    let e = evaluate(&model, &data.truth);
+    assert!(e.joints.iter().all(|j| j.found && j.type_ok), "{e:?}");
+    assert!(unseen_link_warnings(&model) >= 2, "{:?}", model.warnings);
+    let mut off = PipelineConfig::default();
+    off.unseen_links.rehang = false;
+    let e = evaluate(
+        &kinetree_tests::discover_with(&data.tracks, &off),
+        &data.truth,
+    );
+    let right = e.joints.iter().filter(|j| j.found && j.type_ok).count();
+    assert!(
+        right < e.joints.len(),
+        "every joint right without rehanging: {e:?}"
+    );
+}
+
 #[test]
 fn a_buried_link_without_keypoints_is_put_in() {
     for seed in 0..4u64 {

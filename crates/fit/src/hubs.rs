@@ -430,7 +430,6 @@ pub(crate) fn adopt_children(
     if !limits.rehang {
         return Ok(state);
     }
-    let sigma = model.noise.sigma_m;
     let doubtful: Vec<(usize, usize)> = model
         .joints
         .iter()
@@ -451,52 +450,109 @@ pub(crate) fn adopt_children(
         if subtree(model, child).get(hub).copied().unwrap_or(true) {
             continue;
         }
-        let fits = state.fits();
-        let poses: Vec<Option<Isometry3<f64>>> = fits
-            .iter()
-            .map(|f| f.poses.get(child).copied().flatten())
-            .collect();
-        let Some(probe) = centroid(model, child) else {
-            continue;
-        };
         let mut allowed = vec![false; model.bodies.len()];
         allowed[hub] = true;
-        let Some((_, fit)) = best_parent(
-            fits,
-            &poses,
-            &allowed,
-            &[probe],
-            limits.min_frames,
-            limits.max_start_rms_in_sigma * sigma,
-        ) else {
-            continue;
-        };
-        let Some(cam_hub) = fits
-            .get(fit.reference_frame)
-            .and_then(|f| f.poses.get(hub).copied().flatten())
-        else {
-            continue;
-        };
-        let mut trial = model.clone();
-        let joint = new_joint(
-            &trial.joints[k],
-            (hub, child),
-            &fit.params,
-            fit.reference_frame,
-            &cam_hub,
-        );
-        trial.joints[k] = joint;
-        trial.bodies[child].parent = Some(hub);
-        trial.chain = None;
-        forget_joint_warnings(&mut trial, parent, child);
-        if let Some(kept) = followed(&mut trial, tracks, &[k], limits)? {
-            *model = trial;
+        if let Some(kept) = try_rehang(model, k, &allowed, tracks, &state, limits)? {
             state = kept;
         }
     }
     Ok(state)
 }
 
+/// Moves the child of each multi-DoF joint of `model` onto the body, outside its subtree,
+/// against which the whole-tree fit moves it by one hinge or slide, when the fit follows it
+/// there (unless `limits.rehang` is off): the pair tests judged the child from poses of its
+/// own, which may have been too poor to find that joint.
+pub(crate) fn rehang_multi_dof(
+    model: &mut Model,
+    tracks: &Tracks,
+    mut state: FitState,
+    limits: &UnseenLinkLimits,
+) -> Result<FitState> {
+    if !limits.rehang {
+        return Ok(state);
+    }
+    let multi: Vec<(usize, usize)> = model
+        .joints
+        .iter()
+        .filter(|j| j.joint_type == JointType::MultiDof)
+        .map(|j| (j.parent, j.child))
+        .collect();
+    for (parent, child) in multi {
+        let Some(k) = model
+            .joints
+            .iter()
+            .position(|j| j.parent == parent && j.child == child)
+        else {
+            continue;
+        };
+        let mut allowed: Vec<bool> = subtree(model, child).iter().map(|b| !b).collect();
+        allowed[parent] = false;
+        if let Some(kept) = try_rehang(model, k, &allowed, tracks, &state, limits)? {
+            state = kept;
+        }
+    }
+    Ok(state)
+}
+
+/// Joint `k`'s child hung on the best of the `allowed` bodies by one hinge or slide fitted to
+/// its motion in `state`'s fit (its placed keypoints the probes); `model` keeps it and the fit
+/// is returned when the fit follows it.
+fn try_rehang(
+    model: &mut Model,
+    k: usize,
+    allowed: &[bool],
+    tracks: &Tracks,
+    state: &FitState,
+    limits: &UnseenLinkLimits,
+) -> Result<Option<FitState>> {
+    let sigma = model.noise.sigma_m;
+    let (parent, child) = (model.joints[k].parent, model.joints[k].child);
+    let fits = state.fits();
+    let poses: Vec<Option<Isometry3<f64>>> = fits
+        .iter()
+        .map(|f| f.poses.get(child).copied().flatten())
+        .collect();
+    let probes: Vec<Point3<f64>> = model.bodies[child]
+        .shape
+        .iter()
+        .flatten()
+        .map(|s| Point3::from(Vector3::from(*s)))
+        .collect();
+    let Some((to, fit)) = best_parent(
+        fits,
+        &poses,
+        allowed,
+        &probes,
+        limits.min_frames,
+        limits.max_start_rms_in_sigma * sigma,
+    ) else {
+        return Ok(None);
+    };
+    let Some(cam_to) = fits
+        .get(fit.reference_frame)
+        .and_then(|f| f.poses.get(to).copied().flatten())
+    else {
+        return Ok(None);
+    };
+    let mut trial = model.clone();
+    let joint = new_joint(
+        &trial.joints[k],
+        (to, child),
+        &fit.params,
+        fit.reference_frame,
+        &cam_to,
+    );
+    trial.joints[k] = joint;
+    trial.bodies[child].parent = Some(to);
+    trial.chain = None;
+    forget_joint_warnings(&mut trial, parent, child);
+    let kept = followed(&mut trial, tracks, &[k], limits)?;
+    if kept.is_some() {
+        *model = trial;
+    }
+    Ok(kept)
+}
 #[cfg(test)]
 mod tests {
     use super::*;

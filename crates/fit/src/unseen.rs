@@ -15,7 +15,7 @@
 //! translations, `(I - R_1) p_1 + R_1 (I - R_2) p_2`, by linear least squares.
 
 use crate::bundle::BundleLimits;
-use crate::hubs::adopt_children;
+use crate::hubs::{adopt_children, rehang_multi_dof};
 use crate::motions::{FittedMotions, in_body_frame};
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
@@ -56,7 +56,8 @@ pub struct UnseenLinkLimits {
     /// true): a multi-DoF joint that is not two hinges is tried with its child on the other
     /// body whose two hinges carry it best, and once a link is put in, each body hung by a
     /// multi-DoF or universal joint, or one the fit does not follow, is tried on it by one
-    /// hinge or slide.
+    /// hinge or slide; last, the child of every multi-DoF joint left is tried on the body
+    /// the fit moves it against by one hinge or slide.
     pub rehang: bool,
     /// The bundle adjustment of each candidate.
     pub bundle: BundleLimits,
@@ -150,6 +151,7 @@ pub fn unseen_links(
             state = adopt_children(model, link, tracks, kept, limits)?;
         }
     }
+    rehang_multi_dof(model, tracks, state, limits)?;
     Ok(added)
 }
 

@@ -43,8 +43,9 @@ pub struct UnseenLinksParams {
     pub hubs: bool,
     /// Whether the children of a hidden link that the tree hung elsewhere are moved (default
     /// true): a multi-DoF joint that is not two hinges is tried with its child on the other
-    /// body whose two hinges carry its keypoints best, and the bodies hung by doubtful joints
-    /// are tried on each link put in by one hinge or slide.
+    /// body whose two hinges carry its keypoints best, the bodies hung by doubtful joints are
+    /// tried on each link put in by one hinge or slide, and the children of the multi-DoF
+    /// joints left on the body the fit moves them against by one hinge or slide.
     pub rehang: bool,
 }
 
@@ -127,6 +128,10 @@ pub(crate) fn put_unseen_links(
         return Ok(());
     }
     let limits = pipeline.unseen_links.limits();
+    let tree = |m: &Model| -> Vec<(usize, usize)> {
+        m.joints.iter().map(|j| (j.parent, j.child)).collect()
+    };
+    let before = tree(model);
     // Links read from universal joints first: a hub's children, each taken alone, would each
     // get a link of their own between two hinges.
     let mut added = if pipeline.unseen_links.hubs {
@@ -135,7 +140,8 @@ pub(crate) fn put_unseen_links(
         Vec::new()
     };
     added.extend(kinetree_fit::unseen_links(model, tracks, &limits)?);
-    if added.is_empty() {
+    // `rehang` moves children without putting a link in.
+    if added.is_empty() && tree(model) == before {
         return Ok(());
     }
     let state = kinetree_fit::FitState::new(model, tracks)?;
