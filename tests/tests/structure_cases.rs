@@ -518,8 +518,10 @@ fn a_near_tied_parent_is_chosen_by_the_whole_tree_fit() {
 /// Mechanisms sweep, 5-joint revolute tree, seed 14: the hub link carrying three children
 /// never shows three keypoints at once (two, keypoints 11 and 15), so it has no pose and
 /// its children looked multi-DoF on the base. Posed through its hinge (on the camera: the
-/// base is static), it takes its place in the tree and every joint is found; without the
-/// hinge and ball steps they are not.
+/// base is static), it takes its place in the tree and every joint is found. Without the
+/// hinge and ball steps, the link is read from two children's universal joint and its third
+/// child moved onto it (`[pipeline.unseen_links] hubs` and `rehang`); without those too, the
+/// joints are not found.
 #[test]
 fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
     let data = kinetree_tests::revolute_tree(5, 14);
@@ -529,10 +531,21 @@ fn a_hub_link_seen_two_keypoints_at_a_time_gets_its_joints() {
         w,
         kinetree_core::Warning::BodyPosedThroughHinge { points, .. } if points == &[11, 15]
     )));
-    let (_, without) = discover_hinged(&data, false);
+    let (model, read) = discover_hinged(&data, false);
+    assert!(read.joints_exact, "{:?}", read.joints);
+    assert!(kinetree_tests::warned(&model, |w| matches!(
+        w,
+        kinetree_core::Warning::UnseenLink { offset_m, .. } if *offset_m == 0.0
+    )));
+    let mut cfg = PipelineConfig::default()
+        .with_hinges(false)
+        .with_balls(false);
+    cfg.unseen_links.hubs = false;
+    cfg.unseen_links.rehang = false;
+    let without = kinetree_tests::discover_with(&data.tracks, &cfg);
     assert!(
-        !without.joints_exact,
-        "found without the hinge and ball steps"
+        !evaluate(&without, &data.truth).joints_exact,
+        "found without the hinge, ball and hub steps"
     );
 }
 

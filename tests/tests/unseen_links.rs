@@ -53,6 +53,27 @@ fn unseen_link_warnings(model: &Model) -> usize {
         .count()
 }
 
+/// A random tree of 20 links (19 joints, 300 frames, 10 % dropout on top of the links hiding
+/// about two thirds of the observations).
+fn big_tree(seed: u64) -> SynthData {
+    simulate(&random_scenario(&RandomParams {
+        n_joints: 19,
+        tree: true,
+        n_frames: 300,
+        dropout: 0.1,
+        seed,
+        ..RandomParams::default()
+    }))
+    .expect("simulate")
+}
+
+/// How many of the true joints `model` has right (the right bodies and type), of how many.
+fn joints_right(model: &Model, data: &SynthData) -> (usize, usize) {
+    let e = evaluate(model, &data.truth);
+    let right = e.joints.iter().filter(|j| j.found && j.type_ok).count();
+    (right, e.joints.len())
+}
+
 #[test]
 fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
     let seeds = [0u64, 1, 2, 3];
@@ -99,15 +120,7 @@ fn a_link_seen_in_a_tenth_of_the_frames_is_put_between_its_hinges() {
 /// off (`peel_below_frames`), poses the link through its hinge, and every joint is found.
 #[test]
 fn a_hub_link_seen_by_three_keypoints_in_few_frames_is_posed_through_its_hinge() {
-    let data = simulate(&random_scenario(&RandomParams {
-        n_joints: 19,
-        tree: true,
-        n_frames: 300,
-        dropout: 0.1,
-        seed: 0,
-        ..RandomParams::default()
-    }))
-    .expect("simulate");
+    let data = big_tree(0);
     let model = kinetree_tests::discover_with(&data.tracks, &PipelineConfig::default());
     let e = evaluate(&model, &data.truth);
     assert_eq!(e.n_bodies_found, 20, "{e:?}");
@@ -130,32 +143,17 @@ fn a_hub_link_seen_by_three_keypoints_in_few_frames_is_posed_through_its_hinge()
 /// found; without it three are not.
 #[test]
 fn a_hub_link_that_no_three_keypoints_show_is_read_from_its_childrens_universal_joint() {
-    let data = simulate(&random_scenario(&RandomParams {
-        n_joints: 19,
-        tree: true,
-        n_frames: 300,
-        dropout: 0.1,
-        seed: 1,
-        ..RandomParams::default()
-    }))
-    .expect("simulate");
+    let data = big_tree(1);
     let model = kinetree_tests::discover_with(&data.tracks, &PipelineConfig::default());
-    let e = evaluate(&model, &data.truth);
-    assert!(e.joints.iter().all(|j| j.found && j.type_ok), "{e:?}");
+    let (right, all) = joints_right(&model, &data);
+    assert_eq!(right, all, "joints right");
     let (hub, _) = unseen_link(&model).expect("a link put in");
     let children = model.joints.iter().filter(|j| j.parent == hub).count();
     assert!(children >= 2, "the link carries {children} bodies");
     let mut off = PipelineConfig::default();
     off.unseen_links.hubs = false;
-    let e = evaluate(
-        &kinetree_tests::discover_with(&data.tracks, &off),
-        &data.truth,
-    );
-    let right = e.joints.iter().filter(|j| j.found && j.type_ok).count();
-    assert!(
-        right < e.joints.len(),
-        "every joint right without the hubs: {e:?}"
-    );
+    let (right, all) = joints_right(&kinetree_tests::discover_with(&data.tracks, &off), &data);
+    assert!(right < all, "every joint right without the hubs");
 }
 
 /// A random 20-body tree (300 frames, 10 % dropout, seed 6) with a hidden link that carries
@@ -165,30 +163,15 @@ fn a_hub_link_that_no_three_keypoints_show_is_read_from_its_childrens_universal_
 /// is found; without it, not.
 #[test]
 fn a_hidden_links_child_hung_on_a_neighbour_is_moved_onto_it() {
-    let data = simulate(&random_scenario(&RandomParams {
-        n_joints: 19,
-        tree: true,
-        n_frames: 300,
-        dropout: 0.1,
-        seed: 6,
-        ..RandomParams::default()
-    }))
-    .expect("simulate");
+    let data = big_tree(6);
     let model = kinetree_tests::discover_with(&data.tracks, &PipelineConfig::default());
-    let e = evaluate(&model, &data.truth);
-    assert!(e.joints.iter().all(|j| j.found && j.type_ok), "{e:?}");
+    let (right, all) = joints_right(&model, &data);
+    assert_eq!(right, all, "joints right");
     assert!(unseen_link_warnings(&model) >= 2, "{:?}", model.warnings);
     let mut off = PipelineConfig::default();
     off.unseen_links.rehang = false;
-    let e = evaluate(
-        &kinetree_tests::discover_with(&data.tracks, &off),
-        &data.truth,
-    );
-    let right = e.joints.iter().filter(|j| j.found && j.type_ok).count();
-    assert!(
-        right < e.joints.len(),
-        "every joint right without rehanging: {e:?}"
-    );
+    let (right, all) = joints_right(&kinetree_tests::discover_with(&data.tracks, &off), &data);
+    assert!(right < all, "every joint right without rehanging");
 }
 
 #[test]

@@ -12,7 +12,7 @@
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
 use crate::solver::{FrameFit, Measure, Observer};
-use crate::unseen::{UnseenLinkLimits, give_points, subtree, turn_about};
+use crate::unseen::{UnseenLinkLimits, give_points, joint_between, subtree, turn_about};
 use kinetree_core::geom::angle_about;
 use kinetree_core::model::{Body, JointFit, JointType};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, Vector3};
@@ -45,9 +45,9 @@ pub fn unseen_hubs(
     }
     let mut state = FitState::new(model, tracks)?;
     for (parent, child) in crosses {
-        let Some(k) = model.joints.iter().position(|j| {
-            j.parent == parent && j.child == child && j.joint_type == JointType::Universal
-        }) else {
+        let Some(k) = joint_between(model, parent, child)
+            .filter(|&k| model.joints[k].joint_type == JointType::Universal)
+        else {
             continue;
         };
         let mut trial = model.clone();
@@ -424,39 +424,22 @@ pub(crate) fn adopt_children(
     model: &mut Model,
     hub: usize,
     tracks: &Tracks,
-    mut state: FitState,
+    state: FitState,
     limits: &UnseenLinkLimits,
 ) -> Result<FitState> {
-    if !limits.rehang {
-        return Ok(state);
-    }
-    let doubtful: Vec<(usize, usize)> = model
-        .joints
-        .iter()
-        .filter(|j| {
-            matches!(j.joint_type, JointType::MultiDof | JointType::Universal)
-                || j.fit == JointFit::Freed
+    let doubtful = |j: &kinetree_core::model::Joint| {
+        matches!(j.joint_type, JointType::MultiDof | JointType::Universal)
+            || j.fit == JointFit::Freed
+    };
+    let onto_hub = |m: &Model, _: usize, child: usize| {
+        let below = subtree(m, child);
+        (!below.get(hub).copied().unwrap_or(true)).then(|| {
+            let mut allowed = vec![false; m.bodies.len()];
+            allowed[hub] = true;
+            allowed
         })
-        .map(|j| (j.parent, j.child))
-        .collect();
-    for (parent, child) in doubtful {
-        let Some(k) = model
-            .joints
-            .iter()
-            .position(|j| j.parent == parent && j.child == child)
-        else {
-            continue;
-        };
-        if subtree(model, child).get(hub).copied().unwrap_or(true) {
-            continue;
-        }
-        let mut allowed = vec![false; model.bodies.len()];
-        allowed[hub] = true;
-        if let Some(kept) = try_rehang(model, k, &allowed, tracks, &state, limits)? {
-            state = kept;
-        }
-    }
-    Ok(state)
+    };
+    rehang_each(model, doubtful, onto_hub, tracks, state, limits)
 }
 
 /// Moves the child of each multi-DoF joint of `model` onto the body, outside its subtree,
@@ -466,28 +449,45 @@ pub(crate) fn adopt_children(
 pub(crate) fn rehang_multi_dof(
     model: &mut Model,
     tracks: &Tracks,
+    state: FitState,
+    limits: &UnseenLinkLimits,
+) -> Result<FitState> {
+    let multi = |j: &kinetree_core::model::Joint| j.joint_type == JointType::MultiDof;
+    let elsewhere = |m: &Model, parent: usize, child: usize| {
+        let mut allowed: Vec<bool> = subtree(m, child).iter().map(|b| !b).collect();
+        allowed[parent] = false;
+        Some(allowed)
+    };
+    rehang_each(model, multi, elsewhere, tracks, state, limits)
+}
+
+/// Each joint of `model` that `which` picks, in order, tried with its child on the bodies
+/// `allowed` names for it (given the model then, the parent and the child; `None` skips it),
+/// by [`try_rehang`] (unless `limits.rehang` is off). Returns the fit of the final model.
+fn rehang_each(
+    model: &mut Model,
+    which: impl Fn(&kinetree_core::model::Joint) -> bool,
+    allowed: impl Fn(&Model, usize, usize) -> Option<Vec<bool>>,
+    tracks: &Tracks,
     mut state: FitState,
     limits: &UnseenLinkLimits,
 ) -> Result<FitState> {
     if !limits.rehang {
         return Ok(state);
     }
-    let multi: Vec<(usize, usize)> = model
+    let edges: Vec<(usize, usize)> = model
         .joints
         .iter()
-        .filter(|j| j.joint_type == JointType::MultiDof)
+        .filter(|j| which(j))
         .map(|j| (j.parent, j.child))
         .collect();
-    for (parent, child) in multi {
-        let Some(k) = model
-            .joints
-            .iter()
-            .position(|j| j.parent == parent && j.child == child)
-        else {
+    for (parent, child) in edges {
+        let Some(k) = joint_between(model, parent, child) else {
             continue;
         };
-        let mut allowed: Vec<bool> = subtree(model, child).iter().map(|b| !b).collect();
-        allowed[parent] = false;
+        let Some(allowed) = allowed(model, parent, child) else {
+            continue;
+        };
         if let Some(kept) = try_rehang(model, k, &allowed, tracks, &state, limits)? {
             state = kept;
         }

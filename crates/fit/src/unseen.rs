@@ -113,11 +113,7 @@ pub fn unseen_links(
     }
     let mut state = FitState::new(model, tracks)?;
     for (parent, child) in pairs {
-        let Some(k) = model
-            .joints
-            .iter()
-            .position(|j| j.parent == parent && j.child == child)
-        else {
+        let Some(k) = joint_between(model, parent, child) else {
             continue;
         };
         let mut trial = model.clone();
@@ -185,6 +181,14 @@ fn other_parent(
         }
     }
     best.map(|(_, b)| b)
+}
+
+/// The index of `model`'s joint from `parent` to `child`, if it has one.
+pub(crate) fn joint_between(model: &Model, parent: usize, child: usize) -> Option<usize> {
+    model
+        .joints
+        .iter()
+        .position(|j| j.parent == parent && j.child == child)
 }
 
 /// Whether each body is `root` or below it in `model`'s tree.
