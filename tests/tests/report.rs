@@ -227,8 +227,9 @@ about two axes through that point and hang on each other by a universal joint. T
 cross moves as the link does, so it is read as the link when it moves against another body
 about one hinge or slide (`hubs`), and the hidden link's other children, hung wherever the
 tree found a multi-DoF edge, are moved onto the links put in (`rehang`; docs/method.md, links
-too little seen to pose). What is left: bodies split between two links, and children hung
-by a single-DoF edge on a wrong parent.
+too little seen to pose). What is left: hubs with a slide among their children (no universal
+joint forms), hubs whose few keypoints were clustered into neighbouring bodies, and children
+hung by a single-DoF edge on a wrong parent.
 
 ### Slender rods (experiments/sweeps/slender.toml)
 

@@ -338,9 +338,7 @@ fn try_hub(
     let mut probes = vec![centre];
     probes.extend(centroid(model, s1));
     probes.extend(centroid(model, s2).map(|c| cross.reference * c));
-    let mut allowed: Vec<bool> = subtree(model, s1).iter().map(|b| !b).collect();
-    allowed.push(false);
-    allowed.truncate(model.bodies.len());
+    let allowed: Vec<bool> = subtree(model, s1).iter().map(|b| !b).collect();
     let Some((parent, fit)) = best_parent(
         fits,
         &hub,
@@ -406,13 +404,12 @@ fn try_hub(
     });
     // The link has no keypoints of its own: its children's keypoints judge its joint too.
     let kept = followed(model, tracks, &[n + 1, n + 2], limits)?;
-    if kept.is_some() {
-        model.bodies[id].frames_registered = kept.as_ref().map_or(0, |s| {
-            s.fits()
-                .iter()
-                .filter(|f| f.poses.get(id).copied().flatten().is_some())
-                .count()
-        });
+    if let Some(state) = &kept {
+        model.bodies[id].frames_registered = state
+            .fits()
+            .iter()
+            .filter(|f| f.poses.get(id).copied().flatten().is_some())
+            .count();
     }
     Ok(kept)
 }

@@ -91,8 +91,12 @@ const AXES_ROUNDS: usize = 40;
 /// that body, in the tree between its parent and child (appended to `model.bodies`), and two
 /// revolute joints in its place, and the keypoints its fitted motion explains clearly best
 /// ([`FittedMotions::points_for_body`]), with an `unseen_link` warning in place of its
-/// `multi_dof_joint` one. Returns the bodies put in. The positions and their precision are
-/// not written: the caller writes them from a fit of the new model.
+/// `multi_dof_joint` one. With [`UnseenLinkLimits::rehang`], a multi-DoF joint that is not
+/// two hinges is tried with its child on the body whose two hinges carry it best, the bodies
+/// hung by doubtful joints are tried on each link put in, and the multi-DoF joints left are
+/// tried on the body the fit moves their child against by one hinge or slide. Returns the
+/// bodies put in. The positions and their precision are not written: the caller writes them
+/// from a fit of the new model.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].
