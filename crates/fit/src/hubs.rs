@@ -12,9 +12,12 @@
 use crate::policy::{FitState, adjust_model, any_above, clear_coordinates, store_joint};
 use crate::refine::JointParams;
 use crate::solver::{FrameFit, Measure, Observer};
-use crate::unseen::{UnseenLinkLimits, give_points, joint_between, subtree, turn_about};
+use crate::unseen::{
+    UnseenLinkLimits, edges, forget_joint_warnings, give_points, joint_between, link_body, subtree,
+    turn_about,
+};
 use kinetree_core::geom::angle_about;
-use kinetree_core::model::{Body, JointFit, JointType};
+use kinetree_core::model::{JointFit, JointType};
 use kinetree_core::nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use kinetree_core::{Model, Result, Tracks, Warning};
 
@@ -33,12 +36,9 @@ pub fn unseen_hubs(
     tracks: &Tracks,
     limits: &UnseenLinkLimits,
 ) -> Result<Vec<usize>> {
-    let crosses: Vec<(usize, usize)> = model
-        .joints
-        .iter()
-        .filter(|j| j.joint_type == JointType::Universal && joint_above(model, j.parent).is_some())
-        .map(|j| (j.parent, j.child))
-        .collect();
+    let crosses = edges(model, |j| {
+        j.joint_type == JointType::Universal && joint_above(model, j.parent).is_some()
+    });
     let mut added = Vec::new();
     if crosses.is_empty() {
         return Ok(added);
@@ -136,10 +136,11 @@ fn one_dof(motions: &[(usize, Isometry3<f64>)], probes: &[Point3<f64>]) -> Optio
         .cholesky()
         .map(|c| Point3::from(c.solve(&(rhs + along * scale.max(f64::MIN_POSITIVE)))));
     let slide = principal(&mut steps.iter().map(|s| s.translation.vector));
-    let miss = |params: &JointParams, q: &dyn Fn(&Isometry3<f64>) -> f64| {
+    // The probes' RMS miss with the joint at `positions`, one a motion.
+    let miss = |params: &JointParams, positions: &[f64]| {
         let mut sum = 0.0;
-        for (_, m) in motions {
-            let predicted = params.transform(q(m));
+        for ((_, m), &q) in motions.iter().zip(positions) {
+            let predicted = params.transform(q);
             for p in probes {
                 sum += (predicted * p - m * p).norm_squared();
             }
@@ -154,9 +155,7 @@ fn one_dof(motions: &[(usize, Isometry3<f64>)], probes: &[Point3<f64>]) -> Optio
             reference: zero,
             revolute: true,
         };
-        let rms_m = miss(&params, &|m: &Isometry3<f64>| {
-            angle_about(&(m * zero.inverse()).rotation, &axis)
-        });
+        let rms_m = miss(&params, &angles);
         best = Some(OneDof {
             params,
             reference_frame,
@@ -169,9 +168,11 @@ fn one_dof(motions: &[(usize, Isometry3<f64>)], probes: &[Point3<f64>]) -> Optio
         reference: zero,
         revolute: false,
     };
-    let rms_m = miss(&params, &|m: &Isometry3<f64>| {
-        slide.dot(&(m.translation.vector - zero.translation.vector))
-    });
+    let shifts: Vec<f64> = motions
+        .iter()
+        .map(|(_, m)| slide.dot(&(m.translation.vector - zero.translation.vector)))
+        .collect();
+    let rms_m = miss(&params, &shifts);
     if best.is_none_or(|b| rms_m < b.rms_m) {
         best = Some(OneDof {
             params,
@@ -268,16 +269,6 @@ fn new_joint(
     j
 }
 
-/// Drops the warnings about the joint from `parent` to `child` that its replacement answers.
-fn forget_joint_warnings(model: &mut Model, parent: usize, child: usize) {
-    model.warnings.retain(|w| {
-        !matches!(w,
-            Warning::MultiDofJoint { parent: p, child: c, .. }
-            | Warning::JointNotFollowed { parent: p, child: c, .. }
-            if *p == parent && *c == child)
-    });
-}
-
 /// Fits `model` (changed) and keeps it when the fit follows every joint: those in `new`
 /// within `limits.max_excess`, the others within `limits.others_max_excess`.
 fn followed(
@@ -358,16 +349,7 @@ fn try_hub(
         return Ok(None);
     };
     let id = model.bodies.len();
-    model.bodies.push(Body {
-        id,
-        points: Vec::new(),
-        is_static: false,
-        parent: Some(parent),
-        frames_registered: 0,
-        median_residual_m: None,
-        shape: Vec::new(),
-        internal_dissimilarity: None,
-    });
+    model.bodies.push(link_body(id, parent));
     model.bodies[s1].parent = Some(id);
     model.bodies[s2].parent = Some(id);
     let template = model.joints[k].clone();
@@ -472,13 +454,7 @@ fn rehang_each(
     if !limits.rehang {
         return Ok(state);
     }
-    let edges: Vec<(usize, usize)> = model
-        .joints
-        .iter()
-        .filter(|j| which(j))
-        .map(|j| (j.parent, j.child))
-        .collect();
-    for (parent, child) in edges {
+    for (parent, child) in edges(model, which) {
         let Some(k) = joint_between(model, parent, child) else {
             continue;
         };

@@ -105,12 +105,9 @@ pub fn unseen_links(
     tracks: &Tracks,
     limits: &UnseenLinkLimits,
 ) -> Result<Vec<usize>> {
-    let pairs: Vec<(usize, usize)> = model
-        .joints
-        .iter()
-        .filter(|j| matches!(j.joint_type, JointType::MultiDof | JointType::Universal))
-        .map(|j| (j.parent, j.child))
-        .collect();
+    let pairs = edges(model, |j| {
+        matches!(j.joint_type, JointType::MultiDof | JointType::Universal)
+    });
     let mut added = Vec::new();
     if pairs.is_empty() {
         return Ok(added);
@@ -141,10 +138,7 @@ pub fn unseen_links(
         trial.bodies[child].parent = Some(other);
         trial.chain = None;
         if let Some(kept) = try_link(&mut trial, k, tracks, state.fits(), limits)? {
-            trial.warnings.retain(|w| {
-                !matches!(w, Warning::MultiDofJoint { parent: p, child: c, .. }
-                    if *p == parent && *c == child)
-            });
+            forget_joint_warnings(&mut trial, parent, child);
             *model = trial;
             let link = model.bodies.len() - 1;
             added.push(link);
@@ -185,6 +179,43 @@ fn other_parent(
         }
     }
     best.map(|(_, b)| b)
+}
+
+/// The `(parent, child)` of each joint of `model` that `which` picks, in joint order.
+pub(crate) fn edges(
+    model: &Model,
+    which: impl Fn(&kinetree_core::model::Joint) -> bool,
+) -> Vec<(usize, usize)> {
+    model
+        .joints
+        .iter()
+        .filter(|j| which(j))
+        .map(|j| (j.parent, j.child))
+        .collect()
+}
+
+/// Drops the warnings about the joint from `parent` to `child` that its replacement answers.
+pub(crate) fn forget_joint_warnings(model: &mut Model, parent: usize, child: usize) {
+    model.warnings.retain(|w| {
+        !matches!(w,
+            Warning::MultiDofJoint { parent: p, child: c, .. }
+            | Warning::JointNotFollowed { parent: p, child: c, .. }
+            if *p == parent && *c == child)
+    });
+}
+
+/// A link put in as body `id` on `parent`: no keypoints yet, never registered on its own.
+pub(crate) fn link_body(id: usize, parent: usize) -> Body {
+    Body {
+        id,
+        points: Vec::new(),
+        is_static: false,
+        parent: Some(parent),
+        frames_registered: 0,
+        median_residual_m: None,
+        shape: Vec::new(),
+        internal_dissimilarity: None,
+    }
 }
 
 /// The index of `model`'s joint from `parent` to `child`, if it has one.
@@ -614,16 +645,7 @@ fn insert_link(
     reference: usize,
 ) {
     let (parent, child) = (model.joints[k].parent, model.joints[k].child);
-    model.bodies.push(Body {
-        id: body,
-        points: Vec::new(),
-        is_static: false,
-        parent: Some(parent),
-        frames_registered: 0,
-        median_residual_m: None,
-        shape: Vec::new(),
-        internal_dissimilarity: None,
-    });
+    model.bodies.push(link_body(body, parent));
     model.bodies[child].parent = Some(body);
     // The warning names the link from the start: the fit holds its frame (its offset and
     // keypoints are written once it is kept).
