@@ -433,6 +433,10 @@ enum Command {
         /// Number of keypoints (the scale scenario; default 1000).
         #[arg(long)]
         points: Option<usize>,
+        /// Soft-tissue artefact of the skeletons, metres: each marker drifts from its place
+        /// by a slow offset of at most this much per coordinate (default 0).
+        #[arg(long, value_name = "M")]
+        soft_tissue: Option<f64>,
     },
 }
 
@@ -842,6 +846,7 @@ fn run_command() -> Result<()> {
             dropout,
             frames,
             points,
+            soft_tissue,
         } => {
             let data = kinetree_pipeline::config::SimulationRequest {
                 mechanism,
@@ -854,6 +859,7 @@ fn run_command() -> Result<()> {
                 dropout,
                 n_frames: frames,
                 n_points: points,
+                soft_tissue_m: soft_tissue,
             }
             .data()
             .map_err(simulate_flag)?;
@@ -886,6 +892,7 @@ fn simulate_flag(e: kinetree_core::Error) -> kinetree_core::Error {
             let flag = match name.as_str() {
                 "data.n_frames" => "--frames",
                 "data.n_points" => "--points",
+                "data.soft_tissue_m" => "--soft-tissue",
                 "data.n_joints" => "--joints",
                 "data.prismatic_fraction" => "--prismatic-fraction",
                 "data.spherical_fraction" => "--spherical-fraction",

@@ -817,3 +817,33 @@ fn dense_tracks_are_discovered_on_a_sample_and_every_point_gets_its_body() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--points"));
 }
+
+#[test]
+fn skeletons_are_simulated_with_soft_tissue_and_other_mechanisms_refuse_it() {
+    let dir = tmp("soft-tissue");
+    let simulate = |name: &str, extra: &[&str]| {
+        kinetree()
+            .args(["simulate", "--mechanism", "skeleton-clinical", "--frames", "40"])
+            .args(extra)
+            .arg("-o")
+            .arg(dir.join(name))
+            .output()
+            .expect("runs")
+    };
+    assert!(simulate("rigid", &[]).status.success());
+    assert!(simulate("skin", &["--soft-tissue", "0.01"]).status.success());
+    let read = |name: &str| std::fs::read(dir.join(name).join("tracks.npy")).expect("tracks");
+    assert_eq!(read("rigid").len(), read("skin").len());
+    assert_ne!(read("rigid"), read("skin"), "the markers drift");
+    // Beyond the skeleton's range, and on a mechanism without skin, the flag is named.
+    let out = simulate("far", &["--soft-tissue", "0.5"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--soft-tissue"));
+    let out = kinetree()
+        .args(["simulate", "--soft-tissue", "0.005", "-o"])
+        .arg(dir.join("arm"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--soft-tissue"));
+}

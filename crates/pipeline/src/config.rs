@@ -443,6 +443,9 @@ pub struct SimulationRequest {
     pub n_frames: Option<usize>,
     /// Number of keypoints of the scale scenario; `None` for its default (1000).
     pub n_points: Option<usize>,
+    /// Skin markers' soft-tissue drift, metres (skeletons; `None` for none):
+    /// [`kinetree_synth::SkeletonParams::soft_tissue_m`].
+    pub soft_tissue_m: Option<f64>,
 }
 
 /// Frames of a random mechanism's simulation when none are asked for.
@@ -453,8 +456,18 @@ impl SimulationRequest {
     ///
     /// # Errors
     /// [`Error::Config`] for an unknown mechanism; [`Error::InvalidParameter`] naming
-    /// `data.n_points` when a mechanism other than `scale` is given a number of keypoints.
+    /// `data.n_points` when a mechanism other than `scale` is given a number of keypoints,
+    /// or `data.soft_tissue_m` when a mechanism other than a skeleton is given soft tissue.
     pub fn data(&self) -> Result<DataConfig> {
+        if self.soft_tissue_m.is_some() && !self.mechanism.starts_with("skeleton") {
+            return Err(Error::InvalidParameter {
+                name: "data.soft_tissue_m".into(),
+                message: format!(
+                    "only the skeletons carry soft tissue, not `{}`",
+                    self.mechanism
+                ),
+            });
+        }
         if self.n_points.is_some() && self.mechanism != "scale" {
             return Err(Error::InvalidParameter {
                 name: "data.n_points".into(),
@@ -496,6 +509,7 @@ impl SimulationRequest {
                         "skeleton-floating" | "skeleton-clinical"
                     ),
                     clinical_markers: self.mechanism == "skeleton-clinical",
+                    soft_tissue_m: self.soft_tissue_m.unwrap_or(0.0),
                     ..kinetree_synth::SkeletonParams::default()
                 })
             }

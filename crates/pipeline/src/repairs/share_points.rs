@@ -10,6 +10,12 @@
 //! cluster must move on the body it shares with (some other point of that
 //! body is not rigid with it): a cluster rigid with a whole body is part of it, which the
 //! attachment handles.
+//!
+//! With soft tissue a segment's own marker near a joint is about as rigid with the
+//! neighbouring segment's markers as with its own, and the clustering can put it there. Such
+//! a point is not rigid with most of its body's points; it joins the unassigned points as a
+//! candidate, alone or paired, and a candidate of one point makes a body with two shared
+//! points or more. A loose point that makes no body is taken off its body all the same.
 
 use super::{count_in_range, in_range, with_new_bodies};
 use kinetree_core::{
@@ -39,6 +45,11 @@ pub struct SharePointsParams {
     /// A body of at most this many points takes the points of other bodies rigid with it as
     /// well (default 3, the fewest a pose needs).
     pub max_own_points: usize,
+    /// A point whose pairs with more than this share of its body's other points are not
+    /// rigid is a candidate too, and leaves its body when it makes one (default 0.5; 1 never).
+    /// With soft tissue a segment's marker near a joint can be clustered with the
+    /// neighbouring segment, which then loses its own pose.
+    pub loose_share: f64,
 }
 
 impl Default for SharePointsParams {
@@ -50,6 +61,7 @@ impl Default for SharePointsParams {
             slack: 1.5,
             min_shared: 2,
             max_own_points: 3,
+            loose_share: 0.5,
         }
     }
 }
@@ -65,7 +77,51 @@ impl SharePointsParams {
         in_range(NAME, "bound_in_std", self.bound_in_std, 0.0, 20.0)?;
         in_range(NAME, "slack", self.slack, 0.1, 100.0)?;
         count_in_range(NAME, "min_shared", self.min_shared, 1, 1_000_000)?;
-        count_in_range(NAME, "max_own_points", self.max_own_points, 0, 1_000_000)
+        count_in_range(NAME, "max_own_points", self.max_own_points, 0, 1_000_000)?;
+        in_range(NAME, "loose_share", self.loose_share, 0.0, 1.0)
+    }
+
+    /// The points of bodies of more than the fewest points a pose needs whose pairs with more
+    /// than `loose_share` of their body's other points (of at least that fewest number seen
+    /// with them) are not rigid, ascending.
+    fn loose(
+        &self,
+        stats: &PairStats,
+        seg: &kinetree_core::Segmentation,
+        sigma: f64,
+    ) -> Vec<usize> {
+        let mut out = Vec::new();
+        for (b, points) in seg.members().into_iter().enumerate() {
+            let own: Vec<usize> = points
+                .into_iter()
+                .filter(|&i| seg.body_of(i) == Some(b))
+                .collect();
+            if own.len() <= MIN_BODY_POINTS {
+                continue;
+            }
+            let mut off = Vec::new();
+            for &p in &own {
+                let seen: Vec<usize> = own
+                    .iter()
+                    .copied()
+                    .filter(|&q| q != p && self.testable(stats, &[p, q]))
+                    .collect();
+                let apart = seen
+                    .iter()
+                    .filter(|&&q| !self.rigid(stats, &[p, q], sigma))
+                    .count();
+                if seen.len() >= MIN_BODY_POINTS
+                    && apart as f64 > self.loose_share * seen.len() as f64
+                {
+                    off.push(p);
+                }
+            }
+            if own.len() - off.len() >= MIN_BODY_POINTS {
+                out.extend(off);
+            }
+        }
+        out.sort_unstable();
+        out
     }
 
     /// Whether every pair of `points` is seen together in at least `min_frames` frames.
@@ -90,7 +146,7 @@ impl SharePointsParams {
         sigma: f64,
         min_shared: usize,
     ) -> Option<Vec<usize>> {
-        if !self.rigid(stats, g, sigma) {
+        if g.len() > 1 && !self.rigid(stats, g, sigma) {
             return None;
         }
         let with_point = |q: usize| {
@@ -169,8 +225,9 @@ impl Repair for SharePoints {
         let assigned: Vec<usize> = (0..tracks.n_points())
             .filter(|&i| seg.body_of(i).is_some() && seen(i))
             .collect();
-        // The candidates: the clusters discarded as too small, then pairs of the other
-        // points on no body (a split leaves such pairs) that are rigid together.
+        // The candidates: the clusters discarded as too small that are rigid, then pairs of
+        // the other points on no body (a split leaves such pairs) that are rigid together,
+        // then those points alone.
         let mut candidates: Vec<Vec<usize>> = seg
             .discarded_groups
             .iter()
@@ -181,18 +238,31 @@ impl Repair for SharePoints {
                     .collect::<Vec<usize>>()
             })
             .filter(|g| !g.is_empty() && g.len() < MIN_BODY_POINTS)
+            .filter(|g| g.len() == 1 || self.params.rigid(ctx.stats, g, sigma))
             .collect();
+        // The loose points of bodies pair with those points, or stand alone.
+        let loose = self.params.loose(ctx.stats, seg, sigma);
         let rest: Vec<usize> = (0..tracks.n_points())
-            .filter(|&i| seg.body_of(i).is_none() && seen(i))
+            .filter(|&i| (seg.body_of(i).is_none() || loose.contains(&i)) && seen(i))
             .filter(|i| !candidates.iter().flatten().any(|j| j == i))
             .collect();
-        candidates.extend(super::rigid_pairs(rest, |a, b| {
+        let paired = super::rigid_pairs(rest.clone(), |a, b| {
             self.params.rigid(ctx.stats, &[a, b], sigma)
-        }));
+        });
+        let alone = rest
+            .iter()
+            .filter(|&&i| !paired.iter().flatten().any(|&j| j == i))
+            .map(|&i| vec![i])
+            .collect::<Vec<_>>();
+        candidates.extend(paired);
+        candidates.extend(alone);
         let mut groups: Vec<Vec<usize>> = Vec::new();
         let mut sharing: Vec<Vec<usize>> = Vec::new();
         for g in candidates {
-            let least = self.params.min_shared;
+            // One point with two shared ones is what any point near a hinge's axis shows
+            // with the neighbour's points near it; a point alone needs one shared point more.
+            let least =
+                self.params.min_shared + usize::from(g.len() == 1 && !loose.contains(&g[0]));
             if let Some(with) = self
                 .params
                 .shared_with(ctx.stats, seg, &assigned, &g, sigma, least)
@@ -221,10 +291,24 @@ impl Repair for SharePoints {
                 grown.push((own, with));
             }
         }
-        if groups.is_empty() && grown.is_empty() {
+        // Loose points in no group and shared with none leave their bodies.
+        let off: Vec<usize> = loose
+            .iter()
+            .copied()
+            .filter(|p| !groups.iter().chain(&sharing).flatten().any(|q| q == p))
+            .filter(|p| !grown.iter().any(|(_, with)| with.contains(p)))
+            .collect();
+        if groups.is_empty() && grown.is_empty() && off.is_empty() {
             return Ok(None);
         }
-        let made = with_new_bodies(seg, &groups);
+        let mut labels = seg.labels().to_vec();
+        for &p in &off {
+            labels[p] = None;
+        }
+        let mut kept =
+            kinetree_core::Segmentation::from_raw(&labels, 1).with_shared_of(seg, &labels);
+        kept.discarded_groups = seg.discarded_groups.clone();
+        let made = with_new_bodies(&kept, &groups);
         let pairs: Vec<(usize, usize)> = groups
             .iter()
             .zip(&sharing)
@@ -238,13 +322,20 @@ impl Repair for SharePoints {
         let mut p = Proposal::new(
             Edit::Segmentation(made.with_shared(&pairs)),
             format!(
-                "{} cluster(s) too small for a pose made bodies, and {} body(ies) of three points grown, with {} point(s) of other bodies rigid with them",
+                "{} group(s) too small for a pose made bodies, and {} body(ies) of three points grown, with {} point(s) of other bodies rigid with them; {} point(s) not rigid with their body left on none",
                 groups.len(),
                 grown.len(),
-                pairs.len()
+                pairs.len(),
+                off.len()
             ),
         );
-        p.points = groups.iter().chain(&sharing).flatten().copied().collect();
+        p.points = groups
+            .iter()
+            .chain(&sharing)
+            .flatten()
+            .chain(&off)
+            .copied()
+            .collect();
         p.points.sort_unstable();
         p.points.dedup();
         for (g, with) in groups.into_iter().zip(sharing).chain(grown) {
@@ -252,6 +343,9 @@ impl Repair for SharePoints {
                 points: with,
                 body: g,
             });
+        }
+        if !off.is_empty() {
+            p.warnings.push(Warning::PointsNotRigid { points: off });
         }
         Ok(Some(p))
     }
