@@ -823,7 +823,13 @@ fn skeletons_are_simulated_with_soft_tissue_and_other_mechanisms_refuse_it() {
     let dir = tmp("soft-tissue");
     let simulate = |name: &str, extra: &[&str]| {
         kinetree()
-            .args(["simulate", "--mechanism", "skeleton-clinical", "--frames", "40"])
+            .args([
+                "simulate",
+                "--mechanism",
+                "skeleton-clinical",
+                "--frames",
+                "40",
+            ])
             .args(extra)
             .arg("-o")
             .arg(dir.join(name))
@@ -831,7 +837,11 @@ fn skeletons_are_simulated_with_soft_tissue_and_other_mechanisms_refuse_it() {
             .expect("runs")
     };
     assert!(simulate("rigid", &[]).status.success());
-    assert!(simulate("skin", &["--soft-tissue", "0.01"]).status.success());
+    assert!(
+        simulate("skin", &["--soft-tissue", "0.01"])
+            .status
+            .success()
+    );
     let read = |name: &str| std::fs::read(dir.join(name).join("tracks.npy")).expect("tracks");
     assert_eq!(read("rigid").len(), read("skin").len());
     assert_ne!(read("rigid"), read("skin"), "the markers drift");
