@@ -525,6 +525,7 @@ def simulate(
     dropout: float = 0.0,
     frames: Optional[int] = None,
     points: Optional[int] = None,
+    soft_tissue: Optional[float] = None,
 ) -> Tuple[np.ndarray, Optional[Dict[str, Any]]]:
     """Simulates tracks of a mechanism, as ``kinetree simulate`` does.
 
@@ -548,6 +549,8 @@ def simulate(
         dropout: Extra random occlusion fraction.
         frames: Number of frames (default 100 for the paper arm, 200 for random ones).
         points: Number of keypoints of ``"scale"`` (default 1000).
+        soft_tissue: For the skeletons: each marker drifts from its place by a slow offset
+            of at most this many metres per coordinate (default none).
 
     Returns:
         ``(tracks, truth)``: the ``(T, N, 3)`` tracks, NaN where hidden, and the ground truth
@@ -564,6 +567,7 @@ def simulate(
         dropout=dropout,
         frames=frames,
         points=points,
+        soft_tissue=soft_tissue,
     )
     return tracks, None if truth is None else json.loads(truth)
 

@@ -47,6 +47,7 @@ def simulate(
     dropout: float = 0.0,
     frames: Optional[int] = None,
     points: Optional[int] = None,
+    soft_tissue: Optional[float] = None,
 ) -> Tuple[npt.NDArray[np.float64], Optional[str]]: ...
 def read_tracks(
     path: str,

@@ -292,7 +292,7 @@ fn observe<'py>(
 
 /// Simulates a mechanism; returns the tracks (T, N, 3) and the truth JSON.
 #[pyfunction]
-#[pyo3(signature = (mechanism="paper-arm", seed=0, joints=3, tree=false, prismatic_fraction=0.3, spherical_fraction=0.0, noise_sigma=0.001, dropout=0.0, frames=None, points=None))]
+#[pyo3(signature = (mechanism="paper-arm", seed=0, joints=3, tree=false, prismatic_fraction=0.3, spherical_fraction=0.0, noise_sigma=0.001, dropout=0.0, frames=None, points=None, soft_tissue=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -306,6 +306,7 @@ fn simulate<'py>(
     dropout: f64,
     frames: Option<usize>,
     points: Option<usize>,
+    soft_tissue: Option<f64>,
 ) -> PyResult<(Bound<'py, PyAny>, Option<String>)> {
     let data = kinetree_pipeline::config::SimulationRequest {
         mechanism: mechanism.to_string(),
@@ -318,6 +319,7 @@ fn simulate<'py>(
         dropout,
         n_frames: frames,
         n_points: points,
+        soft_tissue_m: soft_tissue,
     }
     .data()
     .map_err(to_py)?;

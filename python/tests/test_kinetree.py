@@ -49,6 +49,11 @@ def test_simulate_gives_tracks_and_truth(arm):
     assert dense.shape == (20, 120, 3)
     with pytest.raises(kinetree.ConfigError, match="n_points"):
         kinetree.simulate("paper-arm", points=120)
+    rigid, _ = kinetree.simulate("skeleton-clinical", frames=30)
+    skin, _ = kinetree.simulate("skeleton-clinical", frames=30, soft_tissue=0.01)
+    assert rigid.shape == skin.shape and not np.allclose(rigid, skin, equal_nan=True)
+    with pytest.raises(kinetree.ConfigError, match="soft_tissue"):
+        kinetree.simulate("paper-arm", soft_tissue=0.005)
 
 
 def test_discover_finds_the_paper_arm(arm):

@@ -275,8 +275,8 @@ neighbouring segment's markers as with its own, and the clustering can put it th
 marker not rigid with most of its body is a candidate of `share_points` too, alone or with
 another, and makes its segment with the markers on the joint's axis (`loose_share`,
 docs/method.md). At 5 mm 13-15 segments are found and 92 % of the joints are right, the
-worst centre 9.2 mm against SCoRE's 13.1 mm on the true segmentation; at 10 mm 11-14
-segments, 67 % of the joints, and 23.9 mm against 24.4 mm.
+worst centre 9.3 mm against SCoRE's 13.1 mm on the true segmentation; at 10 mm 11-14
+segments, 63 % of the joints, and 21.1 mm against 24.4 mm.
 
 ### A subject and a static scene (experiments/sweeps/scene.toml)
 
@@ -297,10 +297,7 @@ noise estimate from each marker's most rigid partners, the distance std-dev as d
 and a 3 mm / 0.02 rad model error in the DoF test (experiments/real/README.md says why).
 
 {real}
-The segments come out where the marker labels put them (ARI 1 on three recordings). On the
-tennis serve the left thigh's two markers make a body of their own, and three markers that
-move on the skin against most of their segment's others (T10, LELB, RFRM) are left on no
-body with a `points_not_rigid` warning, which the ARI counts against it. The
+The segments come out where the marker labels put them (ARI 1 on four recordings); the
 wheelchair's wheel is a revolute joint over 42 rad relative to the chair. Human joints come
 out spherical where a centre fixed in both segments explains their motion within the model
 error (6 of the wheelchair racer's joints, 3 of the sprinter's, 2 of the tennis player's),
@@ -323,7 +320,7 @@ error absorbed.
 - Soft or compliant bodies with the default settings, which assume a single noise level.
 - Skin markers that drift: at 5 mm of soft-tissue drift the clinical skeletons lose up to
   two of 15 segments and 8 % of their joints, and the worst centre is off by 9 mm (median);
-  at 10 mm a third of the joints are lost.
+  at 10 mm more than a third of the joints are lost.
 - Dense keypoints on bodies' surfaces that turn in and out of the camera's view (random
   trees with 258 keypoints a body, 200 frames, 15 % occlusion, noise estimated; a third of
   the keypoints are never seen, the others in half the frames on average): on the default

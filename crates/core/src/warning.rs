@@ -105,15 +105,6 @@ pub enum Warning {
         /// The group's own points.
         body: Vec<usize>,
     },
-    /// Points whose distances to most of their body's other points vary by more than the
-    /// noise allows (`[pipeline.repairs.share_points] loose_share`): a loose marker, or one
-    /// on soft tissue that moves on the neighbouring segment. They were taken off the body
-    /// and left on none; those that made a body with points of other bodies are named by a
-    /// [`Warning::PointsShared`] instead.
-    PointsNotRigid {
-        /// The points.
-        points: Vec<usize>,
-    },
     /// Points of a body posed through a hinge that do not turn with it: left out, each lowered
     /// the hinge's `chi^2` by far more than its own degrees of freedom allow. They were left on
     /// no body and the body posed again.
@@ -322,7 +313,6 @@ impl Warning {
             }
             Warning::ClusterDiscarded { points }
             | Warning::PointsUnassigned { points }
-            | Warning::PointsNotRigid { points }
             | Warning::PointsMakingJointsMultiDof { points }
             | Warning::BodyDropped { points, .. }
             | Warning::TracksSampled {
@@ -353,7 +343,6 @@ impl Warning {
             | Warning::PointsAttached { points }
             | Warning::PointsOffHinge { points }
             | Warning::PointsUnassigned { points }
-            | Warning::PointsNotRigid { points }
             | Warning::PointsMakingJointsMultiDof { points }
             | Warning::PointsReassigned { points }
             | Warning::UnseenLink { points, .. }
@@ -475,10 +464,6 @@ impl std::fmt::Display for Warning {
             Warning::PointsUnassigned { points } => write!(
                 f,
                 "point(s) {points:?} fitted their body's motion far worse than the noise and its other points allow, and no other body's; they were left on no body"
-            ),
-            Warning::PointsNotRigid { points } => write!(
-                f,
-                "point(s) {points:?} were not rigid with most of their body's other points (their distances varied beyond the noise) and were left on no body"
             ),
             Warning::PointsReassigned { points } => write!(
                 f,

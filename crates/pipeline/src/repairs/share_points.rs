@@ -14,8 +14,11 @@
 //! With soft tissue a segment's own marker near a joint is about as rigid with the
 //! neighbouring segment's markers as with its own, and the clustering can put it there. Such
 //! a point is not rigid with most of its body's points; it joins the unassigned points as a
-//! candidate, alone or paired, and a candidate of one point makes a body with two shared
-//! points or more. A loose point that makes no body is taken off its body all the same.
+//! candidate, alone or paired. A candidate of one point that is not such a loose point needs
+//! a shared point more than `min_shared`: one point and two shared ones are what any point
+//! near a hinge's axis shows with its neighbour's points there. A loose point that makes no
+//! body stays on its body: the repairs after the model (`eject_points`, `joint_spoilers`)
+//! judge it against the fitted motions.
 
 use super::{count_in_range, in_range, with_new_bodies};
 use kinetree_core::{
@@ -46,9 +49,9 @@ pub struct SharePointsParams {
     /// well (default 3, the fewest a pose needs).
     pub max_own_points: usize,
     /// A point whose pairs with more than this share of its body's other points are not
-    /// rigid is a candidate too, and leaves its body when it makes one (default 0.5; 1 never).
-    /// With soft tissue a segment's marker near a joint can be clustered with the
-    /// neighbouring segment, which then loses its own pose.
+    /// rigid is a candidate too, and leaves its body when it makes one (default 0.5; 1 never;
+    /// `docs/decisions.md`). With soft tissue a segment's marker near a joint can be clustered
+    /// with the neighbouring segment, which then loses its own pose.
     pub loose_share: f64,
 }
 
@@ -222,8 +225,11 @@ impl Repair for SharePoints {
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
         let (tracks, sigma, seg) = (ctx.tracks, ctx.noise_sigma_m, &draft.segmentation);
         let seen = |i: usize| tracks.visible_count(i) >= self.params.min_frames;
+        // A loose point is no shared point: the points of two links clustered as one are
+        // each other's loose points, and the split separates them.
+        let loose = self.params.loose(ctx.stats, seg, sigma);
         let assigned: Vec<usize> = (0..tracks.n_points())
-            .filter(|&i| seg.body_of(i).is_some() && seen(i))
+            .filter(|&i| seg.body_of(i).is_some() && seen(i) && !loose.contains(&i))
             .collect();
         // The candidates: the clusters discarded as too small that are rigid, then pairs of
         // the other points on no body (a split leaves such pairs) that are rigid together,
@@ -241,7 +247,6 @@ impl Repair for SharePoints {
             .filter(|g| g.len() == 1 || self.params.rigid(ctx.stats, g, sigma))
             .collect();
         // The loose points of bodies pair with those points, or stand alone.
-        let loose = self.params.loose(ctx.stats, seg, sigma);
         let rest: Vec<usize> = (0..tracks.n_points())
             .filter(|&i| (seg.body_of(i).is_none() || loose.contains(&i)) && seen(i))
             .filter(|i| !candidates.iter().flatten().any(|j| j == i))
@@ -291,24 +296,10 @@ impl Repair for SharePoints {
                 grown.push((own, with));
             }
         }
-        // Loose points in no group and shared with none leave their bodies.
-        let off: Vec<usize> = loose
-            .iter()
-            .copied()
-            .filter(|p| !groups.iter().chain(&sharing).flatten().any(|q| q == p))
-            .filter(|p| !grown.iter().any(|(_, with)| with.contains(p)))
-            .collect();
-        if groups.is_empty() && grown.is_empty() && off.is_empty() {
+        if groups.is_empty() && grown.is_empty() {
             return Ok(None);
         }
-        let mut labels = seg.labels().to_vec();
-        for &p in &off {
-            labels[p] = None;
-        }
-        let mut kept =
-            kinetree_core::Segmentation::from_raw(&labels, 1).with_shared_of(seg, &labels);
-        kept.discarded_groups = seg.discarded_groups.clone();
-        let made = with_new_bodies(&kept, &groups);
+        let made = with_new_bodies(seg, &groups);
         let pairs: Vec<(usize, usize)> = groups
             .iter()
             .zip(&sharing)
@@ -322,20 +313,13 @@ impl Repair for SharePoints {
         let mut p = Proposal::new(
             Edit::Segmentation(made.with_shared(&pairs)),
             format!(
-                "{} group(s) too small for a pose made bodies, and {} body(ies) of three points grown, with {} point(s) of other bodies rigid with them; {} point(s) not rigid with their body left on none",
+                "{} group(s) too small for a pose made bodies, and {} body(ies) of three points grown, with {} point(s) of other bodies rigid with them",
                 groups.len(),
                 grown.len(),
-                pairs.len(),
-                off.len()
+                pairs.len()
             ),
         );
-        p.points = groups
-            .iter()
-            .chain(&sharing)
-            .flatten()
-            .chain(&off)
-            .copied()
-            .collect();
+        p.points = groups.iter().chain(&sharing).flatten().copied().collect();
         p.points.sort_unstable();
         p.points.dedup();
         for (g, with) in groups.into_iter().zip(sharing).chain(grown) {
@@ -343,9 +327,6 @@ impl Repair for SharePoints {
                 points: with,
                 body: g,
             });
-        }
-        if !off.is_empty() {
-            p.warnings.push(Warning::PointsNotRigid { points: off });
         }
         Ok(Some(p))
     }
