@@ -809,13 +809,24 @@ fn dense_tracks_are_discovered_on_a_sample_and_every_point_gets_its_body() {
     let on_bodies = point_body.iter().filter(|b| b.as_i64() >= Some(0)).count();
     assert!(on_bodies >= 1190, "{on_bodies} of 1200 points on bodies");
     // Only the scale scenario takes a number of keypoints.
+    simulate_refused(&dir, &["--points", "50"], "--points");
+}
+
+/// Asserts that `kinetree simulate` with `args` fails and names `flag`.
+fn simulate_refused(dir: &std::path::Path, args: &[&str], flag: &str) {
     let out = kinetree()
-        .args(["simulate", "--points", "50", "-o"])
-        .arg(dir.join("arm"))
+        .arg("simulate")
+        .args(args)
+        .arg("-o")
+        .arg(dir.join("refused"))
         .output()
         .expect("runs");
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--points"));
+    assert!(!out.status.success(), "{args:?} accepted");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(flag),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
@@ -846,14 +857,7 @@ fn skeletons_are_simulated_with_soft_tissue_and_other_mechanisms_refuse_it() {
     assert_eq!(read("rigid").len(), read("skin").len());
     assert_ne!(read("rigid"), read("skin"), "the markers drift");
     // Beyond the skeleton's range, and on a mechanism without skin, the flag is named.
-    let out = simulate("far", &["--soft-tissue", "0.5"]);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--soft-tissue"));
-    let out = kinetree()
-        .args(["simulate", "--soft-tissue", "0.005", "-o"])
-        .arg(dir.join("arm"))
-        .output()
-        .expect("runs");
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--soft-tissue"));
+    let far = ["--mechanism", "skeleton-clinical", "--soft-tissue", "0.5"];
+    simulate_refused(&dir, &far, "--soft-tissue");
+    simulate_refused(&dir, &["--soft-tissue", "0.005"], "--soft-tissue");
 }
