@@ -95,10 +95,10 @@ pub enum Warning {
         frames: usize,
     },
     /// Points of other bodies rigid with a group of points were given to it as well
-    /// (`[pipeline.repairs.share_points]`): the group was a cluster too small for a pose,
-    /// which became a body with them, or a body of the fewest points a pose needs. They are
-    /// markers on a joint's axis, which now belong to both bodies (the model's
-    /// `shared_points`).
+    /// (`[pipeline.repairs.share_points]`): the group was a cluster too small for a pose, one
+    /// or two points on no body, or points not rigid with most of their body, which became a
+    /// body with them; or a body of the fewest points a pose needs. They are markers on a
+    /// joint's axis, which now belong to both bodies (the model's `shared_points`).
     PointsShared {
         /// The points that belong to two bodies.
         points: Vec<usize>,
