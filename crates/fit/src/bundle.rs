@@ -43,9 +43,9 @@ enum Params {
     /// A revolute or prismatic joint.
     Single(JointParams),
     /// A revolute or prismatic joint into a link put in (too little seen to pose): its axis
-    /// and, for a hinge, its pivot only. The link's frame is a choice its keypoints, none or a few,
-    /// need not fix, so its reference pose is held; adjusting it too would leave the normal
-    /// equations singular where they do not fix it.
+    /// and, for a hinge, its pivot only. The link's frame is a choice its keypoints, none or
+    /// a few, need not fix, so its reference pose is held; adjusting it too would leave the
+    /// normal equations singular where they do not fix it.
     Held(JointParams),
     /// A ball joint: its centre and the child's pose at rotation zero.
     Ball {
@@ -86,9 +86,8 @@ impl Params {
 
     /// Free parameters in the adjustment: revolute 9 (axis tilt 2, pivot across the axis 2,
     /// reference pose turned about the two directions across the axis and shifted 3; held,
-    /// the first 4),
-    /// prismatic 7 (tilt 2, turn 3, shift across the axis 2; held, the first 2), ball 6 (centre 3, reference
-    /// pose shifted 3), universal 11 (first axis tilted 2, second tilted towards or away from
+    /// the first 4), prismatic 7 (tilt 2, turn 3, shift across the axis 2; held, the first
+    /// 2), ball 6 (centre 3, reference pose shifted 3), universal 11 (first axis tilted 2, second tilted towards or away from
     /// the first 1, centre 3, reference pose turned about the two directions across the
     /// second axis 2 and shifted 3). What a change of every frame's coordinates undoes is
     /// left out (a gauge freedom that would make the normal equations singular): the

@@ -94,11 +94,7 @@ impl SharePointsParams {
         sigma: f64,
     ) -> Vec<usize> {
         let mut out = Vec::new();
-        for (b, points) in seg.members().into_iter().enumerate() {
-            let own: Vec<usize> = points
-                .into_iter()
-                .filter(|&i| seg.body_of(i) == Some(b))
-                .collect();
+        for own in own_members(seg) {
             if own.len() <= MIN_BODY_POINTS {
                 continue;
             }
@@ -191,6 +187,17 @@ impl SharePointsParams {
     }
 }
 
+/// Each body's own points (not those it shares with another body), ascending.
+fn own_members(seg: &kinetree_core::Segmentation) -> Vec<Vec<usize>> {
+    let mut own = vec![Vec::new(); seg.n_bodies()];
+    for (i, b) in seg.labels().iter().enumerate() {
+        if let Some(b) = b {
+            own[*b].push(i);
+        }
+    }
+    own
+}
+
 /// Makes bodies of discarded clusters with the other bodies' points that are rigid with
 /// them; asked once per bodies phase.
 #[derive(Debug, Clone)]
@@ -279,12 +286,7 @@ impl Repair for SharePoints {
         // Bodies with the fewest points a pose needs take the points rigid with them too.
         let members = seg.members();
         let mut grown: Vec<(Vec<usize>, Vec<usize>)> = Vec::new();
-        for (b, points) in members.iter().enumerate() {
-            let own: Vec<usize> = points
-                .iter()
-                .copied()
-                .filter(|&i| seg.body_of(i) == Some(b))
-                .collect();
+        for (own, points) in own_members(seg).into_iter().zip(&members) {
             if own.len() != points.len() || own.len() > self.params.max_own_points {
                 continue;
             }
