@@ -334,3 +334,58 @@ fn a_loose_marker_is_left_out_and_named() {
     let e = evaluate(&model, &data.truth);
     assert_eq!(e.n_bodies_found, data.truth.n_bodies(), "{e:?}");
 }
+
+/// An observer that records the stages it is told, in order.
+#[derive(Default)]
+struct Stages(std::sync::Mutex<Vec<String>>);
+
+impl kinetree_pipeline::DiscoveryObserver for Stages {
+    fn stage(&self, name: &str) {
+        self.0.lock().expect("lock").push(name.to_string());
+    }
+}
+
+/// `StageTimes` times every stage the discovery announces, in their first order, after the
+/// setup, and passes each announcement on to the observer it wraps.
+#[test]
+fn stage_times_cover_every_stage_and_pass_them_on() {
+    let data = simulate(&kinetree_synth::paper_arm(0)).expect("simulate");
+    let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+    let seen = Stages::default();
+    let timer = kinetree_pipeline::StageTimes::new(&seen);
+    pipeline
+        .run_observed(&data.tracks, &timer)
+        .expect("discover");
+    let totals = timer.totals();
+    let told = seen.0.lock().expect("lock").clone();
+    assert!(told.len() >= 7, "stages told: {told:?}");
+    assert_eq!(totals[0].stage, "setup");
+    // One row per distinct stage, in the order each first started, counting its starts.
+    let mut distinct: Vec<&String> = Vec::new();
+    for name in &told {
+        if !distinct.contains(&name) {
+            distinct.push(name);
+        }
+    }
+    let rows: Vec<&String> = totals[1..].iter().map(|s| &s.stage).collect();
+    assert_eq!(rows, distinct);
+    for row in &totals[1..] {
+        let starts = told.iter().filter(|n| **n == row.stage).count();
+        assert_eq!(row.starts, starts, "{}", row.stage);
+    }
+    for stage in [
+        "pair statistics",
+        "clustering",
+        "bodies",
+        "tree",
+        "whole-tree fit",
+    ] {
+        assert!(rows.iter().any(|r| *r == stage), "{stage} in {rows:?}");
+    }
+    assert!(
+        totals
+            .iter()
+            .all(|s| s.seconds.is_finite() && s.seconds >= 0.0),
+        "{totals:?}"
+    );
+}

@@ -183,6 +183,30 @@ impl kinetree_pipeline::DiscoveryObserver for StageDisplay {
     }
 }
 
+/// The stages' wall-clock times as `discover --timings` prints them: one line a stage, its
+/// seconds, its share of the whole and, when it ran more than once, how many times.
+fn stage_table(times: &[kinetree_pipeline::StageTime]) -> String {
+    let total: f64 = times.iter().map(|s| s.seconds).sum();
+    let width = times.iter().map(|s| s.stage.len()).max().unwrap_or(0);
+    let mut out = format!("stage times (wall clock, {total:.3} s in all):\n");
+    for s in times {
+        let share = if total > 0.0 {
+            100.0 * s.seconds / total
+        } else {
+            0.0
+        };
+        out.push_str(&format!(
+            "  {:width$}  {:>9.3} s  {share:>5.1} %",
+            s.stage, s.seconds
+        ));
+        if s.starts > 1 {
+            out.push_str(&format!("  ({} times)", s.starts));
+        }
+        out.push('\n');
+    }
+    out
+}
+
 /// Runs `work` with a [`StageDisplay`] (none when `quiet`), cleared when it ends.
 fn with_stage_display<T>(
     quiet: bool,
@@ -285,6 +309,11 @@ enum Command {
         /// rotation and origin standard deviations; NaN where unknown).
         #[arg(long)]
         no_poses: bool,
+        /// When the discovery ends, print each stage's wall-clock time on stderr (`setup`,
+        /// `pair statistics`, `clustering`, then each model pass's `bodies`, `tree`,
+        /// `whole-tree fit`, `points`, ...): where the time goes on these tracks.
+        #[arg(long)]
+        timings: bool,
     },
     /// Estimate joint positions of (new) frames from a discovered model: one CSV column per
     /// joint (three per spherical joint, `_rx`, `_ry`, `_rz`: its rotation vector; two per
@@ -700,6 +729,7 @@ fn run_command() -> Result<()> {
             preset,
             output,
             no_poses,
+            timings,
         } => {
             let mut cfg = match &pipeline {
                 Some(p) => {
@@ -725,7 +755,14 @@ fn run_command() -> Result<()> {
                 None => "in the pipeline options".into(),
             })?;
             let t = read_tracks(&tracks, &keys)?;
-            let mut d = with_stage_display(quiet, |observer| built.run_observed(&t, observer))?;
+            let mut d = with_stage_display(quiet, |observer| {
+                let timer = kinetree_pipeline::StageTimes::new(observer);
+                let d = built.run_observed(&t, &timer);
+                if timings {
+                    eprint!("{}", stage_table(&timer.totals()));
+                }
+                d
+            })?;
             emit(&summary(&d.model));
             if let Some(p) = &poses_path {
                 let seen = kinetree_fit::observe(&d.model, &t, Default::default())?;

@@ -634,6 +634,48 @@ fn discover_shows_its_stages_on_a_terminal_unless_quiet() {
     assert!(!String::from_utf8_lossy(&out.stderr).contains("discover ["));
 }
 
+/// `discover --timings` prints each stage's time on stderr, and the rows add up to the total
+/// it states; without the flag nothing of it is printed.
+#[test]
+fn discover_prints_its_stage_times_when_asked() {
+    let (dir, _) = discovered_paper_arm("timings");
+    let discover = |timings: bool| {
+        let mut cmd = kinetree();
+        cmd.args(["discover", "-q"])
+            .arg(dir.join("tracks.npy"))
+            .arg("-o")
+            .arg(dir.join("timed.json"));
+        if timings {
+            cmd.arg("--timings");
+        }
+        let out = cmd.output().expect("runs");
+        assert!(out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = discover(true);
+    let mut lines = err.lines();
+    let head = lines.next().expect("a heading");
+    let total: f64 = head
+        .split(", ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("total in {head}"));
+    let rows: Vec<(String, f64)> = lines
+        .map(|l| {
+            let (name, rest) = l.trim().split_once("  ").expect("name and time");
+            let seconds = rest.split_whitespace().next().expect("seconds");
+            (name.to_string(), seconds.parse().expect("a number"))
+        })
+        .collect();
+    for stage in ["setup", "pair statistics", "clustering", "bodies", "tree"] {
+        assert!(rows.iter().any(|(n, _)| n == stage), "{stage} in {err}");
+    }
+    let sum: f64 = rows.iter().map(|(_, s)| s).sum();
+    assert!((sum - total).abs() <= 0.001 * rows.len() as f64, "{err}");
+    assert!(!discover(false).contains("stage times"));
+}
+
 /// `fit-track` takes a `.npy` of one point, `(T, 3)` or `(T, 1, 3)`, and a `(T, N, 3)` one
 /// with `--point`; without it, or with a point beyond the file's, it stops with a message
 /// that names the choice.

@@ -324,6 +324,87 @@ pub trait DiscoveryObserver: Sync {
 /// The observer that is told nothing.
 impl DiscoveryObserver for () {}
 
+/// Wall-clock time of one stage ([`StageTimes::totals`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageTime {
+    /// The stage's name as [`DiscoveryObserver::stage`] gave it (`bodies`, `tree (pass 2)`).
+    pub stage: String,
+    /// Seconds from each start of the stage to the next stage's start (or to the call of
+    /// [`StageTimes::totals`]), summed over its starts.
+    pub seconds: f64,
+    /// How many times the stage started.
+    pub starts: usize,
+}
+
+/// An observer that times each stage and passes every call on to another observer: where
+/// the time of a discovery goes, on the caller's own data (`kinetree discover --timings`).
+pub struct StageTimes<'a> {
+    inner: &'a dyn DiscoveryObserver,
+    started: std::time::Instant,
+    starts: std::sync::Mutex<Vec<(String, std::time::Instant)>>,
+}
+
+impl<'a> StageTimes<'a> {
+    /// Times the stages from now on, telling `inner` everything as well.
+    pub fn new(inner: &'a dyn DiscoveryObserver) -> Self {
+        Self {
+            inner,
+            started: std::time::Instant::now(),
+            starts: std::sync::Mutex::new(Vec::new()),
+        }
+    }
+
+    /// Each stage's time so far, in the order the stages first started; the time before the
+    /// first stage is `setup` (checking and cleaning the tracks, choosing a sample).
+    pub fn totals(&self) -> Vec<StageTime> {
+        let now = std::time::Instant::now();
+        let starts = self.starts.lock().map(|s| s.clone()).unwrap_or_default();
+        let first = starts.first().map_or(now, |(_, t)| *t);
+        let mut out = vec![StageTime {
+            stage: "setup".into(),
+            seconds: first.duration_since(self.started).as_secs_f64(),
+            starts: 1,
+        }];
+        for (k, (name, at)) in starts.iter().enumerate() {
+            let end = starts.get(k + 1).map_or(now, |(_, t)| *t);
+            let seconds = end.duration_since(*at).as_secs_f64();
+            match out.iter_mut().find(|s| s.stage == *name) {
+                Some(s) => {
+                    s.seconds += seconds;
+                    s.starts += 1;
+                }
+                None => out.push(StageTime {
+                    stage: name.clone(),
+                    seconds,
+                    starts: 1,
+                }),
+            }
+        }
+        out
+    }
+}
+
+impl std::fmt::Debug for StageTimes<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StageTimes")
+            .field("totals", &self.totals())
+            .finish_non_exhaustive()
+    }
+}
+
+impl DiscoveryObserver for StageTimes<'_> {
+    fn stage(&self, name: &str) {
+        if let Ok(mut s) = self.starts.lock() {
+            s.push((name.to_string(), std::time::Instant::now()));
+        }
+        self.inner.stage(name);
+    }
+
+    fn trace(&self, entry: &TraceEntry) {
+        self.inner.trace(entry);
+    }
+}
+
 /// A [`Progress`] callback as an observer of the trace alone.
 pub(crate) struct TraceOnly<'a>(pub(crate) Progress<'a>);
 
