@@ -273,6 +273,12 @@ impl Tracks {
                 message: format!("point {i} out of range (N = {})", self.n_points),
             });
         }
+        if points.len() < MIN_POINTS {
+            return Err(Error::TooFewPoints {
+                found: points.len(),
+                min: MIN_POINTS,
+            });
+        }
         let mut xyz = Vec::with_capacity(self.n_frames * points.len() * 3);
         for t in 0..self.n_frames {
             let frame = self.frame_raw(t);
@@ -280,13 +286,21 @@ impl Tracks {
                 xyz.extend_from_slice(&frame[3 * i..3 * i + 3]);
             }
         }
-        let mut out = Self::new(self.n_frames, points.len(), xyz)?;
-        out.labels = self
-            .labels
-            .as_ref()
-            .map(|l| points.iter().map(|&i| l[i].clone()).collect());
-        out.frame_rate_hz = self.frame_rate_hz;
-        Ok(out)
+        // Every copied triple passed `new`'s checks already; only visibility can be lost.
+        if xyz.iter().all(|v| v.is_nan()) {
+            return Err(Error::NoVisibleData);
+        }
+        Ok(Self {
+            n_frames: self.n_frames,
+            n_points: points.len(),
+            xyz,
+            labels: self
+                .labels
+                .as_ref()
+                .map(|l| points.iter().map(|&i| l[i].clone()).collect()),
+            frame_rate_hz: self.frame_rate_hz,
+            warnings: Vec::new(),
+        })
     }
 
     /// The same tracks with the (frame, point) `samples` made occluded.
@@ -362,6 +376,17 @@ mod tests {
             t.select_points(&[0, 1]),
             Err(Error::TooFewPoints { .. })
         ));
+        // Points never seen: a selection of only them has nothing visible.
+        let mut xyz: Vec<f64> = (0..2 * 6 * 3).map(|k| k as f64 * 0.01).collect();
+        for f in 0..2 {
+            xyz[(f * 6 + 3) * 3..(f * 6 + 6) * 3].fill(f64::NAN);
+        }
+        let hidden = Tracks::new(2, 6, xyz).expect("valid");
+        assert!(matches!(
+            hidden.select_points(&[3, 4, 5]),
+            Err(Error::NoVisibleData)
+        ));
+        assert!(hidden.select_points(&[0, 4, 5]).is_ok());
     }
 
     #[test]

@@ -71,21 +71,28 @@ impl OutlierParams {
 
     /// The impossible samples of `tracks`, as (frame, point), in frame-major order.
     pub fn impossible_samples(&self, tracks: &Tracks) -> Vec<(usize, usize)> {
-        let mut out = Vec::new();
-        for i in 0..tracks.n_points() {
-            let mut track: Vec<(usize, [f64; 3])> = Vec::new();
-            for t in 0..tracks.n_frames() {
-                if let Some(p) = tracks.get(t, i) {
-                    let p = [p.x, p.y, p.z];
-                    if p.iter().all(|c| c.abs() <= self.max_coordinate_m) {
-                        track.push((t, p));
-                    } else {
-                        out.push((t, i));
+        use rayon::prelude::*;
+        // Each point's track is judged alone, so the points run in parallel; the sort makes
+        // the list the same with any number of threads.
+        let mut out: Vec<(usize, usize)> = (0..tracks.n_points())
+            .into_par_iter()
+            .flat_map_iter(|i| {
+                let mut out = Vec::new();
+                let mut track: Vec<(usize, [f64; 3])> = Vec::new();
+                for t in 0..tracks.n_frames() {
+                    if let Some(p) = tracks.get(t, i) {
+                        let p = [p.x, p.y, p.z];
+                        if p.iter().all(|c| c.abs() <= self.max_coordinate_m) {
+                            track.push((t, p));
+                        } else {
+                            out.push((t, i));
+                        }
                     }
                 }
-            }
-            out.extend(self.glitches(&track).into_iter().map(|t| (t, i)));
-        }
+                out.extend(self.glitches(&track).into_iter().map(|t| (t, i)));
+                out
+            })
+            .collect();
         out.sort_unstable();
         out
     }
