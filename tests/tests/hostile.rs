@@ -369,6 +369,39 @@ fn a_failed_write_leaves_the_previous_file_whole() {
     assert!(kinetree_io::read_model(&path).is_ok());
 }
 
+/// An output that is a pipe (or a device such as `/dev/null`) is written in place: a file
+/// renamed over it would replace the pipe itself, and `-o /dev/null` run as root would leave
+/// the machine without its null device.
+#[cfg(unix)]
+#[test]
+fn an_output_that_is_a_pipe_is_written_in_place() {
+    use std::os::unix::fs::FileTypeExt;
+    let path = tmp("model-pipe");
+    let _ = std::fs::remove_file(&path);
+    let made = std::process::Command::new("mkfifo")
+        .arg(&path)
+        .status()
+        .expect("mkfifo (coreutils) runs");
+    assert!(made.success());
+    let (send, received) = std::sync::mpsc::channel();
+    {
+        let path = path.clone();
+        std::thread::spawn(move || send.send(std::fs::read(&path).expect("read the pipe")));
+    }
+    let model = arm_model();
+    kinetree_io::write_json(&path, model).expect("write into the pipe");
+    let kind = std::fs::symlink_metadata(&path)
+        .expect("still there")
+        .file_type();
+    assert!(kind.is_fifo(), "the pipe was replaced: {kind:?}");
+    let sent = received
+        .recv_timeout(std::time::Duration::from_secs(30))
+        .expect("the reader got the model");
+    let back: kinetree_core::Model = serde_json::from_slice(&sent).expect("a model came through");
+    assert_eq!(back.bodies.len(), model.bodies.len());
+    let _ = std::fs::remove_file(&path);
+}
+
 const SMALL_SWEEP: &str = r#"
 [experiment]
 name = "resumable"

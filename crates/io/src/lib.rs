@@ -337,7 +337,9 @@ fn read_npy_inner(path: &Path, max_memory_gib: f64) -> Result<Tracks> {
 
 /// Writes a file all at once or not at all: `write` fills a temporary file beside `path`,
 /// which is then renamed over it. A failed write (disk full, a file-size limit, an error in
-/// `write`) leaves any file already at `path` as it was.
+/// `write`) leaves any file already at `path` as it was. A `path` that is a device or a pipe
+/// (`/dev/null`, `/dev/stdout`, a FIFO) is written in place: a file renamed over it would
+/// replace the device node itself.
 ///
 /// # Errors
 /// [`Error::File`] naming `path`, wrapping the I/O error or `write`'s own.
@@ -345,6 +347,16 @@ pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<&mut File>) -> Result<()>,
 ) -> Result<()> {
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir()) {
+        let in_place = || -> Result<()> {
+            let mut file = std::fs::OpenOptions::new().write(true).open(path)?;
+            let mut w = BufWriter::new(&mut file);
+            write(&mut w)?;
+            w.flush()?;
+            Ok(())
+        };
+        return in_place().map_err(|e| e.in_file(path));
+    }
     let inner = || -> Result<()> {
         let dir = match path.parent() {
             Some(d) if !d.as_os_str().is_empty() => d,
