@@ -198,10 +198,13 @@ fn real_recordings_segment_into_their_labelled_segments() {
             assert_eq!(found, o.segments_3, "{}: {found} bodies", o.folder);
             assert!(o.ari > 0.95, "{}: ARI {}", o.folder, o.ari);
         } else {
+            // At least the segments of three markers or more, less two, and at most one body a
+            // labelled segment (two-marker segments are posed through their joints).
             assert!(
-                found + 2 >= o.segments_3 && found <= o.segments_3 + 4,
-                "{}: {found} bodies for {} segments",
+                found + 2 >= o.segments_3 && found <= o.segments,
+                "{}: {found} bodies for {} segments ({} of 3+ markers)",
                 o.folder,
+                o.segments,
                 o.segments_3
             );
             assert!(o.ari > 0.6, "{}: ARI {}", o.folder, o.ari);
