@@ -103,9 +103,9 @@ fn observing_the_training_frames_reproduces_the_batch_positions() {
         for (a, b) in j.positions.iter().zip(c) {
             match (a, b) {
                 // The batch fits start from the previous frame, the observer from the
-                // frame's own poses: both stop within the solver's tolerance (a micron or
-                // microradian step), here within 1e-7 rad of each other.
-                (Some(a), Some(b)) => assert!((a - b - turns).abs() < 1e-6, "{a} vs {b}"),
+                // frame's own poses: each stops within the solver's tolerance of the minimum
+                // (about a micron or microradian), so the two agree within 1e-5 rad.
+                (Some(a), Some(b)) => assert!((a - b - turns).abs() < 1e-5, "{a} vs {b}"),
                 (None, None) => {}
                 _ => panic!("known in one and not the other: {a:?} vs {b:?}"),
             }

@@ -733,17 +733,35 @@ impl Observer {
         previous: Option<&FrameFit>,
     ) -> (Descent, Visible) {
         let visible = self.visible(frame);
-        // From the frame's own poses, and from the previous frame's values where they differ
+        // From the previous frame's values, and from the frame's own poses where they differ
         // (a pose from three noisy points can start a joint far off, and a descent from there
-        // may settle a whole turn away on another joint); the lower final cost wins.
-        let mut best = self.descend(self.initial_state(&visible, previous, false), &visible);
-        if previous.is_some() {
-            let other = self.descend(self.initial_state(&visible, previous, true), &visible);
-            if other.cost < best.cost {
-                best = other;
-            }
+        // may settle a whole turn away on another joint); the lower final cost wins. A descent
+        // from the previous frame that already explains the keypoints within noise is taken
+        // as it is: the second descent would cost as much again.
+        if previous.is_none() {
+            let best = self.descend(self.initial_state(&visible, previous, false), &visible);
+            return (best, visible);
         }
+        let from_previous = self.descend(self.initial_state(&visible, previous, true), &visible);
+        if self.within_noise(&from_previous, &visible) {
+            return (from_previous, visible);
+        }
+        let own = self.descend(self.initial_state(&visible, previous, false), &visible);
+        let best = if from_previous.cost < own.cost {
+            from_previous
+        } else {
+            own
+        };
         (best, visible)
+    }
+
+    /// Whether descent `d`'s squared residual, in noise variances, is within the chi-square
+    /// of its degrees of freedom (three a keypoint of a posed body, less the fit's
+    /// parameters) plus [`WITHIN_NOISE_IN_STD`] of its standard deviations.
+    fn within_noise(&self, d: &Descent, visible: &Visible) -> bool {
+        let dof = (3 * posed_points(d, visible)) as f64 - self.n_params as f64;
+        let var = self.sigma * self.sigma;
+        dof > 0.0 && var > 0.0 && d.cost / var <= dof + WITHIN_NOISE_IN_STD * (2.0 * dof).sqrt()
     }
 
     /// The report of a converged state, revolute positions brought within half a turn of
@@ -1010,29 +1028,37 @@ impl Observer {
                 continue;
             };
             let j = &self.joints[k];
+            // Each joint's closed-form start from its child's points is formed only when it is
+            // used: a start that prefers the previous frame's values takes them where known.
             if let Measure::Spherical(centre) = j.measure {
                 let before = previous_turn(previous, k);
-                let closed = poses[j.parent]
-                    .and_then(|parent| best_turn(j, &centre, &parent, &visible[b], self.sigma));
+                let closed = || {
+                    poses[j.parent]
+                        .and_then(|parent| best_turn(j, &centre, &parent, &visible[b], self.sigma))
+                };
                 s.turn[k] = if prefer_previous {
-                    before.or(closed)
+                    before.or_else(closed)
                 } else {
-                    closed.or(before)
+                    closed().or(before)
                 };
                 if s.turn[k].is_none() && poses[j.parent].is_some() {
                     s.turn[k] = Some(UnitQuaternion::identity());
                 }
             } else if let Measure::Universal(first, second, centre) = j.measure {
                 let before = previous.and_then(|p| p.angles[k]);
-                let closed = poses[j.parent]
-                    .and_then(|parent| best_turn(j, &centre, &parent, &visible[b], self.sigma))
-                    .map(|turn| universal_angles(&turn, &first, &second));
-                let angles = match (closed, before) {
-                    (_, Some(p)) if prefer_previous => Some(p),
-                    (Some(v), Some(p)) => {
-                        Some([p[0] + wrap_pi(v[0] - p[0]), p[1] + wrap_pi(v[1] - p[1])])
-                    }
-                    (v, p) => v.or(p),
+                let closed = || {
+                    poses[j.parent]
+                        .and_then(|parent| best_turn(j, &centre, &parent, &visible[b], self.sigma))
+                        .map(|turn| universal_angles(&turn, &first, &second))
+                };
+                let angles = match before {
+                    Some(p) if prefer_previous => Some(p),
+                    _ => match (closed(), before) {
+                        (Some(v), Some(p)) => {
+                            Some([p[0] + wrap_pi(v[0] - p[0]), p[1] + wrap_pi(v[1] - p[1])])
+                        }
+                        (v, p) => v.or(p),
+                    },
                 };
                 if let Some([a, b]) = angles {
                     (s.q[k], s.q2[k]) = (Some(a), Some(b));
@@ -1041,15 +1067,19 @@ impl Observer {
                 }
             } else {
                 let before = previous.and_then(|p| p.positions[k]);
-                let closed = poses[j.parent]
-                    .and_then(|parent| best_position(j, &parent, &visible[b], self.sigma));
-                s.q[k] = match (closed, before) {
-                    (_, Some(p)) if prefer_previous => Some(p),
-                    (Some(v), Some(p)) if matches!(j.measure, Measure::Revolute(..)) => {
-                        Some(p + wrap_pi(v - p))
-                    }
-                    (Some(v), _) => Some(v),
-                    (None, p) => p,
+                let closed = || {
+                    poses[j.parent]
+                        .and_then(|parent| best_position(j, &parent, &visible[b], self.sigma))
+                };
+                s.q[k] = match before {
+                    Some(p) if prefer_previous => Some(p),
+                    _ => match (closed(), before) {
+                        (Some(v), Some(p)) if matches!(j.measure, Measure::Revolute(..)) => {
+                            Some(p + wrap_pi(v - p))
+                        }
+                        (Some(v), _) => Some(v),
+                        (None, p) => p,
+                    },
                 };
                 if s.q[k].is_none() && poses[j.parent].is_some() {
                     s.q[k] = Some(self.scan(&s, k, visible));
@@ -1417,13 +1447,7 @@ impl Observer {
                 angles[k] = Self::measure_angles(j, &(a.inverse() * b));
             }
         }
-        let n_points = d
-            .poses
-            .iter()
-            .zip(visible.iter())
-            .filter(|(p, _)| p.is_some())
-            .map(|(_, v)| v.len())
-            .sum();
+        let n_points = posed_points(d, visible);
         FrameFit {
             positions,
             std,
@@ -1571,6 +1595,21 @@ impl Observer {
     }
 }
 
+/// The visible keypoints of the bodies descent `d` poses: the ones its residual sums.
+fn posed_points(d: &Descent, visible: &Visible) -> usize {
+    d.poses
+        .iter()
+        .zip(visible.iter())
+        .filter(|(p, _)| p.is_some())
+        .map(|(_, v)| v.len())
+        .sum()
+}
+
+/// A frame's fit started from the previous frame's values is kept without a second start
+/// from the frame's own poses when its squared residual, in noise variances, is within its
+/// degrees of freedom plus this many standard deviations of their chi-square
+/// (`docs/decisions.md`, `kinetree_fit::WITHIN_NOISE_IN_STD`).
+const WITHIN_NOISE_IN_STD: f64 = 3.0;
 /// Gauss-Newton iterations per start, at most (two to four are typical).
 const MAX_ITERATIONS: usize = 30;
 /// A step whose largest component (metres at 1 mm of noise, see [`Observer::length_unit`], or
