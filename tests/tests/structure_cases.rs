@@ -389,11 +389,11 @@ fn a_slide_bent_by_a_poorly_posed_parent_is_retested_on_the_fitted_poses() {
 /// its pair test (rotation noise of its 6 points) and a nearly straight path, so it was typed
 /// prismatic, and the fit did not follow it (36 sigma^2 per point). Tried as a hinge by the
 /// fit, it is followed; the model's tree is then retested on the fitted poses and every joint
-/// comes out right (the trace names both repairs; the rebuilt model has no
-/// `joint_typed_by_fit` warning). That link and its sibling turn about nearly one anchor on the base, so
-/// the two make a universal pair (fit ratio 0.99); with universal edges at the default cost
-/// (`tree.universal_cost` 2.5) the tree hangs the link on its sibling by it, so this case
-/// prices them as ball joints (4, `docs/decisions.md`, `tree.universal_cost`).
+/// comes out right (the trace names both repairs; the rebuilt model has no `joint_typed_by_fit`
+/// warning). That link and its sibling turn about nearly one anchor on the base, so the two make a
+/// universal pair (fit ratio 0.99); with universal edges at the default cost (`tree.universal_cost`
+/// 2.5) the tree hangs the link on its sibling by it, so this case prices them as ball joints (4,
+/// `docs/decisions.md`, `tree.universal_cost`).
 #[test]
 fn hinges_the_pair_test_mistyped_are_typed_by_the_fit() {
     let specs = rate_draw(549);
