@@ -20,6 +20,16 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
+def simulate_scale(kinetree, folder, points, frames, seed=0):
+    """Writes the scale scenario of `points` keypoints over `frames` frames into `folder`."""
+    subprocess.run(
+        [kinetree, "simulate", "--mechanism", "scale", "--points", str(points), "--frames",
+         str(frames), "--dropout", "0.15", "--seed", str(seed), "-o", str(folder), "-q"],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
+
+
 def timed(command):
     """Wall-clock seconds of `command`, which must succeed."""
     start = time.perf_counter()
@@ -42,13 +52,7 @@ def main(argv=None):
         sys.exit("--runs must be at least 1")
     with tempfile.TemporaryDirectory() as folder:
         data = os.path.join(folder, "data")
-        subprocess.run(
-            [args.kinetree, "simulate", "--mechanism", "scale", "--points", str(args.points),
-             "--frames", str(args.frames), "--dropout", "0.15", "--seed", "0", "-o", data,
-             "-q"],
-            check=True,
-            stdout=subprocess.DEVNULL,
-        )
+        simulate_scale(args.kinetree, data, args.points, args.frames)
         tracks = os.path.join(data, "tracks.npy")
         ours = [args.kinetree, "discover", tracks, "--noise-sigma", "0.001", "--no-poses",
                 "-q", "-o", os.path.join(folder, "model.json")]

@@ -6,7 +6,6 @@ write the data.
 
 import json
 import os
-import subprocess
 import sys
 
 import numpy as np
@@ -20,12 +19,7 @@ KINETREE = os.environ.get("KINETREE_BIN", "kinetree")
 
 
 def simulate(folder, seed, points=100, frames=200):
-    subprocess.run(
-        [KINETREE, "simulate", "--mechanism", "scale", "--points", str(points), "--frames",
-         str(frames), "--dropout", "0.15", "--seed", str(seed), "-o", str(folder), "-q"],
-        check=True,
-        stdout=subprocess.DEVNULL,
-    )
+    compare.simulate_scale(KINETREE, folder, points, frames, seed)
     truth = json.loads((folder / "truth.json").read_text())
     return np.load(folder / "tracks.npy"), truth
 

@@ -88,13 +88,13 @@ impl Params {
     /// reference pose turned about the two directions across the axis and shifted 3; held,
     /// the first 4), prismatic 7 (tilt 2, turn 3, shift across the axis 2; held, the first
     /// 2), ball 6 (centre 3, reference pose shifted 3), universal 11 (first axis tilted 2,
-    /// second tilted towards or away from the first 1, centre 3, reference pose turned about
-    /// the two directions across the second axis 2 and shifted 3). What a change of every frame's coordinates undoes is
-    /// left out (a gauge freedom that would make the normal equations singular): the
-    /// reference pose's turn about a revolute axis and shift along a prismatic one; every
-    /// turn of a ball joint's reference pose; a universal joint's turn about its second axis
-    /// (its second angle) and the second axis turned about the first together with the
-    /// reference pose (its first angle).
+    /// second tilted towards or away from the first 1, centre 3, reference pose turned
+    /// about the two directions across the second axis 2 and shifted 3). What a change of
+    /// every frame's coordinates undoes is left out (a gauge freedom that would make the
+    /// normal equations singular): the reference pose's turn about a revolute axis and
+    /// shift along a prismatic one; every turn of a ball joint's reference pose; a
+    /// universal joint's turn about its second axis (its second angle) and the second axis
+    /// turned about the first together with the reference pose (its first angle).
     fn len(&self) -> usize {
         match self {
             Params::Single(p) if p.revolute => 9,
