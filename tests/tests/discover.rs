@@ -345,6 +345,69 @@ impl kinetree_pipeline::DiscoveryObserver for Stages {
     }
 }
 
+/// An observer that records every repair time it is told.
+#[derive(Default)]
+struct RepairCalls(std::sync::Mutex<Vec<(String, f64)>>);
+
+impl kinetree_pipeline::DiscoveryObserver for RepairCalls {
+    fn repair_time(&self, repair: &str, seconds: f64) {
+        self.0
+            .lock()
+            .expect("lock")
+            .push((repair.to_string(), seconds));
+    }
+}
+
+/// `StageTimes` sums each repair's calls as the discovery reports them, passes every call on,
+/// and lists the repairs longest first; every repair asked is one of the pipeline's, and the
+/// fit phase's ran on every model.
+#[test]
+fn repair_times_sum_every_call_of_each_repair() {
+    let data = simulate(&kinetree_synth::paper_arm(0)).expect("simulate");
+    let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
+    let seen = RepairCalls::default();
+    let timer = kinetree_pipeline::StageTimes::new(&seen);
+    pipeline
+        .run_observed(&data.tracks, &timer)
+        .expect("discover");
+    let calls = seen.0.lock().expect("lock").clone();
+    let totals = timer.repair_totals();
+    let names: Vec<&str> = pipeline.repairs.iter().map(|r| r.name()).collect();
+    assert!(!totals.is_empty());
+    for t in &totals {
+        assert!(
+            names.contains(&t.repair.as_str()),
+            "{} is no repair",
+            t.repair
+        );
+        let own: Vec<f64> = calls
+            .iter()
+            .filter(|(n, _)| *n == t.repair)
+            .map(|(_, s)| *s)
+            .collect();
+        assert_eq!(t.calls, own.len(), "{}", t.repair);
+        let sum: f64 = own.iter().sum();
+        assert!(
+            (t.seconds - sum).abs() <= 1e-9 * sum.max(1.0),
+            "{}",
+            t.repair
+        );
+        assert!(t.seconds.is_finite() && t.seconds >= 0.0);
+    }
+    assert_eq!(
+        totals.iter().map(|t| t.calls).sum::<usize>(),
+        calls.len(),
+        "every call counted once"
+    );
+    assert!(totals.windows(2).all(|w| w[0].seconds >= w[1].seconds));
+    for repair in ["free_joints", "bundle_adjust"] {
+        assert!(
+            totals.iter().any(|t| t.repair == repair),
+            "{repair}: {totals:?}"
+        );
+    }
+}
+
 /// `StageTimes` times every stage the discovery announces, in their first order, after the
 /// setup, and passes each announcement on to the observer it wraps.
 #[test]

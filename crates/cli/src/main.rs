@@ -207,6 +207,23 @@ fn stage_table(times: &[kinetree_pipeline::StageTime]) -> String {
     out
 }
 
+/// The repairs' wall-clock times as `discover --timings` prints them after the stages':
+/// one line a repair, longest first, with its seconds and number of calls.
+fn repair_table(times: &[kinetree_pipeline::RepairTime]) -> String {
+    let width = times.iter().map(|r| r.repair.len()).max().unwrap_or(0);
+    let mut out = String::from(
+        "repair times (wall clock, summed over their calls; a call's time includes the models \
+         it had built and the repairs those ran):\n",
+    );
+    for r in times {
+        out.push_str(&format!(
+            "  {:width$}  {:>9.3} s  {:>5} call(s)\n",
+            r.repair, r.seconds, r.calls
+        ));
+    }
+    out
+}
+
 /// Runs `work` with a [`StageDisplay`] (none when `quiet`), cleared when it ends.
 fn with_stage_display<T>(
     quiet: bool,
@@ -311,7 +328,8 @@ enum Command {
         no_poses: bool,
         /// When the discovery ends, print each stage's wall-clock time on stderr (`setup`,
         /// `pair statistics`, `clustering`, then each model pass's `bodies`, `tree`,
-        /// `whole-tree fit`, `points`, ...): where the time goes on these tracks.
+        /// `whole-tree fit`, `points`, ...), then each repair's: where the time goes on these
+        /// tracks.
         #[arg(long)]
         timings: bool,
     },
@@ -760,6 +778,7 @@ fn run_command() -> Result<()> {
                 let d = built.run_observed(&t, &timer);
                 if timings {
                     eprint!("{}", stage_table(&timer.totals()));
+                    eprint!("{}", repair_table(&timer.repair_totals()));
                 }
                 d
             })?;

@@ -635,7 +635,7 @@ fn discover_shows_its_stages_on_a_terminal_unless_quiet() {
 }
 
 /// `discover --timings` prints each stage's time on stderr, and the rows add up to the total
-/// it states; without the flag nothing of it is printed.
+/// it states; then each repair's, longest first; without the flag nothing of it is printed.
 #[test]
 fn discover_prints_its_stage_times_when_asked() {
     let (dir, _) = discovered_paper_arm("timings");
@@ -661,19 +661,32 @@ fn discover_prints_its_stage_times_when_asked() {
         .and_then(|t| t.split(' ').next())
         .and_then(|t| t.parse().ok())
         .unwrap_or_else(|| panic!("total in {head}"));
+    let row = |l: &str| {
+        let (name, rest) = l.trim().split_once("  ").expect("name and time");
+        let seconds = rest.split_whitespace().next().expect("seconds");
+        (name.to_string(), seconds.parse::<f64>().expect("a number"))
+    };
     let rows: Vec<(String, f64)> = lines
-        .map(|l| {
-            let (name, rest) = l.trim().split_once("  ").expect("name and time");
-            let seconds = rest.split_whitespace().next().expect("seconds");
-            (name.to_string(), seconds.parse().expect("a number"))
-        })
+        .by_ref()
+        .take_while(|l| !l.starts_with("repair times"))
+        .map(row)
         .collect();
     for stage in ["setup", "pair statistics", "clustering", "bodies", "tree"] {
         assert!(rows.iter().any(|(n, _)| n == stage), "{stage} in {err}");
     }
     let sum: f64 = rows.iter().map(|(_, s)| s).sum();
     assert!((sum - total).abs() <= 0.001 * rows.len() as f64, "{err}");
-    assert!(!discover(false).contains("stage times"));
+    // The repairs' table: every fit-phase repair of the defaults ran, longest first.
+    let repairs: Vec<(String, f64)> = lines.take_while(|l| l.starts_with("  ")).map(row).collect();
+    for repair in ["free_joints", "bundle_adjust"] {
+        assert!(
+            repairs.iter().any(|(n, _)| n == repair),
+            "{repair} in {err}"
+        );
+    }
+    assert!(repairs.windows(2).all(|w| w[0].1 >= w[1].1), "{err}");
+    let plain = discover(false);
+    assert!(!plain.contains("stage times") && !plain.contains("repair times"));
 }
 
 /// `fit-track` takes a `.npy` of one point, `(T, 3)` or `(T, 1, 3)`, and a `(T, N, 3)` one

@@ -1141,7 +1141,8 @@ pub(crate) fn adjust_model(
 /// Types joint `k` of `model` (multi-DoF, or single-DoF and not followed) by the whole-tree
 /// fit `fits`: a candidate of each type of `revolute` in turn ([`candidate_joint`] on the
 /// fitted relative poses) is refined as a freed joint is ([`refine_joint`]) and every joint
-/// bundle-adjusted with it; the first the fit follows closely (its excess within
+/// bundle-adjusted with it (after [`near_enough`]'s screen, from its adjustment of the joints
+/// next to the candidate); the first the fit follows closely (its excess within
 /// `limits`, every other joint's within its bound) is kept, with a
 /// `joint_typed_by_fit` warning in place of the `multi_dof_joint` or `joint_not_followed`
 /// one. Returns the new observer and fits, or `None` (the model unchanged) when none is
@@ -1206,15 +1207,26 @@ fn type_by_fit(
         if unadjusted[k].is_none_or(|e| e > limits.max_excess_to_adjust) {
             continue;
         }
-        if limits.screen_locally && !near_enough(model, k, tracks, &trial, &trial_fits, limits)? {
-            continue;
+        // The adjustment of every joint continues from the screen's: the joints near the
+        // candidate, which the screen has adjusted, have most of the gain.
+        let mut current = unadjusted;
+        if limits.screen_locally {
+            match near_enough(model, k, tracks, &trial, &trial_fits, limits)? {
+                Screen::Dropped => continue,
+                Screen::Passed(None) => {}
+                Screen::Passed(Some(screened)) => {
+                    model.joints = screened.joints;
+                    (trial, trial_fits, current) =
+                        (screened.observer, screened.fits, screened.excess);
+                }
+            }
         }
         let excess = match adjust_model(model, &trial, tracks, &trial_fits, &limits.bundle, None)? {
             Some(adjusted) => {
                 (trial, trial_fits) = adjusted;
                 trial.joint_excess(tracks, &trial_fits)?
             }
-            None => unadjusted,
+            None => current,
         };
         let Some(own) = excess[k].filter(|&e| e <= limits.max_excess) else {
             continue;
@@ -1232,13 +1244,32 @@ fn type_by_fit(
     Ok(None)
 }
 
-/// Whether candidate joint `k` of `model` (fitted by `trial` as `fits`) passes the screen of
-/// [`type_by_fit`]: its excess after a bundle adjustment of only the joints that share a
-/// body with it is within `max_local_excess`, or that adjustment changes nothing. Such an
-/// adjustment costs a fraction of one of every joint, and over every sweep it put a
-/// candidate's excess at 0.29-6.2 times (median 1.005) where the adjustment of every joint
-/// put it, every kept candidate's at most 4.1 (`docs/decisions.md`,
-/// `type_by_fit.max_local_excess`).
+/// The outcome of [`near_enough`]'s screen of a typing candidate.
+enum Screen {
+    /// The candidate's excess after the local adjustment is above `max_local_excess`.
+    Dropped,
+    /// The candidate passes, with the local adjustment (`None` when it changed nothing).
+    Passed(Option<Box<Screened>>),
+}
+
+/// A typing candidate after [`near_enough`]'s local adjustment.
+struct Screened {
+    /// The model's joints, those near the candidate adjusted.
+    joints: Vec<kinetree_core::model::Joint>,
+    /// The observer built from them.
+    observer: Observer,
+    /// Its fit of the tracks.
+    fits: Vec<FrameFit>,
+    /// Every joint's excess in that fit.
+    excess: Vec<Option<f64>>,
+}
+
+/// The screen of [`type_by_fit`] on candidate joint `k` of `model` (fitted by `trial` as
+/// `fits`): its excess after a bundle adjustment of only the joints that share a body with it
+/// must be within `max_local_excess`, or that adjustment change nothing. Such an adjustment
+/// costs a fraction of one of every joint, and over every sweep it put a candidate's excess
+/// at 0.29-6.2 times (median 1.005) where the adjustment of every joint put it, every kept
+/// candidate's at most 4.1 (`docs/decisions.md`, `type_by_fit.max_local_excess`).
 fn near_enough(
     model: &Model,
     k: usize,
@@ -1246,7 +1277,7 @@ fn near_enough(
     trial: &Observer,
     fits: &[FrameFit],
     limits: &TypeByFitLimits,
-) -> Result<bool> {
+) -> Result<Screen> {
     let (parent, child) = (model.joints[k].parent, model.joints[k].child);
     let near: Vec<usize> = (0..model.joints.len())
         .filter(|&x| {
@@ -1266,10 +1297,19 @@ fn near_enough(
         Some(&near),
     )?
     else {
-        return Ok(true);
+        return Ok(Screen::Passed(None));
     };
     let excess = observer.joint_excess(tracks, &screened_fits)?;
-    Ok(excess[k].is_none_or(|e| e <= limits.max_local_excess))
+    Ok(if excess[k].is_none_or(|e| e <= limits.max_local_excess) {
+        Screen::Passed(Some(Box::new(Screened {
+            joints: screened.joints,
+            observer,
+            fits: screened_fits,
+            excess,
+        })))
+    } else {
+        Screen::Dropped
+    })
 }
 
 /// A single-DoF joint's parameters (in the parent's frame) fitted to relative poses

@@ -21,4 +21,4 @@ pub use config::{ExperimentConfig, PAPER_EXPERIMENT_TOML, PipelineConfig};
 pub use experiment::{ExperimentOutcome, load_data, run_experiment, write_results};
 pub use repairs::RepairsConfig;
 pub use run::{Discovery, Grouping, Pipeline};
-pub use runner::{DiscoveryObserver, RunnerParams, StageTime, StageTimes};
+pub use runner::{DiscoveryObserver, RepairTime, RunnerParams, StageTime, StageTimes};

@@ -234,7 +234,7 @@ impl Pipeline {
             .then_some(sigma);
         observer.stage("clustering");
         let (s, dmat, seg, trace) =
-            crate::runner::grouping(self, tracks, &stats, sigma, first_guess)?;
+            crate::runner::grouping(self, tracks, &stats, sigma, first_guess, observer)?;
         sigma = s;
         if noise_source == NoiseSource::Estimated {
             warnings.push(Warning::NoiseEstimated { sigma_m: sigma });

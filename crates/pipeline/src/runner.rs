@@ -205,13 +205,14 @@ fn may_ask(repair: &dyn Repair, asked: usize, edits: usize) -> bool {
 
 /// The grouping phase: the clustering at `sigma`, then the grouping repairs, which may change
 /// the noise level (the clustering is then redone). Returns the final level, matrix,
-/// segmentation and trace.
+/// segmentation and trace; `observer` is told each repair's time.
 pub(crate) fn grouping(
     p: &Pipeline,
     tracks: &Tracks,
     stats: &PairStats,
     mut sigma: f64,
     first_guess: Option<f64>,
+    observer: &dyn DiscoveryObserver,
 ) -> Result<(f64, DissimilarityMatrix, Segmentation, Vec<TraceEntry>)> {
     let (mut dmat, mut seg) = segment(p, tracks, stats, sigma)?;
     let mut trace = Vec::new();
@@ -239,7 +240,10 @@ pub(crate) fn grouping(
                 seed: p.seed,
                 tree: p.tree,
             };
-            let Some(proposal) = r.propose(&ctx, &Draft::new(seg.clone()))? else {
+            let start = std::time::Instant::now();
+            let proposal = r.propose(&ctx, &Draft::new(seg.clone()));
+            observer.repair_time(r.name(), start.elapsed().as_secs_f64());
+            let Some(proposal) = proposal? else {
                 continue;
             };
             edits[k] += 1;
@@ -319,6 +323,9 @@ pub trait DiscoveryObserver: Sync {
     fn stage(&self, _name: &str) {}
     /// A repair made a change (the entry the model's `trace` will hold).
     fn trace(&self, _entry: &TraceEntry) {}
+    /// A repair's `propose` or `stands` returned after `seconds` of wall-clock time: the
+    /// time includes the models it had built and the repairs those ran.
+    fn repair_time(&self, _repair: &str, _seconds: f64) {}
 }
 
 /// The observer that is told nothing.
@@ -336,12 +343,27 @@ pub struct StageTime {
     pub starts: usize,
 }
 
-/// An observer that times each stage and passes every call on to another observer: where
-/// the time of a discovery goes, on the caller's own data (`kinetree discover --timings`).
+/// Wall-clock time of one repair's calls ([`StageTimes::repair_totals`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RepairTime {
+    /// The repair's name ([`Repair::name`]).
+    pub repair: String,
+    /// Seconds in its `propose` and `stands` calls, summed; a call's time includes the
+    /// models it had built and the repairs those ran, so the repairs' times can add up to
+    /// more than the discovery's.
+    pub seconds: f64,
+    /// How many calls.
+    pub calls: usize,
+}
+
+/// An observer that times each stage and each repair and passes every call on to another
+/// observer: where the time of a discovery goes, on the caller's own data (`kinetree
+/// discover --timings`).
 pub struct StageTimes<'a> {
     inner: &'a dyn DiscoveryObserver,
     started: std::time::Instant,
     starts: std::sync::Mutex<Vec<(String, std::time::Instant)>>,
+    repairs: std::sync::Mutex<Vec<RepairTime>>,
 }
 
 impl<'a> StageTimes<'a> {
@@ -351,7 +373,19 @@ impl<'a> StageTimes<'a> {
             inner,
             started: std::time::Instant::now(),
             starts: std::sync::Mutex::new(Vec::new()),
+            repairs: std::sync::Mutex::new(Vec::new()),
         }
+    }
+
+    /// Each repair's time so far, the longest first (then by name).
+    pub fn repair_totals(&self) -> Vec<RepairTime> {
+        let mut out = self.repairs.lock().map(|r| r.clone()).unwrap_or_default();
+        out.sort_by(|a, b| {
+            b.seconds
+                .total_cmp(&a.seconds)
+                .then_with(|| a.repair.cmp(&b.repair))
+        });
+        out
     }
 
     /// Each stage's time so far, in the order the stages first started; the time before the
@@ -402,6 +436,23 @@ impl DiscoveryObserver for StageTimes<'_> {
 
     fn trace(&self, entry: &TraceEntry) {
         self.inner.trace(entry);
+    }
+
+    fn repair_time(&self, repair: &str, seconds: f64) {
+        if let Ok(mut r) = self.repairs.lock() {
+            match r.iter_mut().find(|t| t.repair == repair) {
+                Some(t) => {
+                    t.seconds += seconds;
+                    t.calls += 1;
+                }
+                None => r.push(RepairTime {
+                    repair: repair.to_string(),
+                    seconds,
+                    calls: 1,
+                }),
+            }
+        }
+        self.inner.repair_time(repair, seconds);
     }
 }
 
@@ -516,6 +567,15 @@ impl<'a> Runner<'a> {
         }
     }
 
+    /// Runs `call` (a `propose` or `stands` of `repair`) and tells the observer its time.
+    fn timed<T>(&self, repair: &dyn Repair, call: impl FnOnce() -> T) -> T {
+        let start = std::time::Instant::now();
+        let out = call();
+        self.observer
+            .repair_time(repair.name(), start.elapsed().as_secs_f64());
+        out
+    }
+
     fn set_pass(&self, pass: usize) {
         if let Ok(mut t) = self.trace.lock() {
             t.1 = pass;
@@ -589,7 +649,7 @@ impl<'a> Runner<'a> {
                     self.test_pairs(draft)?;
                 }
                 asked[k] += 1;
-                let Some(proposal) = r.propose(&ctx, draft)? else {
+                let Some(proposal) = self.timed(r, || r.propose(&ctx, draft))? else {
                     continue;
                 };
                 edits[k] += 1;
@@ -645,7 +705,7 @@ impl<'a> Runner<'a> {
             if !only(r) {
                 continue;
             }
-            if let Some(p) = r.propose(&ctx, draft)? {
+            if let Some(p) = self.timed(r, || r.propose(&ctx, draft))? {
                 let Edit::Points(moves) = &p.edit else {
                     return Err(wrong_edit(r, &p.edit));
                 };
@@ -701,7 +761,7 @@ impl<'a> Runner<'a> {
             if let Some((before, edits)) = previous.take() {
                 let mut undone = None;
                 for (r, e) in edits {
-                    if !r.stands(&ctx, &e, &before, &draft)? {
+                    if !self.timed(r, || r.stands(&ctx, &e, &before, &draft))? {
                         undone = Some((r, e));
                         break;
                     }
@@ -730,7 +790,7 @@ impl<'a> Runner<'a> {
             if proposals.is_empty() {
                 stage("model checks");
                 for r in self.phase(RepairPhase::Model) {
-                    let Some(p) = r.propose(&ctx, &draft)? else {
+                    let Some(p) = self.timed(r, || r.propose(&ctx, &draft))? else {
                         continue;
                     };
                     self.record(r, "applied", &p);
@@ -807,7 +867,7 @@ impl<'a> Runner<'a> {
         let mut draft = Draft::new(seg.clone());
         draft.adopt(m)?;
         for r in self.phase(RepairPhase::Fit) {
-            let Some(p) = r.propose(&ctx, &draft)? else {
+            let Some(p) = self.timed(r, || r.propose(&ctx, &draft))? else {
                 continue;
             };
             entries.push(entry(r, pass, "applied", &p));
@@ -892,7 +952,7 @@ impl ModelMaker for Runner<'_> {
         // assembled from it, and each adopted in turn.
         let mut alternatives = Vec::new();
         for r in self.phase(RepairPhase::Tree) {
-            if let Some(p) = r.propose(&ctx, &draft)? {
+            if let Some(p) = self.timed(r, || r.propose(&ctx, &draft))? {
                 let Edit::Tree(excluded) = &p.edit else {
                     return Err(wrong_edit(r, &p.edit));
                 };
@@ -912,7 +972,7 @@ impl ModelMaker for Runner<'_> {
         for (r, p, alt) in alternatives {
             let mut after = draft.clone();
             after.adopt(self.finish(&draft.segmentation, alt)?)?;
-            if r.stands(&ctx, &p.edit, &draft, &after)? {
+            if self.timed(r, || r.stands(&ctx, &p.edit, &draft, &after))? {
                 self.record(r, "kept", &p);
                 draft = after;
             } else {
