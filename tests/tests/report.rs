@@ -188,8 +188,8 @@ tracker started on one view follows), universal knuckles (or, with `knuckle_bodi
 x 2.5 mm knuckle body between an abduction and a flexion hinge) and hinged phalanges, seen by
 one camera 60 cm away: the other fingers and the dropout hide about half of the
 observations. kinetree does not recover this class yet: mean ARI 0.73-0.83 without knuckle
-bodies and 0.53-0.68 with them, and no draw has every joint right. At 0.5 mm without knuckle
-bodies, 85 of the 150 true joints join the right bodies with the right type (the last
+bodies and 0.54-0.67 with them, and no draw has every joint right. At 0.5 mm without knuckle
+bodies, 87 of the 150 true joints join the right bodies with the right type (the last
 column). Many keypoint pairs on different links are seen together in only a few frames; the
 average linkage weighs each pair by those frames, or such pairs, which read as rigid, would
 merge links. The hinges between phalanges turn through 30-90 deg, but a few keypoints on a
