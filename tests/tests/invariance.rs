@@ -377,34 +377,51 @@ fn permuting_the_points_of_drawn_mechanisms_permutes_the_result() {
 }
 
 /// The model does not depend on the number of threads: the fit's parallel parts (the
-/// bundle adjustment's per-frame terms and refits, the joint-freeing round's candidates) are
-/// combined in a fixed order. A random 10-joint tree (seed 10) whose fit frees joints on its
-/// way (the trace shows `free_joints`), so every parallel part runs; compared bit for bit
-/// through the model's JSON.
+/// bundle adjustment's per-frame terms and refits, the joint-freeing round's candidates, the
+/// typing and readmitting trials, made as many at a time as there are threads) are combined
+/// in a fixed order. Random 10-joint trees: seed 10 frees joints on its way (the trace shows
+/// `free_joints`), so every parallel part runs; seed 30 readmits a freed joint and types two
+/// joints in one call, so trials after an accepted one are made again on the new fit.
+/// Compared bit for bit through the model's JSON.
 #[test]
 fn the_model_does_not_depend_on_the_number_of_threads() {
-    let p = RandomParams {
-        n_joints: 10,
-        tree: true,
-        seed: 10,
-        ..RandomParams::default()
-    };
-    let data = simulate(&random_scenario(&p)).expect("simulate");
     let pipeline = Pipeline::from_config(&PipelineConfig::default()).expect("pipeline");
-    let run_with = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("thread pool");
-        pool.install(|| pipeline.run(&data.tracks).expect("discover").model)
-    };
-    let one = run_with(1);
-    assert!(
-        one.trace.iter().any(|t| t.repair == "free_joints"),
-        "the scene no longer frees a joint; pick another"
-    );
     let json = |m: &Model| serde_json::to_string(m).expect("json");
-    for threads in [2, 3] {
-        assert!(json(&run_with(threads)) == json(&one), "{threads} threads");
+    for seed in [10, 30] {
+        let p = RandomParams {
+            n_joints: 10,
+            tree: true,
+            seed,
+            ..RandomParams::default()
+        };
+        let data = simulate(&random_scenario(&p)).expect("simulate");
+        let run_with = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            pool.install(|| pipeline.run(&data.tracks).expect("discover").model)
+        };
+        let one = run_with(1);
+        let applied = |repair: &str, summary: &str| {
+            one.trace.iter().any(|t| {
+                t.repair == repair && t.outcome == "applied" && t.summary.starts_with(summary)
+            })
+        };
+        let wanted = if seed == 10 {
+            applied("free_joints", "")
+        } else {
+            applied("readmit_joints", "") && applied("type_by_fit", "2 joint(s)")
+        };
+        assert!(
+            wanted,
+            "seed {seed}: the scene no longer shows its repairs; pick another"
+        );
+        for threads in [2, 3] {
+            assert!(
+                json(&run_with(threads)) == json(&one),
+                "seed {seed}, {threads} threads"
+            );
+        }
     }
 }

@@ -339,8 +339,11 @@ type Trial = Option<(Observer, Vec<FrameFit>)>;
 /// Joints tried in order, each on the fit the accepted trials before it left, those already
 /// `accepted` skipped; each accepted joint is appended. A trial that accepts nothing leaves
 /// the model as it was, so the trials from one state run in parallel (each on a clone of the
-/// model) and the first that accepts its joint is taken, as a loop in joint order would take
-/// it; the joints after it are then tried again on the new fit.
+/// model), as many at a time as there are threads, and the first that accepts its joint is
+/// taken, as a loop in joint order would take it; the joints after it are then tried again on
+/// the new fit. Trying every joint at once instead wasted the trials after the accepted one,
+/// which are all made again on the new fit (`docs/decisions.md`, "Parallel trials of
+/// readmit_joints and hinges").
 fn accept_in_order(
     model: &mut Model,
     (observer, fits): (&mut Observer, &mut Vec<FrameFit>),
@@ -353,20 +356,24 @@ fn accept_in_order(
         let tries: Vec<usize> = (from..observer.joints.len())
             .filter(|&k| !accepted.contains(&k) && tried(model, k, observer, fits))
             .collect();
-        let results: Vec<Result<Option<_>>> = tries
-            .par_iter()
-            .map(|&k| {
-                let mut trial_model = model.clone();
-                let found = trial(&mut trial_model, k, observer, fits)?;
-                Ok(found.map(|f| (k, trial_model, f)))
-            })
-            .collect();
-        // In joint order: an error counts only where a loop would have met it.
+        // The group size changes only which trials are made, never which is taken.
+        let group = rayon::current_num_threads().max(1);
         let mut found = None;
-        for result in results {
-            if let Some(t) = result? {
-                found = Some(t);
-                break;
+        'groups: for ks in tries.chunks(group) {
+            let results: Vec<Result<Option<_>>> = ks
+                .par_iter()
+                .map(|&k| {
+                    let mut trial_model = model.clone();
+                    let found = trial(&mut trial_model, k, observer, fits)?;
+                    Ok(found.map(|f| (k, trial_model, f)))
+                })
+                .collect();
+            // In joint order: an error counts only where a loop would have met it.
+            for result in results {
+                if let Some(t) = result? {
+                    found = Some(t);
+                    break 'groups;
+                }
             }
         }
         let Some((k, accepted_model, (trial_observer, trial_fits))) = found else {
