@@ -203,6 +203,14 @@ fn may_ask(repair: &dyn Repair, asked: usize, edits: usize) -> bool {
     }
 }
 
+/// Runs `call` (a `propose` or `stands` of `repair`) and tells `observer` its time.
+fn timed<T>(observer: &dyn DiscoveryObserver, repair: &dyn Repair, call: impl FnOnce() -> T) -> T {
+    let start = std::time::Instant::now();
+    let out = call();
+    observer.repair_time(repair.name(), start.elapsed().as_secs_f64());
+    out
+}
+
 /// The grouping phase: the clustering at `sigma`, then the grouping repairs, which may change
 /// the noise level (the clustering is then redone). Returns the final level, matrix,
 /// segmentation and trace; `observer` is told each repair's time.
@@ -240,10 +248,8 @@ pub(crate) fn grouping(
                 seed: p.seed,
                 tree: p.tree,
             };
-            let start = std::time::Instant::now();
-            let proposal = r.propose(&ctx, &Draft::new(seg.clone()));
-            observer.repair_time(r.name(), start.elapsed().as_secs_f64());
-            let Some(proposal) = proposal? else {
+            let Some(proposal) = timed(observer, r, || r.propose(&ctx, &Draft::new(seg.clone())))?
+            else {
                 continue;
             };
             edits[k] += 1;
@@ -569,11 +575,7 @@ impl<'a> Runner<'a> {
 
     /// Runs `call` (a `propose` or `stands` of `repair`) and tells the observer its time.
     fn timed<T>(&self, repair: &dyn Repair, call: impl FnOnce() -> T) -> T {
-        let start = std::time::Instant::now();
-        let out = call();
-        self.observer
-            .repair_time(repair.name(), start.elapsed().as_secs_f64());
-        out
+        timed(self.observer, repair, call)
     }
 
     fn set_pass(&self, pass: usize) {
