@@ -408,19 +408,32 @@ impl<'a> StageTimes<'a> {
         for (k, (name, at)) in starts.iter().enumerate() {
             let end = starts.get(k + 1).map_or(now, |(_, t)| *t);
             let seconds = end.duration_since(*at).as_secs_f64();
-            match out.iter_mut().find(|s| s.stage == *name) {
-                Some(s) => {
-                    s.seconds += seconds;
-                    s.starts += 1;
-                }
-                None => out.push(StageTime {
+            tally(
+                &mut out,
+                |s| s.stage == *name,
+                |s| (s.seconds, s.starts) = (s.seconds + seconds, s.starts + 1),
+                || StageTime {
                     stage: name.clone(),
                     seconds,
                     starts: 1,
-                }),
-            }
+                },
+            );
         }
         out
+    }
+}
+
+/// Updates the first row of `rows` that `matches` with `add`, or appends `new()` when none
+/// does: a stage's or a repair's running total.
+fn tally<T>(
+    rows: &mut Vec<T>,
+    matches: impl Fn(&T) -> bool,
+    add: impl FnOnce(&mut T),
+    new: impl FnOnce() -> T,
+) {
+    match rows.iter_mut().find(|r| matches(r)) {
+        Some(r) => add(r),
+        None => rows.push(new()),
     }
 }
 
@@ -446,17 +459,16 @@ impl DiscoveryObserver for StageTimes<'_> {
 
     fn repair_time(&self, repair: &str, seconds: f64) {
         if let Ok(mut r) = self.repairs.lock() {
-            match r.iter_mut().find(|t| t.repair == repair) {
-                Some(t) => {
-                    t.seconds += seconds;
-                    t.calls += 1;
-                }
-                None => r.push(RepairTime {
+            tally(
+                &mut r,
+                |t| t.repair == repair,
+                |t| (t.seconds, t.calls) = (t.seconds + seconds, t.calls + 1),
+                || RepairTime {
                     repair: repair.to_string(),
                     seconds,
                     calls: 1,
-                }),
-            }
+                },
+            );
         }
         self.inner.repair_time(repair, seconds);
     }
