@@ -359,8 +359,8 @@ impl kinetree_pipeline::DiscoveryObserver for RepairCalls {
 }
 
 /// `StageTimes` sums each repair's calls as the discovery reports them, passes every call on,
-/// and lists the repairs longest first; every repair asked is one of the pipeline's, and the
-/// fit phase's ran on every model.
+/// and lists the repairs longest first; every repair asked is one of the pipeline's, the fit
+/// phase's `free_joints` and `bundle_adjust` among them.
 #[test]
 fn repair_times_sum_every_call_of_each_repair() {
     let data = simulate(&kinetree_synth::paper_arm(0)).expect("simulate");

@@ -341,8 +341,8 @@ type Trial = Option<(Observer, Vec<FrameFit>)>;
 /// the model as it was, so the trials from one state run in parallel (each on a clone of the
 /// model), as many at a time as there are threads, and the first that accepts its joint is
 /// taken, as a loop in joint order would take it; the joints after it are then tried again on
-/// the new fit. Trying every joint at once instead wasted the trials after the accepted one,
-/// which are all made again on the new fit (`docs/decisions.md`, "Parallel trials of
+/// the new fit. Trying every joint at once would make the trials after the accepted one only
+/// to make them again on the new fit (`docs/decisions.md`, "Parallel trials of
 /// readmit_joints and hinges").
 fn accept_in_order(
     model: &mut Model,
@@ -1272,11 +1272,12 @@ struct Screened {
 }
 
 /// The screen of [`type_by_fit`] on candidate joint `k` of `model` (fitted by `trial` as
-/// `fits`): its excess after a bundle adjustment of only the joints that share a body with it
-/// must be within `max_local_excess`, or that adjustment change nothing. Such an adjustment
-/// costs a fraction of one of every joint, and over every sweep it put a candidate's excess
-/// at 0.29-6.2 times (median 1.005) where the adjustment of every joint put it, every kept
-/// candidate's at most 4.1 (`docs/decisions.md`, `type_by_fit.max_local_excess`).
+/// `fits`): the candidate passes when its excess after a bundle adjustment of only the joints
+/// that share a body with it is within `max_local_excess`, or when that adjustment changes
+/// nothing. Such an adjustment costs a fraction of one of every joint, and over every sweep it
+/// put a candidate's excess at 0.29-6.2 times (median 1.005) where the adjustment of every
+/// joint put it, every kept candidate's at most 4.1 (`docs/decisions.md`,
+/// `type_by_fit.max_local_excess`).
 fn near_enough(
     model: &Model,
     k: usize,
