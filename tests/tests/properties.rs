@@ -158,6 +158,7 @@ proptest! {
                 // Bodies farther apart the farther apart their ids, so the tree's adjacency
                 // term weighs in too.
                 distance_m: a.map(|a| 0.1 * (b - a) as f64),
+                ball_fit_rms_m: None,
             }
         };
         for b in 0..n {

@@ -27,16 +27,16 @@ struct Outcome {
 }
 
 fn run(folder: &'static str) -> Outcome {
-    run_with(folder, "")
+    run_with(folder, |_| {})
 }
 
-/// [`run`] with `extra` (TOML of the `[pipeline]` table) appended to the pipeline.
-fn run_with(folder: &'static str, extra: &str) -> Outcome {
+/// [`run`] with the pipeline changed by `change`.
+fn run_with(folder: &'static str, change: impl FnOnce(&mut PipelineConfig)) -> Outcome {
     let dir = kinetree_tests::real_data(folder);
     let tracks = kinetree_io::read_c3d(&kinetree_tests::real_c3d(folder)).expect("read");
     let text = std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml");
-    let cfg =
-        kinetree_pipeline::config::pipeline_from_toml(&format!("{text}\n{extra}")).expect("config");
+    let mut cfg = kinetree_pipeline::config::pipeline_from_toml(&text).expect("config");
+    change(&mut cfg);
     let model = Pipeline::from_config(&cfg)
         .expect("pipeline")
         .run(&tracks)
@@ -233,7 +233,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
 #[test]
 fn without_the_adjacency_term_the_triads_lose_anatomical_edges() {
     let with = run("c3dorg-fullbody-triads");
-    let without = run_with("c3dorg-fullbody-triads", "[tree]\nadjacency_weight = 0.0\n");
+    let without = run_with("c3dorg-fullbody-triads", |c| c.tree.adjacency_weight = 0.0);
     assert_eq!(with.model.bodies.len(), without.model.bodies.len());
     let (a, b) = (
         anatomical_edges(&with, TRIADS_EDGES),
@@ -243,6 +243,90 @@ fn without_the_adjacency_term_the_triads_lose_anatomical_edges() {
         b + 2 <= a,
         "{a} anatomical edges with the term, {b} without"
     );
+}
+
+/// The tennis serve's Plug-in Gait markers give bodies for some segments only (a thigh or an
+/// upper arm has two markers, one on the joint axis), so its tree has edges that skip the
+/// segments with no body. Every edge joins anatomical neighbours that way when multi-DoF pairs
+/// are ranked by their ball fit; ranked by their DoF, the feet and a forearm hang on far
+/// segments.
+#[test]
+fn the_tennis_serve_tree_joins_neighbours_across_the_segments_it_lacks() {
+    let with = run("ktk-tennis-serve");
+    let without = run_with("ktk-tennis-serve", |c| c.tree.ball_fit_from_dof = 7);
+    let (a, b) = (
+        skipping_edges(&with, TENNIS_EDGES),
+        skipping_edges(&without, TENNIS_EDGES),
+    );
+    assert!(
+        with.model.joints.len() >= 7,
+        "{} joints",
+        with.model.joints.len()
+    );
+    assert_eq!(
+        a,
+        with.model.joints.len(),
+        "{a} of {} joints join neighbours",
+        with.model.joints.len()
+    );
+    assert!(
+        b + 2 <= a,
+        "{a} anatomical edges with the ball fit's ranking, {b} without"
+    );
+}
+
+/// The tennis serve's anatomical tree (Plug-in Gait segments of its `segments.json`).
+const TENNIS_EDGES: &[(&str, &str)] = &[
+    ("pelvis", "thorax"),
+    ("thorax", "head"),
+    ("thorax", "left_upper_arm"),
+    ("left_upper_arm", "left_forearm"),
+    ("left_forearm", "left_hand"),
+    ("thorax", "right_upper_arm"),
+    ("right_upper_arm", "right_forearm"),
+    ("right_forearm", "right_hand"),
+    ("pelvis", "left_thigh"),
+    ("left_thigh", "left_shank"),
+    ("left_shank", "left_foot"),
+    ("pelvis", "right_thigh"),
+    ("right_thigh", "right_shank"),
+    ("right_shank", "right_foot"),
+];
+
+/// How many of the model's joints join two segments that the anatomical tree `edges` joins
+/// directly or through segments no body is named after (a segment without its own body).
+fn skipping_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
+    let name = body_segments(o);
+    let has_body = |s: &str| name.iter().any(|n| n == s);
+    // Whether `to` is reached from `from` through segments without a body, not going back
+    // to `prev`.
+    fn reaches(
+        from: &str,
+        to: &str,
+        prev: &str,
+        edges: &[(&str, &str)],
+        has_body: &dyn Fn(&str) -> bool,
+    ) -> bool {
+        edges.iter().any(|&(x, y)| {
+            let next = if x == from {
+                y
+            } else if y == from {
+                x
+            } else {
+                return false;
+            };
+            next != prev
+                && (next == to || (!has_body(next) && reaches(next, to, from, edges, has_body)))
+        })
+    }
+    o.model
+        .joints
+        .iter()
+        .filter(|j| {
+            let (p, c) = (name[j.parent].as_str(), name[j.child].as_str());
+            p != c && reaches(p, c, "", edges, &has_body)
+        })
+        .count()
 }
 
 /// The full-body triads' anatomical tree, by the segment names of `segments.json`.

@@ -266,4 +266,11 @@ pub struct PairDof {
     /// written before it existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub distance_m: Option<f64>,
+    /// RMS distance, metres, between the two ends of the best point fixed in both bodies
+    /// (a ball joint's centre fitted to the relative poses by unweighted least squares, as
+    /// SCoRE fits one) over the frames tested: a few skin-motion millimetres between
+    /// neighbouring segments, a limb's swing between bodies a joint apart or more. `None` for
+    /// a pair with the camera, under three frames, and in files written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ball_fit_rms_m: Option<f64>,
 }

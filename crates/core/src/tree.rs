@@ -34,6 +34,17 @@ pub struct TreeCosts {
     /// root, as it would with nothing static (default 5: a noisy arm's first link can test at
     /// four DoF against its base, a walking pelvis at five). Above 6 turns the rule off.
     pub min_free_dof: usize,
+    /// Multi-DoF pairs of at least this many DoF, `n`, cost the same whatever their DoF, plus
+    /// how far they are from a ball joint: `1 + n + r / (r + m)`, with `r` the pair's
+    /// `ball_fit_rms_m` and `m` its median over the pairs of moving bodies; a pair with a
+    /// static body keeps its cost by DoF. Default 7, which no pair reaches: every multi-DoF
+    /// pair is ranked by its DoF. The motion-capture preset sets 4: on skin markers no joint
+    /// type explains such a pair and the rank tests' four, five or six DoF say little, while
+    /// a ball fit's residual is a few millimetres between neighbouring segments and a limb's
+    /// swing between a segment and the next but one (`docs/decisions.md`,
+    /// `tree.ball_fit_from_dof`). Three-DoF pairs keep their cost (4-5, with the spherical
+    /// edges) at 4: a ball the pivot test rejected.
+    pub ball_fit_from_dof: usize,
 }
 
 impl Default for TreeCosts {
@@ -44,6 +55,7 @@ impl Default for TreeCosts {
             tie_fit_margin: 0.3,
             universal_cost: 2.5,
             min_free_dof: 5,
+            ball_fit_from_dof: 7,
         }
     }
 }
@@ -67,7 +79,13 @@ impl TreeCosts {
                 });
             }
         }
-        crate::limits::check_count(&format!("{section}.min_free_dof"), self.min_free_dof, 1, 7)
+        crate::limits::check_count(&format!("{section}.min_free_dof"), self.min_free_dof, 1, 7)?;
+        crate::limits::check_count(
+            &format!("{section}.ball_fit_from_dof"),
+            self.ball_fit_from_dof,
+            2,
+            7,
+        )
     }
 }
 
@@ -90,7 +108,12 @@ mod tests {
             universal_cost: f64::INFINITY,
             ..TreeCosts::default()
         };
+        let ball = TreeCosts {
+            ball_fit_from_dof: 1,
+            ..TreeCosts::default()
+        };
         for (bad, key) in [
+            (ball, "pipeline.tree.ball_fit_from_dof"),
             (weight, "pipeline.tree.adjacency_weight"),
             (margin, "pipeline.tree.tie_fit_margin"),
             (universal, "pipeline.tree.universal_cost"),

@@ -948,6 +948,7 @@ fn classify_ranks(
         d.sort_by(f64::total_cmp);
         d.get(d.len() / 2).copied()
     });
+    let ball_fit_rms_m = a.and_then(|_| ball_fit_rms(&c.x_abs));
     Ok(PairDof {
         a,
         b,
@@ -962,7 +963,56 @@ fn classify_ranks(
         joint,
         fit_ratio,
         distance_m,
+        ball_fit_rms_m,
     })
+}
+
+/// [`PairDof::ball_fit_rms_m`] of the relative poses `a_from_b` in `x_abs`: the point `c` in
+/// `a`'s frame and `w` in `b`'s that minimise `sum_k |c - R_k w - y_k|^2` (one gauge direction
+/// along a hinge's axis, fixed by a tiny ridge), and the RMS of the residuals. Unweighted,
+/// unlike [`pivot_test`]: a distance to compare between pairs, not a test against noise.
+fn ball_fit_rms(x_abs: &[(Matrix3<f64>, Vector3<f64>)]) -> Option<f64> {
+    use kinetree_core::nalgebra::{SMatrix, SVector};
+    let k = x_abs.len();
+    if k < 3 {
+        return None;
+    }
+    // Normal equations of the rows [I, -R_k] (c, w) = y_k, summed over the frames.
+    let mut sum_r = Matrix3::zeros();
+    let mut sum_y = Vector3::zeros();
+    let mut sum_rty = Vector3::zeros();
+    for (r, y) in x_abs {
+        sum_r += r;
+        sum_y += y;
+        sum_rty += r.transpose() * y;
+    }
+    let n = k as f64;
+    let mut normal = SMatrix::<f64, 6, 6>::zeros();
+    normal
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(Matrix3::identity() * n));
+    normal
+        .fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(Matrix3::identity() * n));
+    normal.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-sum_r));
+    normal
+        .fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&(-sum_r.transpose()));
+    let mut rhs = SVector::<f64, 6>::zeros();
+    rhs.fixed_rows_mut::<3>(0).copy_from(&sum_y);
+    rhs.fixed_rows_mut::<3>(3).copy_from(&(-sum_rty));
+    let ridge = n * 1e-9;
+    let theta = (normal + SMatrix::<f64, 6, 6>::identity() * ridge).try_inverse()? * rhs;
+    let (c, w) = (
+        theta.fixed_rows::<3>(0).into_owned(),
+        theta.fixed_rows::<3>(3).into_owned(),
+    );
+    let ss: f64 = x_abs
+        .iter()
+        .map(|(r, y)| (c - r * w - y).norm_squared())
+        .sum();
+    let rms = (ss / n).sqrt();
+    rms.is_finite().then_some(rms)
 }
 
 fn check_positive(name: &str, v: f64) -> Result<()> {
@@ -1305,6 +1355,44 @@ mod tests {
             a_cov: Vec::new(),
             b_cov: Vec::new(),
         }
+    }
+
+    /// About a ball joint (`c` in `a`, `w` in `b`) the fit's RMS is zero to rounding; with the
+    /// child's end of the centre wobbling on a circle of radius `e` the RMS is `e` (its
+    /// best fixed point is the circle's centre); along a slide it is the slide's spread.
+    #[test]
+    fn the_ball_fit_measures_how_far_a_pair_is_from_a_ball_joint() {
+        let c = Vector3::new(0.1, -0.05, 0.2);
+        let w = Vector3::new(-0.02, 0.15, 0.03);
+        let rotation = |k: usize| {
+            let t = k as f64;
+            UnitQuaternion::from_euler_angles(
+                0.7 * (0.05 * t).sin(),
+                0.4 * (0.08 * t).cos(),
+                0.1 * t,
+            )
+            .to_rotation_matrix()
+            .into_inner()
+        };
+        let pair = |wobble: f64, slide: f64| -> Vec<(Matrix3<f64>, Vector3<f64>)> {
+            (0..400)
+                .map(|k| {
+                    let r = rotation(k);
+                    let phase = 0.3 * k as f64;
+                    let e = Vector3::new(phase.cos(), phase.sin(), 0.0) * wobble
+                        + Vector3::x() * slide * (0.02 * k as f64).sin();
+                    // c + e = R w + y: the ends meet up to `e`.
+                    (r, c + e - r * w)
+                })
+                .collect()
+        };
+        let exact = ball_fit_rms(&pair(0.0, 0.0)).expect("fit");
+        assert!(exact < 1e-9, "{exact}");
+        let wobbling = ball_fit_rms(&pair(0.01, 0.0)).expect("fit");
+        assert!((wobbling - 0.01).abs() < 1e-3, "{wobbling}");
+        let sliding = ball_fit_rms(&pair(0.0, 0.1)).expect("fit");
+        assert!(sliding > 0.05 && sliding < 0.08, "{sliding}");
+        assert!(ball_fit_rms(&pair(0.0, 0.0)[..2]).is_none());
     }
 
     #[test]

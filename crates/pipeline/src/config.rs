@@ -282,7 +282,9 @@ impl Default for PipelineConfig {
 /// hinges far apart; `docs/decisions.md`, `[pipeline.unseen_links]`), and no bound on the
 /// re-prediction of a model `retest` rebuilds (multi-DoF joints absorb the skin's motion, so
 /// a worse tree re-predicts the markers better; `docs/decisions.md`,
-/// `retest.max_rms_growth`).
+/// `retest.max_rms_growth`), and multi-DoF pairs of four DoF or more ranked for the tree by
+/// how well a ball joint fits them rather than by their DoF (`[pipeline.tree]
+/// ball_fit_from_dof`).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 
@@ -301,6 +303,9 @@ enabled = false
 
 [repairs.retest]
 max_rms_growth = 1e6
+
+[tree]
+ball_fit_from_dof = 4
 "#;
 
 impl PipelineConfig {

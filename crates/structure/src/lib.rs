@@ -638,21 +638,35 @@ fn posed_frames(n_bodies: usize, pairs: &[PairDof]) -> Vec<usize> {
 struct CostScale {
     posed: Vec<usize>,
     distance: Option<f64>,
+    /// Median [`PairDof::ball_fit_rms_m`] over the pairs of moving bodies.
+    ball_fit: Option<f64>,
+    /// Whether each body is static (its pair with the camera has no DoF).
+    fixed: Vec<bool>,
     costs: TreeCosts,
 }
 
 impl CostScale {
     fn of(n_bodies: usize, pairs: &[PairDof], costs: &TreeCosts) -> Self {
-        let mut d: Vec<f64> = pairs
-            .iter()
-            .filter(|p| p.a.is_some())
-            .filter_map(|p| p.distance_m)
-            .filter(|d| d.is_finite())
-            .collect();
-        d.sort_by(f64::total_cmp);
+        let mut fixed = vec![false; n_bodies];
+        for b in static_bodies(n_bodies, pairs) {
+            fixed[b] = true;
+        }
+        let median = |value: &dyn Fn(&PairDof) -> Option<f64>| {
+            let mut d: Vec<f64> = pairs
+                .iter()
+                .filter(|p| p.a.is_some())
+                .filter_map(value)
+                .filter(|d| d.is_finite())
+                .collect();
+            d.sort_by(f64::total_cmp);
+            d.get(d.len() / 2).copied().filter(|&m| m > 0.0)
+        };
+        let moving = |p: &PairDof| p.a.is_some_and(|a| !fixed[a] && !fixed[p.b]);
         Self {
             posed: posed_frames(n_bodies, pairs),
-            distance: d.get(d.len() / 2).copied().filter(|&m| m > 0.0),
+            distance: median(&|p| p.distance_m),
+            ball_fit: median(&|p| p.ball_fit_rms_m.filter(|_| moving(p))),
+            fixed,
             costs: *costs,
         }
     }
@@ -661,6 +675,19 @@ impl CostScale {
     /// its [`missed_share`], and the pair's distance (adjacent bodies first: a joint joins
     /// neighbours; [`TreeCosts::adjacency_weight`]).
     fn cost(&self, p: &PairDof, a: usize) -> f64 {
+        // A pair with a static body keeps its DoF: a subject walking past the scene fits no
+        // ball to it, and which of its bodies the tree hangs there is
+        // `hang_subjects_by_their_root`'s to decide.
+        let from = self.costs.ball_fit_from_dof;
+        if matches!(p.joint, JointKind::MultiDof)
+            && p.dof >= from
+            && !self.fixed[a]
+            && !self.fixed[p.b]
+            && let (Some(r), Some(m)) = (p.ball_fit_rms_m, self.ball_fit)
+            && r.is_finite()
+        {
+            return 1.0 + from as f64 + r / (r + m);
+        }
         let near = match (p.distance_m, self.distance) {
             (Some(d), Some(m)) if d.is_finite() => {
                 self.costs.adjacency_weight * (d / m).min(self.costs.adjacency_cap)
@@ -860,7 +887,67 @@ mod tests {
             joint,
             fit_ratio,
             distance_m: None,
+            ball_fit_rms_m: None,
         }
+    }
+
+    /// A body whose pairs are all multi-DoF (a segment whose neighbour has no body of its own,
+    /// on skin markers) hangs on the body it fits a ball joint best with, whatever the rank
+    /// tests' DoF, with `ball_fit_from_dof` at 4; by default the pair of fewest DoF wins. A
+    /// three-DoF pair, and a pair with a static body, keep ranking by their DoF.
+    #[test]
+    fn multi_dof_pairs_rank_by_their_ball_fit() {
+        let multi = |a: usize, b: usize, dof: usize, ball: f64| {
+            let mut p = pair(Some(a), b, JointKind::MultiDof, 0.0);
+            p.dof = dof;
+            p.ball_fit_rms_m = Some(ball);
+            p
+        };
+        let hinge = JointKind::Revolute {
+            axis: Vector3::z(),
+            pivot: Point3::origin(),
+        };
+        // Bodies 0-1-2 a hinged chain; body 3 near body 2 (a six-DoF pair fitting a ball to
+        // 2 cm) and far from body 0 (`far_dof` DoF, 30 cm); body 0 static or moving.
+        let pairs = |far_dof: usize, fixed: bool| {
+            let base = if fixed {
+                JointKind::Rigid
+            } else {
+                JointKind::MultiDof
+            };
+            vec![
+                pair(None, 0, base, 0.1),
+                pair(None, 1, JointKind::MultiDof, 0.0),
+                pair(None, 2, JointKind::MultiDof, 0.0),
+                pair(None, 3, JointKind::MultiDof, 0.0),
+                pair(Some(0), 1, hinge.clone(), 0.2),
+                pair(Some(1), 2, hinge.clone(), 0.2),
+                multi(0, 2, 2, 0.1),
+                multi(0, 3, far_dof, 0.3),
+                multi(1, 3, 6, 0.2),
+                multi(2, 3, 6, 0.02),
+            ]
+        };
+        let by_ball = TreeCosts {
+            ball_fit_from_dof: 4,
+            ..TreeCosts::default()
+        };
+        let parent_of_3 =
+            |p: &[PairDof], c: &TreeCosts| spanning_tree(4, p, c).expect("tree").parent[3];
+        assert_eq!(parent_of_3(&pairs(5, false), &by_ball), Some(2));
+        assert_eq!(
+            parent_of_3(&pairs(5, false), &TreeCosts::default()),
+            Some(0)
+        );
+        assert_eq!(parent_of_3(&pairs(3, false), &by_ball), Some(0));
+        assert_eq!(parent_of_3(&pairs(5, true), &by_ball), Some(2));
+        // A static body's six-DoF pair keeps its cost (7), even fitting a ball to 1 mm.
+        let mut fixed = pairs(6, true);
+        fixed[7].ball_fit_rms_m = Some(0.001);
+        assert_eq!(parent_of_3(&fixed, &by_ball), Some(2));
+        let mut moving = pairs(6, false);
+        moving[7].ball_fit_rms_m = Some(0.001);
+        assert_eq!(parent_of_3(&moving, &by_ball), Some(0));
     }
 
     /// Poses of bodies at fixed camera positions `origins` (identity rotations) over `n`

@@ -237,6 +237,7 @@ mod tests {
             joint,
             fit_ratio,
             distance_m: None,
+            ball_fit_rms_m: None,
         }
     }
 
