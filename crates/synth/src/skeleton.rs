@@ -41,6 +41,13 @@ pub struct SkeletonParams {
     /// with the forearm or shank too) and on each wrist's and ankle's first axis (the
     /// styloids and malleoli, carried by the forearm or shank).
     pub clinical_markers: bool,
+    /// A sparse marker set as Plug-in Gait places one (not with `clinical_markers`): four
+    /// markers on the pelvis, torso and head, one on each upper arm, forearm, thigh and
+    /// shank, two on each hand and foot, and one on each elbow's, knee's, wrist's and
+    /// ankle's (first) axis, carried by the segment above. A limb segment then shows two
+    /// markers at most, one of them rigid with the segment below as well, so some segments
+    /// make no body and the tree joins their neighbours across them.
+    pub plug_in_gait_markers: bool,
     /// Soft-tissue artefact, metres: each marker drifts from its place on its segment by a
     /// slow offset of at most this much per coordinate ([`Scenario::soft_tissue_m`]).
     pub soft_tissue_m: f64,
@@ -64,6 +71,7 @@ impl Default for SkeletonParams {
             universal_wrists_and_ankles: false,
             floating_pelvis: false,
             clinical_markers: false,
+            plug_in_gait_markers: false,
             soft_tissue_m: 0.0,
             scene_markers: 0,
         }
@@ -99,6 +107,12 @@ impl SkeletonParams {
         check_within("data.dropout", self.dropout, 0.0, 0.99)?;
         check_within("data.soft_tissue_m", self.soft_tissue_m, 0.0, 0.1)?;
         check_count("data.scene_markers", self.scene_markers, 0, 1000)?;
+        if self.plug_in_gait_markers && self.clinical_markers {
+            return Err(kinetree_core::Error::InvalidParameter {
+                name: "data.plug_in_gait_markers".into(),
+                message: "is a marker set of its own: not with data.clinical_markers".into(),
+            });
+        }
         if self.scene_markers > 0 && !self.floating_pelvis {
             return Err(kinetree_core::Error::InvalidParameter {
                 name: "data.scene_markers".into(),
@@ -285,6 +299,8 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         skip_corners: (0..8).collect(),
         extra_points: if p.clinical_markers {
             2
+        } else if p.plug_in_gait_markers {
+            1
         } else {
             p.markers_per_segment
         },
@@ -294,7 +310,7 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
     let pelvis_centre = [0.0, 0.0, 1.0];
     // The trunk's segments carry four markers in a clinical set.
     let trunk = |b: BodySpec| BodySpec {
-        extra_points: if p.clinical_markers {
+        extra_points: if p.clinical_markers || p.plug_in_gait_markers {
             4
         } else {
             b.extra_points
@@ -354,16 +370,19 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         }
     }
     for (k, s) in SEGMENTS.iter().enumerate() {
-        let body = BodySpec {
+        let distal = s.name.starts_with("hand") || s.name.starts_with("foot");
+        let mut body = BodySpec {
             name: s.name.into(),
             ..markers(s.box_centre, s.half)
         };
+        if p.plug_in_gait_markers && distal {
+            body.extra_points = 2;
+        }
         bodies.push(if s.name == "torso" || s.name == "head" {
             trunk(body)
         } else {
             body
         });
-        let distal = s.name.starts_with("hand") || s.name.starts_with("foot");
         if p.clinical_markers && (s.joint == HINGE || distal) {
             // Two markers on the joint's (first) axis, on the skin either side, carried by
             // the parent segment.
@@ -373,6 +392,13 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
             bodies[s.parent + first - 1]
                 .marked_points
                 .extend([on_axis(-1.0), on_axis(1.0)]);
+        }
+        if p.plug_in_gait_markers && (s.joint == HINGE || distal) {
+            // One marker on the joint's (first) axis, carried by the parent segment.
+            let reach = s.half[0] + 0.01;
+            bodies[s.parent + first - 1]
+                .marked_points
+                .push(std::array::from_fn(|a| s.centre[a] + reach * s.axis[a]));
         }
         let joint_type = if distal && p.universal_wrists_and_ankles {
             JointType::Universal

@@ -1,0 +1,122 @@
+//! Skeletons with a sparse marker set as Plug-in Gait places one
+//! (`SkeletonParams::plug_in_gait_markers`): one marker on each limb segment and one on each
+//! elbow's, knee's, wrist's and ankle's axis. Some segments show too few markers for a body,
+//! so the tree must join their neighbours across them.
+
+use kinetree_core::Model;
+use kinetree_eval::body_map;
+use kinetree_pipeline::PipelineConfig;
+use kinetree_synth::{SkeletonParams, SynthData, simulate, skeleton_scenario};
+
+fn plug_in_gait(seed: u64, soft_tissue_m: f64) -> SynthData {
+    simulate(&skeleton_scenario(&SkeletonParams {
+        seed,
+        plug_in_gait_markers: true,
+        floating_pelvis: true,
+        soft_tissue_m,
+        ..SkeletonParams::default()
+    }))
+    .expect("simulate")
+}
+
+/// How many of the model's joints join two segments the true skeleton joins directly or
+/// through segments that no body stands for, and how many joints there are. Each body stands
+/// for the segment most of its points are on ([`body_map`]).
+fn neighbour_joints(model: &Model, data: &SynthData) -> (usize, usize) {
+    let map = body_map(model, &data.truth);
+    let mech = &data.truth.mechanism;
+    let n = mech.bodies.len();
+    let mut adj = vec![Vec::new(); n];
+    for j in &mech.joints {
+        adj[j.parent].push(j.child);
+        adj[j.child].push(j.parent);
+    }
+    let has_body = |s: usize| map.contains(&s);
+    // Whether `to` is reached from `from` through segments without a body.
+    let reaches = |from: usize, to: usize| {
+        let mut seen = vec![false; n];
+        let mut stack = vec![from];
+        seen[from] = true;
+        while let Some(u) = stack.pop() {
+            for &v in &adj[u] {
+                if v == to {
+                    return true;
+                }
+                if !seen[v] && !has_body(v) {
+                    seen[v] = true;
+                    stack.push(v);
+                }
+            }
+        }
+        false
+    };
+    let good = model
+        .joints
+        .iter()
+        .filter(|j| map[j.parent] != map[j.child] && reaches(map[j.parent], map[j.child]))
+        .count();
+    (good, model.joints.len())
+}
+
+/// With the motion-capture settings every joint of the tree joins neighbouring segments, or
+/// segments whose segment between has no body, with and without soft tissue; ranked by
+/// their DoF instead (`[pipeline.tree] ball_fit_from_dof = 7`), the multi-DoF pairs hang
+/// limbs on far segments.
+#[test]
+fn the_tree_joins_neighbours_across_segments_without_a_body() {
+    let by_dof = {
+        let mut c = PipelineConfig::motion_capture();
+        c.tree.ball_fit_from_dof = 7;
+        c
+    };
+    let mut counts = [(0, 0); 2];
+    for soft_tissue_m in [0.0, 0.005] {
+        for seed in 0..3 {
+            let data = plug_in_gait(seed, soft_tissue_m);
+            for (k, cfg) in [PipelineConfig::motion_capture(), by_dof.clone()]
+                .iter()
+                .enumerate()
+            {
+                let model = kinetree_tests::discover_with(&data.tracks, cfg);
+                let (good, all) = neighbour_joints(&model, &data);
+                assert!(all >= 5, "seed {seed}: {all} joints");
+                counts[k].0 += good;
+                counts[k].1 += all;
+            }
+        }
+    }
+    let [(ball, ball_all), (dof, dof_all)] = counts;
+    assert!(
+        ball as f64 >= 0.95 * ball_all as f64,
+        "{ball} of {ball_all} joints join neighbours"
+    );
+    assert!(
+        dof + 5 <= ball,
+        "ranked by DoF {dof} of {dof_all} joints join neighbours, by the ball fit {ball}"
+    );
+}
+
+/// The marker set: four markers on the pelvis, torso and head; a thigh, shank, upper arm or
+/// forearm carries its own marker and the one on the joint below's axis; a hand or foot its
+/// two. It is a set of its own: asked with the clinical set, the parameters are refused.
+#[test]
+fn the_plug_in_gait_set_puts_one_marker_on_a_limb_segment_and_one_on_its_joint_axis() {
+    let data = plug_in_gait(0, 0.0);
+    let mech = &data.truth.mechanism;
+    for (b, body) in mech.bodies.iter().enumerate() {
+        let count = data.truth.point_body.iter().filter(|&&t| t == b).count();
+        let expected = match body.name.as_str() {
+            "world" => 0,
+            "pelvis" | "torso" | "head" => 4,
+            _ => 2,
+        };
+        assert_eq!(count, expected, "{}: {count} markers", body.name);
+    }
+    let both = SkeletonParams {
+        plug_in_gait_markers: true,
+        clinical_markers: true,
+        ..SkeletonParams::default()
+    };
+    let e = both.validate().expect_err("two marker sets").to_string();
+    assert!(e.contains("data.plug_in_gait_markers"), "{e}");
+}
