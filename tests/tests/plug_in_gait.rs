@@ -120,3 +120,53 @@ fn the_plug_in_gait_set_puts_one_marker_on_a_limb_segment_and_one_on_its_joint_a
     let e = both.validate().expect_err("two marker sets").to_string();
     assert!(e.contains("data.plug_in_gait_markers"), "{e}");
 }
+
+/// A thigh or upper arm shows its own marker and the one on the knee's or elbow's axis, which
+/// the clustering gives the shank or forearm (it is rigid with both). The marker left alone
+/// borrows it (`[pipeline.repairs.ball_groups] borrow`, off by default): the two turn about
+/// the hip or the shoulder, make the segment's body, and the axis marker is shared by the two
+/// segments it joins. Without borrowing fewer segments get a body.
+#[test]
+fn a_lone_marker_borrows_the_axis_marker_the_segment_below_took() {
+    let lone = PipelineConfig::motion_capture();
+    let mut borrowing = PipelineConfig::motion_capture();
+    borrowing.repairs.ball_groups.borrow = true;
+    let (mut with, mut without, mut shared) = (0, 0, 0);
+    for seed in 0..3 {
+        let data = plug_in_gait(seed, 0.0);
+        let mech = &data.truth.mechanism;
+        let adjacent = |a: usize, b: usize| {
+            mech.joints
+                .iter()
+                .any(|j| (j.parent, j.child) == (a, b) || (j.parent, j.child) == (b, a))
+        };
+        for (cfg, count) in [(borrowing.clone(), &mut with), (lone.clone(), &mut without)] {
+            let model = kinetree_tests::discover_with(&data.tracks, &cfg);
+            let map = body_map(&model, &data.truth);
+            let mut segments = map.clone();
+            segments.sort_unstable();
+            segments.dedup();
+            *count += segments.len();
+            // Every point on two bodies joins two neighbouring segments.
+            for b in &model.bodies {
+                for &p in &b.points {
+                    let owner = model.point_body[p];
+                    if owner >= 0 && owner as usize != b.id {
+                        shared += 1;
+                        assert!(
+                            adjacent(map[owner as usize], map[b.id]),
+                            "seed {seed}: point {p} shared by {} and {}",
+                            mech.bodies[map[owner as usize]].name,
+                            mech.bodies[map[b.id]].name
+                        );
+                    }
+                }
+            }
+        }
+    }
+    assert!(shared >= 3, "{shared} shared points");
+    assert!(
+        with >= without + 3,
+        "{with} segments with a body when lone markers borrow, {without} without"
+    );
+}

@@ -325,6 +325,14 @@ pub struct BallGroupsParams {
     pub min_fit_frames: usize,
     /// As [`BallsParams::min_lever_in_sigma`] (default 3).
     pub min_lever_in_sigma: f64,
+    /// Whether a keypoint left with no partner borrows the keypoints of posed bodies that
+    /// stay rigid with it (default false). A segment of two markers, one on a joint's axis,
+    /// loses that one to the neighbouring segment, which it is rigid with too; the other then
+    /// makes no group alone. The borrowed keypoints stay on their bodies and are shared with
+    /// the group's body when it is made. Off by default: it gives Plug-in Gait thighs and
+    /// upper arms their bodies, but lone keypoints of rigid mechanisms and stray skin markers
+    /// make wrong ones (`docs/decisions.md`, `ball_groups.borrow`).
+    pub borrow: bool,
 }
 
 impl Default for BallGroupsParams {
@@ -343,6 +351,7 @@ impl Default for BallGroupsParams {
             min_swing_in_sigma: b.min_swing_in_sigma,
             min_fit_frames: b.fit.min_frames,
             min_lever_in_sigma: b.fit.min_lever_in_sigma,
+            borrow: false,
         }
     }
 }
@@ -446,7 +455,34 @@ impl Repair for BallGroups {
             dof > 0.0 && chi2 <= kinetree_pose::misfit_bound(dof, bounds.bound_in_std, bounds.slack)
         };
         if self.params.min_points <= 2 {
-            candidates.extend(super::rigid_pairs(rest, |a, b| rigid(&[a, b])));
+            candidates.extend(super::rigid_pairs(rest.clone(), |a, b| rigid(&[a, b])));
+        }
+        // Keypoints still alone borrow the keypoints on bodies rigid with them, seen together
+        // in enough frames: a marker on a joint's axis the clustering gave the neighbour.
+        let mut borrowed: Vec<(usize, usize)> = Vec::new();
+        if self.params.borrow {
+            let on_body: Vec<usize> = (0..seg.n_points())
+                .filter(|&i| seg.body_of(i).is_some())
+                .collect();
+            for &i in &rest {
+                if candidates.iter().flatten().any(|&j| j == i) {
+                    continue;
+                }
+                let mut group: Vec<usize> = on_body
+                    .iter()
+                    .copied()
+                    .filter(|&j| {
+                        ctx.stats.count(i, j) as usize >= self.params.min_frames && rigid(&[i, j])
+                    })
+                    .collect();
+                if group.is_empty() || group.len() + 1 < self.params.min_points {
+                    continue;
+                }
+                borrowed.extend(group.iter().map(|&j| (j, i)));
+                group.push(i);
+                group.sort_unstable();
+                candidates.push(group);
+            }
         }
         let mut groups: Vec<Vec<usize>> = candidates
             .into_iter()
@@ -456,15 +492,43 @@ impl Repair for BallGroups {
         if groups.is_empty() {
             return Ok(None);
         }
+        // Each group's own keypoints make its body; the borrowed ones are shared with it.
+        let lent = |g: &[usize], j: usize| {
+            borrowed
+                .iter()
+                .any(|&(b, owner)| b == j && g.contains(&owner) && seg.body_of(j).is_some())
+        };
+        let own: Vec<Vec<usize>> = groups
+            .iter()
+            .map(|g| g.iter().copied().filter(|&j| !lent(g, j)).collect())
+            .collect();
+        let made = super::with_new_bodies(seg, &own);
+        let shares: Vec<(usize, usize)> = groups
+            .iter()
+            .zip(&own)
+            .filter_map(|(g, o)| Some((g, made.body_of(*o.first()?)?)))
+            .flat_map(|(g, body)| {
+                g.iter()
+                    .copied()
+                    .filter(|&j| lent(g, j))
+                    .map(move |j| (j, body))
+            })
+            .collect();
         let mut p = Proposal::new(
-            Edit::Segmentation(super::with_new_bodies(seg, &groups)),
+            Edit::Segmentation(made.with_shared(&shares)),
             format!(
-                "{} group(s) of keypoints turning about a point of a body made bodies",
-                groups.len()
+                "{} group(s) of keypoints turning about a point of a body made bodies{}",
+                groups.len(),
+                if shares.is_empty() {
+                    String::new()
+                } else {
+                    format!(", sharing {} keypoint(s) of other bodies", shares.len())
+                }
             ),
         );
         p.points = groups.iter().flatten().copied().collect();
         p.points.sort_unstable();
+        p.points.dedup();
         Ok(Some(p))
     }
 }
