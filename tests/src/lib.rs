@@ -285,3 +285,34 @@ pub mod build {
         kinetree_synth::simulate(&s).expect("simulate")
     }
 }
+
+/// Whether a tree's `edges` join `from` to `to` directly or through nodes that `has_body`
+/// says have no body (a segment a model lacks, which its joints may skip).
+pub fn joined_across_missing<T: Copy + PartialEq>(
+    edges: &[(T, T)],
+    has_body: impl Fn(T) -> bool,
+    from: T,
+    to: T,
+) -> bool {
+    let mut seen = vec![from];
+    let mut stack = vec![from];
+    while let Some(u) = stack.pop() {
+        for &(x, y) in edges {
+            let next = if x == u {
+                y
+            } else if y == u {
+                x
+            } else {
+                continue;
+            };
+            if next == to {
+                return true;
+            }
+            if !seen.contains(&next) && !has_body(next) {
+                seen.push(next);
+                stack.push(next);
+            }
+        }
+    }
+    false
+}

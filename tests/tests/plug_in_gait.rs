@@ -24,31 +24,15 @@ fn plug_in_gait(seed: u64, soft_tissue_m: f64) -> SynthData {
 /// for the segment most of its points are on ([`body_map`]).
 fn neighbour_joints(model: &Model, data: &SynthData) -> (usize, usize) {
     let map = body_map(model, &data.truth);
-    let mech = &data.truth.mechanism;
-    let n = mech.bodies.len();
-    let mut adj = vec![Vec::new(); n];
-    for j in &mech.joints {
-        adj[j.parent].push(j.child);
-        adj[j.child].push(j.parent);
-    }
-    let has_body = |s: usize| map.contains(&s);
-    // Whether `to` is reached from `from` through segments without a body.
+    let edges: Vec<(usize, usize)> = data
+        .truth
+        .mechanism
+        .joints
+        .iter()
+        .map(|j| (j.parent, j.child))
+        .collect();
     let reaches = |from: usize, to: usize| {
-        let mut seen = vec![false; n];
-        let mut stack = vec![from];
-        seen[from] = true;
-        while let Some(u) = stack.pop() {
-            for &v in &adj[u] {
-                if v == to {
-                    return true;
-                }
-                if !seen[v] && !has_body(v) {
-                    seen[v] = true;
-                    stack.push(v);
-                }
-            }
-        }
-        false
+        kinetree_tests::joined_across_missing(&edges, |s| map.contains(&s), from, to)
     };
     let good = model
         .joints

@@ -298,33 +298,12 @@ const TENNIS_EDGES: &[(&str, &str)] = &[
 fn skipping_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
     let name = body_segments(o);
     let has_body = |s: &str| name.iter().any(|n| n == s);
-    // Whether `to` is reached from `from` through segments without a body, not going back
-    // to `prev`.
-    fn reaches(
-        from: &str,
-        to: &str,
-        prev: &str,
-        edges: &[(&str, &str)],
-        has_body: &dyn Fn(&str) -> bool,
-    ) -> bool {
-        edges.iter().any(|&(x, y)| {
-            let next = if x == from {
-                y
-            } else if y == from {
-                x
-            } else {
-                return false;
-            };
-            next != prev
-                && (next == to || (!has_body(next) && reaches(next, to, from, edges, has_body)))
-        })
-    }
     o.model
         .joints
         .iter()
         .filter(|j| {
             let (p, c) = (name[j.parent].as_str(), name[j.child].as_str());
-            p != c && reaches(p, c, "", edges, &has_body)
+            p != c && kinetree_tests::joined_across_missing(edges, has_body, p, c)
         })
         .count()
 }

@@ -383,22 +383,16 @@ pub fn skeleton_scenario(p: &SkeletonParams) -> Scenario {
         } else {
             body
         });
+        // Markers on the joint's (first) axis, on the skin, carried by the parent segment:
+        // both sides in a clinical set, one in Plug-in Gait's.
+        let reach = s.half[0] + 0.01;
+        let on_axis = |sign: f64| std::array::from_fn(|a| s.centre[a] + sign * reach * s.axis[a]);
+        let on_axes = &mut bodies[s.parent + first - 1].marked_points;
         if p.clinical_markers && (s.joint == HINGE || distal) {
-            // Two markers on the joint's (first) axis, on the skin either side, carried by
-            // the parent segment.
-            let reach = s.half[0] + 0.01;
-            let on_axis =
-                |sign: f64| std::array::from_fn(|a| s.centre[a] + sign * reach * s.axis[a]);
-            bodies[s.parent + first - 1]
-                .marked_points
-                .extend([on_axis(-1.0), on_axis(1.0)]);
+            on_axes.extend([on_axis(-1.0), on_axis(1.0)]);
         }
         if p.plug_in_gait_markers && (s.joint == HINGE || distal) {
-            // One marker on the joint's (first) axis, carried by the parent segment.
-            let reach = s.half[0] + 0.01;
-            bodies[s.parent + first - 1]
-                .marked_points
-                .push(std::array::from_fn(|a| s.centre[a] + reach * s.axis[a]));
+            on_axes.push(on_axis(1.0));
         }
         let joint_type = if distal && p.universal_wrists_and_ankles {
             JointType::Universal

@@ -496,7 +496,7 @@ impl Repair for BallGroups {
         let lent = |g: &[usize], j: usize| {
             borrowed
                 .iter()
-                .any(|&(b, owner)| b == j && g.contains(&owner) && seg.body_of(j).is_some())
+                .any(|&(b, owner)| b == j && g.contains(&owner))
         };
         let own: Vec<Vec<usize>> = groups
             .iter()
