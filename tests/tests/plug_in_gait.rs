@@ -107,14 +107,14 @@ fn the_plug_in_gait_set_puts_one_marker_on_a_limb_segment_and_one_on_its_joint_a
 
 /// A thigh or upper arm shows its own marker and the one on the knee's or elbow's axis, which
 /// the clustering gives the shank or forearm (it is rigid with both). The marker left alone
-/// borrows it (`[pipeline.repairs.ball_groups] borrow`, off by default): the two turn about
-/// the hip or the shoulder, make the segment's body, and the axis marker is shared by the two
-/// segments it joins. Without borrowing fewer segments get a body.
+/// borrows it (`[pipeline.repairs.ball_groups] borrow`, on in the motion-capture preset):
+/// the two turn about the hip or the shoulder, make the segment's body, and the axis marker
+/// is shared by the two segments it joins. Without borrowing fewer segments get a body.
 #[test]
 fn a_lone_marker_borrows_the_axis_marker_the_segment_below_took() {
-    let lone = PipelineConfig::motion_capture();
-    let mut borrowing = PipelineConfig::motion_capture();
-    borrowing.repairs.ball_groups.borrow = true;
+    let borrowing = PipelineConfig::motion_capture();
+    let mut lone = PipelineConfig::motion_capture();
+    lone.repairs.ball_groups.borrow = false;
     let (mut with, mut without, mut shared) = (0, 0, 0);
     for seed in 0..3 {
         let data = plug_in_gait(seed, 0.0);

@@ -140,6 +140,15 @@ fn attach_gives_points_on_no_body_to_the_body_whose_poses_explain_them() {
     let strict = run(&data.tracks, &left, &c).expect("discover");
     assert!(!traced(&strict, "attach"), "{:?}", strict.model.trace);
     c.repairs.attach = kinetree_pipeline::repairs::AttachParams::default();
+    // A link with fewer points of its own than `min_own_points` takes none; with exactly as
+    // many it takes them.
+    let own = l1.len() - 2;
+    c.repairs.attach.min_own_points = own + 1;
+    let few = run(&data.tracks, &left, &c).expect("discover");
+    assert!(!one_body(&few, &l1), "{:?}", few.model.point_body);
+    c.repairs.attach.min_own_points = own;
+    let enough = run(&data.tracks, &left, &c).expect("discover");
+    assert!(one_body(&enough, &l1), "{:?}", enough.model.point_body);
     c.repairs.attach.enabled = false;
     let off = run(&data.tracks, &left, &c).expect("discover");
     assert!(
@@ -582,6 +591,10 @@ fn repair_parameter_rules_name_the_key() {
         (
             "[repairs.attach]\nbound_in_std = nan",
             "pipeline.repairs.attach.bound_in_std",
+        ),
+        (
+            "[repairs.attach]\nmin_own_points = 0",
+            "pipeline.repairs.attach.min_own_points",
         ),
         (
             "[repairs.hinges]\nmin_fit_frames = 2",

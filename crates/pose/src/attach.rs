@@ -104,13 +104,24 @@ pub fn explains_point(
         .is_some_and(|(m, k)| m <= misfit_bound(k, z, slack))
 }
 
+/// Which bodies [`attach_unassigned`] lets take a point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AttachRule {
+    /// The `(z, slack)` of [`explains_point`]'s misfit bound.
+    pub bound: (f64, f64),
+    /// Fewest points of its own (shared points not counted) a body needs to take one.
+    pub min_own: usize,
+}
+
 /// Gives every unassigned point (seen in at least [`MIN_SHARED_FRAMES`] frames with some body)
 /// to the body whose poses explain it, when exactly one body does ([`explains_point`] at
-/// `bound`). Assigned points are never moved. A point near a
+/// `rule.bound`). Assigned points are never moved. A point near a
 /// joint axis can fit two bodies, and such points stay unassigned. Points in `keep_off` are
 /// never attached (the pipeline's model found them fitting no body's motion), and no body
 /// is given points that would make it one of the point sets in `undone` (ascending; the
-/// pipeline's splits undid them). Returns the new segmentation and the points attached.
+/// pipeline's splits undid them). Only a body with at least `rule.min_own` points of its own
+/// (shared points not counted) takes a point. Returns the new segmentation and the points
+/// attached.
 ///
 /// Why `undone`: a 4-point slider in a mechanism of 20-25 bodies, broken into two pairs by
 /// the pairwise measure (`tests/tests/segmentation.rs`), had one pair fit a small
@@ -120,6 +131,11 @@ pub fn explains_point(
 /// out from the body it left also refused right attachments (a point seen in 6 of 20
 /// frames, left out by a split that had kept a wrong one), one run lost on the occlusion
 /// sweep.
+///
+/// Why `rule.min_own`: a body of two markers and a point it shares is posed through a joint, and
+/// its poses are loose enough away from that joint to explain a far marker on skin data (a
+/// thigh of two markers took the upper arm's marker). Bodies of three or more points of
+/// their own are unaffected.
 ///
 /// Pairwise tests discard a point whose own noise happened to be high over its few visible
 /// frames, because every pair it belongs to shares that noise. This test looks at the point
@@ -133,17 +149,24 @@ pub fn attach_unassigned(
     sigma: f64,
     keep_off: &[usize],
     undone: &[Vec<usize>],
-    bound: (f64, f64),
+    rule: AttachRule,
 ) -> (Segmentation, Vec<usize>) {
+    let AttachRule { bound, min_own } = rule;
     let nb = poses.bodies.len();
     let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
+    let mut own = vec![0usize; nb];
+    for b in labels.iter().flatten() {
+        if *b < nb {
+            own[*b] += 1;
+        }
+    }
     let mut attached = Vec::new();
     for (i, label) in labels.iter_mut().enumerate() {
         if label.is_some() || keep_off.contains(&i) {
             continue;
         }
         let fitting: Vec<usize> = (0..nb)
-            .filter(|&b| explains_point(tracks, poses, b, i, sigma, bound))
+            .filter(|&b| own[b] >= min_own && explains_point(tracks, poses, b, i, sigma, bound))
             .collect();
         if let [b] = fitting[..] {
             *label = Some(b);

@@ -8,8 +8,8 @@ mod reference;
 mod shape;
 
 pub use attach::{
-    ATTACH_BOUND, MIN_SHARED_FRAMES, PointFit, attach_unassigned, explains_point, misfit_bound,
-    point_fit, point_misfit,
+    ATTACH_BOUND, AttachRule, MIN_SHARED_FRAMES, PointFit, attach_unassigned, explains_point,
+    misfit_bound, point_fit, point_misfit,
 };
 pub use ball::{Ball, BallLimits, MIN_BALL_FRAMES, MIN_BALL_LEVER_IN_SIGMA, balled_body};
 pub use hinge::{

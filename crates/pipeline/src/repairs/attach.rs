@@ -19,6 +19,10 @@ pub struct AttachParams {
     pub bound_in_std: f64,
     /// Slack on that bound for the approximations in the predicted variance (default 2).
     pub slack: f64,
+    /// Fewest points of its own (shared points not counted) a body needs to take a point
+    /// (default 3): a body posed through its joint by two markers explains far markers
+    /// too loosely on skin data.
+    pub min_own_points: usize,
 }
 
 impl Default for AttachParams {
@@ -27,6 +31,7 @@ impl Default for AttachParams {
             enabled: true,
             bound_in_std: kinetree_pose::ATTACH_BOUND.0,
             slack: kinetree_pose::ATTACH_BOUND.1,
+            min_own_points: 3,
         }
     }
 }
@@ -39,7 +44,8 @@ impl AttachParams {
     pub fn validate(&self) -> Result<()> {
         use super::in_range;
         in_range("attach", "bound_in_std", self.bound_in_std, 0.0, 20.0)?;
-        in_range("attach", "slack", self.slack, 0.1, 100.0)
+        in_range("attach", "slack", self.slack, 0.1, 100.0)?;
+        super::count_in_range("attach", "min_own_points", self.min_own_points, 1, 1000)
     }
 }
 
@@ -88,7 +94,10 @@ impl Repair for Attach {
             ctx.noise_sigma_m,
             &[c.kept_off.as_slice(), &c.off_hinge].concat(),
             &c.undone_bodies,
-            (self.params.bound_in_std, self.params.slack),
+            kinetree_pose::AttachRule {
+                bound: (self.params.bound_in_std, self.params.slack),
+                min_own: self.params.min_own_points,
+            },
         );
         if attached.is_empty() {
             return Ok(None);
