@@ -159,6 +159,7 @@ proptest! {
                 // term weighs in too.
                 distance_m: a.map(|a| 0.1 * (b - a) as f64),
                 ball_fit_rms_m: None,
+                ball_reach_m: None,
             }
         };
         for b in 0..n {

@@ -287,6 +287,65 @@ fn the_tennis_serve_tree_joins_neighbours_across_the_segments_it_lacks() {
     );
 }
 
+/// The wheelchair racer has no trunk body, and each scapula body is nearly rigid with the
+/// trunk, so either scapula fits a ball about a shoulder. Ranked by their ball fit and how far
+/// its centre lies from each body, every joint joins neighbours (across the missing trunk)
+/// and each arm hangs on its own scapula; with the ball-typed pairs left to their DoF
+/// (`ball_fit_from_dof = 4`) the left arm hangs on the right scapula.
+#[test]
+fn the_wheelchair_racers_arms_hang_on_their_own_scapulae() {
+    let with = run("ktk-wheelchair-racing");
+    let without = run_with("ktk-wheelchair-racing", |c| c.tree.ball_fit_from_dof = 4);
+    let joined = |o: &Outcome, p: &str, c: &str| {
+        let name = body_segments(o);
+        o.model.joints.iter().any(|j| {
+            let (x, y) = (name[j.parent].as_str(), name[j.child].as_str());
+            (x, y) == (p, c) || (x, y) == (c, p)
+        })
+    };
+    let a = skipping_edges(&with, RACING_EDGES);
+    assert!(
+        with.model.joints.len() >= 8,
+        "{} joints",
+        with.model.joints.len()
+    );
+    assert_eq!(
+        a,
+        with.model.joints.len(),
+        "{a} of {} joints join neighbours",
+        with.model.joints.len()
+    );
+    for side in ["left", "right"] {
+        assert!(
+            joined(
+                &with,
+                &format!("{side}_scapula"),
+                &format!("{side}_upper_arm")
+            ),
+            "{side} arm: {:?}",
+            body_segments(&with)
+        );
+    }
+    assert!(
+        !joined(&without, "left_scapula", "left_upper_arm"),
+        "ranked by DoF the left arm hangs on its scapula too"
+    );
+}
+
+/// The wheelchair racer's anatomical tree (`segments.json`), the athlete in the chair.
+const RACING_EDGES: &[(&str, &str)] = &[
+    ("static_wheelchair", "thorax"),
+    ("thorax", "head"),
+    ("thorax", "left_scapula"),
+    ("left_scapula", "left_upper_arm"),
+    ("left_upper_arm", "left_forearm"),
+    ("left_forearm", "left_hand"),
+    ("thorax", "right_scapula"),
+    ("right_scapula", "right_upper_arm"),
+    ("right_upper_arm", "right_forearm"),
+    ("right_forearm", "right_hand"),
+];
+
 /// The tennis serve's anatomical tree (Plug-in Gait segments of its `segments.json`), with
 /// the shoulder girdle between thorax and upper arm: `segments.json` leaves the acromion
 /// markers on no segment because they move with the girdle, rigid with neither neighbour

@@ -34,16 +34,17 @@ pub struct TreeCosts {
     /// root, as it would with nothing static (default 5: a noisy arm's first link can test at
     /// four DoF against its base, a walking pelvis at five). Above 6 turns the rule off.
     pub min_free_dof: usize,
-    /// Multi-DoF pairs of at least this many DoF, `n`, cost the same whatever their DoF, plus
-    /// how far they are from a ball joint: `1 + n + r / (r + m)`, with `r` the pair's
-    /// `ball_fit_rms_m` and `m` its median over the pairs of moving bodies; a pair with a
-    /// static body keeps its cost by DoF. Default 7, which no pair reaches: every multi-DoF
-    /// pair is ranked by its DoF. The motion-capture preset sets 4: on skin markers no joint
-    /// type explains such a pair and the rank tests' four, five or six DoF say little, while
-    /// a ball fit's residual is a few millimetres between neighbouring segments and a limb's
-    /// swing between a segment and the next but one (`docs/decisions.md`,
-    /// `tree.ball_fit_from_dof`). Three-DoF pairs keep their cost (4-5, with the spherical
-    /// edges) at 4: a ball the pivot test rejected.
+    /// Multi-DoF pairs of at least this many DoF, `n`, and ball-typed pairs when `n` is 3,
+    /// cost the same whatever their DoF, plus how far they are from a ball joint and how
+    /// far its centre lies from the farther body: `1 + n + r / (r + m)` plus the
+    /// adjacency term of `ball_reach_m` (`r` the pair's `ball_fit_rms_m`, `m` its median over
+    /// the pairs of moving bodies); a pair with a static body keeps its cost by DoF. Default
+    /// 7, which no pair reaches: every pair is ranked by its DoF. The motion-capture preset
+    /// sets 3: on skin markers no joint type explains a multi-DoF pair and the rank tests'
+    /// four, five or six DoF say little, while a ball fit's residual is a few millimetres
+    /// between neighbouring segments and a limb's swing between a segment and the next but
+    /// one; and a ball typing does not tell a neighbour from a body rigid with it, while the
+    /// centre's distance does (`docs/decisions.md`, `tree.ball_fit_from_dof`).
     pub ball_fit_from_dof: usize,
 }
 

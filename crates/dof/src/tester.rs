@@ -948,7 +948,7 @@ fn classify_ranks(
         d.sort_by(f64::total_cmp);
         d.get(d.len() / 2).copied()
     });
-    let ball_fit_rms_m = a.and_then(|_| ball_fit_rms(&c.x_abs));
+    let ball = a.and_then(|_| ball_fit(&c.x_abs));
     Ok(PairDof {
         a,
         b,
@@ -963,15 +963,18 @@ fn classify_ranks(
         joint,
         fit_ratio,
         distance_m,
-        ball_fit_rms_m,
+        ball_fit_rms_m: ball.map(|b| b.0),
+        ball_reach_m: ball.map(|b| b.1),
     })
 }
 
-/// [`PairDof::ball_fit_rms_m`] of the relative poses `a_from_b` in `x_abs`: the point `c` in
-/// `a`'s frame and `w` in `b`'s that minimise `sum_k |c - R_k w - y_k|^2` (one gauge direction
-/// along a hinge's axis, fixed by a tiny ridge), and the RMS of the residuals. Unweighted,
-/// unlike [`pivot_test`]: a distance to compare between pairs, not a test against noise.
-fn ball_fit_rms(x_abs: &[(Matrix3<f64>, Vector3<f64>)]) -> Option<f64> {
+/// [`PairDof::ball_fit_rms_m`] and [`PairDof::ball_reach_m`] of the relative poses
+/// `a_from_b` in `x_abs`: the point `c` in `a`'s frame and `w` in `b`'s that minimise
+/// `sum_k |c - R_k w - y_k|^2` (one gauge direction along a hinge's axis, fixed by a tiny
+/// ridge, which takes the point nearest the origins), the RMS of the residuals, and the larger
+/// of `|c|` and `|w|`. Unweighted, unlike [`pivot_test`]: distances to compare between pairs,
+/// not a test against noise.
+fn ball_fit(x_abs: &[(Matrix3<f64>, Vector3<f64>)]) -> Option<(f64, f64)> {
     use kinetree_core::nalgebra::{SMatrix, SVector};
     let k = x_abs.len();
     if k < 3 {
@@ -1012,7 +1015,8 @@ fn ball_fit_rms(x_abs: &[(Matrix3<f64>, Vector3<f64>)]) -> Option<f64> {
         .map(|(r, y)| (c - r * w - y).norm_squared())
         .sum();
     let rms = (ss / n).sqrt();
-    rms.is_finite().then_some(rms)
+    let reach = c.norm().max(w.norm());
+    (rms.is_finite() && reach.is_finite()).then_some((rms, reach))
 }
 
 fn check_positive(name: &str, v: f64) -> Result<()> {
@@ -1357,7 +1361,8 @@ mod tests {
         }
     }
 
-    /// About a ball joint (`c` in `a`, `w` in `b`) the fit's RMS is zero to rounding; with the
+    /// About a ball joint (`c` in `a`, `w` in `b`) the fit's RMS is zero to rounding and its
+    /// centre is `c` and `w`, at their distances from the origins; with the
     /// child's end of the centre wobbling on a circle of radius `e` the RMS is `e` (its
     /// best fixed point is the circle's centre); along a slide it is the slide's spread.
     #[test]
@@ -1386,13 +1391,15 @@ mod tests {
                 })
                 .collect()
         };
-        let exact = ball_fit_rms(&pair(0.0, 0.0)).expect("fit");
+        let (exact, reach) = ball_fit(&pair(0.0, 0.0)).expect("fit");
         assert!(exact < 1e-9, "{exact}");
-        let wobbling = ball_fit_rms(&pair(0.01, 0.0)).expect("fit");
+        // The centre's larger distance from the two origins: |c| here.
+        assert!((reach - c.norm().max(w.norm())).abs() < 1e-6, "{reach}");
+        let wobbling = ball_fit(&pair(0.01, 0.0)).expect("fit").0;
         assert!((wobbling - 0.01).abs() < 1e-3, "{wobbling}");
-        let sliding = ball_fit_rms(&pair(0.0, 0.1)).expect("fit");
+        let sliding = ball_fit(&pair(0.0, 0.1)).expect("fit").0;
         assert!(sliding > 0.05 && sliding < 0.08, "{sliding}");
-        assert!(ball_fit_rms(&pair(0.0, 0.0)[..2]).is_none());
+        assert!(ball_fit(&pair(0.0, 0.0)[..2]).is_none());
     }
 
     #[test]

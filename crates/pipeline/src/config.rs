@@ -282,9 +282,9 @@ impl Default for PipelineConfig {
 /// hinges far apart; `docs/decisions.md`, `[pipeline.unseen_links]`), and no bound on the
 /// re-prediction of a model `retest` rebuilds (multi-DoF joints absorb the skin's motion, so
 /// a worse tree re-predicts the markers better; `docs/decisions.md`,
-/// `retest.max_rms_growth`), and multi-DoF pairs of four DoF or more ranked for the tree by
-/// how well a ball joint fits them rather than by their DoF (`[pipeline.tree]
-/// ball_fit_from_dof`), and a lone marker that borrows the markers rigid with it from the
+/// `retest.max_rms_growth`), and ball and multi-DoF pairs ranked for the tree by how well a
+/// ball joint fits them and how near its centre lies to both bodies rather than by their DoF
+/// (`[pipeline.tree] ball_fit_from_dof`), and a lone marker that borrows the markers rigid with it from the
 /// segment below (`[pipeline.repairs.ball_groups] borrow`: sparse marker sets leave a thigh
 /// one marker and put its knee marker on the shank).
 /// `experiments/real/README.md` gives the measurements behind each setting.
@@ -310,7 +310,7 @@ max_rms_growth = 1e6
 borrow = true
 
 [tree]
-ball_fit_from_dof = 4
+ball_fit_from_dof = 3
 "#;
 
 impl PipelineConfig {

@@ -675,25 +675,36 @@ impl CostScale {
     /// its [`missed_share`], and the pair's distance (adjacent bodies first: a joint joins
     /// neighbours; [`TreeCosts::adjacency_weight`]).
     fn cost(&self, p: &PairDof, a: usize) -> f64 {
-        // A pair with a static body keeps its DoF: a subject walking past the scene fits no
-        // ball to it, and which of its bodies the tree hangs there is
-        // `hang_subjects_by_their_root`'s to decide.
+        // A ball joint's typing says no more than a multi-DoF pair's DoF do about which
+        // segments are neighbours on skin: both are ranked by their ball fit, and by how far
+        // the ball's centre lies from the farther body (priced as the distance below is). A
+        // body rigid with a segment's neighbour (a scapula across the trunk) fits a ball as
+        // well as the neighbour does, about a centre far from its own keypoints; the bodies'
+        // centroids would not tell, since a forearm hangs beside the pelvis. A pair with a
+        // static body keeps its DoF: a subject walking past the scene fits no ball to it,
+        // and which of its bodies the tree hangs there is `hang_subjects_by_their_root`'s to
+        // decide.
         let from = self.costs.ball_fit_from_dof;
-        if matches!(p.joint, JointKind::MultiDof)
-            && p.dof >= from
+        let dof = match p.joint {
+            JointKind::MultiDof => Some(p.dof),
+            JointKind::Spherical { .. } => Some(3),
+            _ => None,
+        };
+        let scaled = |x: Option<f64>| match (x, self.distance) {
+            (Some(x), Some(d)) if x.is_finite() => {
+                self.costs.adjacency_weight * (x / d).min(self.costs.adjacency_cap)
+            }
+            _ => 0.0,
+        };
+        if dof.is_some_and(|d| d >= from)
             && !self.fixed[a]
             && !self.fixed[p.b]
             && let (Some(r), Some(m)) = (p.ball_fit_rms_m, self.ball_fit)
             && r.is_finite()
         {
-            return 1.0 + from as f64 + r / (r + m);
+            return 1.0 + from as f64 + r / (r + m) + scaled(p.ball_reach_m);
         }
-        let near = match (p.distance_m, self.distance) {
-            (Some(d), Some(m)) if d.is_finite() => {
-                self.costs.adjacency_weight * (d / m).min(self.costs.adjacency_cap)
-            }
-            _ => 0.0,
-        };
+        let near = scaled(p.distance_m);
         edge_cost(
             p,
             missed_share(p, self.posed[a].min(self.posed[p.b])),
@@ -888,6 +899,7 @@ mod tests {
             fit_ratio,
             distance_m: None,
             ball_fit_rms_m: None,
+            ball_reach_m: None,
         }
     }
 
@@ -948,6 +960,54 @@ mod tests {
         let mut moving = pairs(6, false);
         moving[7].ball_fit_rms_m = Some(0.001);
         assert_eq!(parent_of_3(&moving, &by_ball), Some(0));
+    }
+
+    /// From three DoF, a ball-typed pair is ranked by its ball fit and the fitted centre's
+    /// reach as the multi-DoF pairs are: an arm (body 3) turns about a ball on a body rigid
+    /// with its neighbour (body 1, whose keypoints are far from the centre though its
+    /// centroid is near the arm's) as well as on the neighbour (body 2, a five-DoF pair that
+    /// slides a little); the neighbour takes it at 3, the ball at 4.
+    #[test]
+    fn ball_pairs_rank_with_the_multi_dof_ones_from_three_dof() {
+        let ball = JointKind::Spherical {
+            centre: Point3::origin(),
+        };
+        let with = |a: usize, b: usize, joint: JointKind, dof: usize, fit: f64, reach: f64| {
+            let mut p = pair(Some(a), b, joint, 0.0);
+            p.dof = dof;
+            p.ball_fit_rms_m = Some(fit);
+            p.ball_reach_m = Some(reach);
+            p.distance_m = Some(0.2);
+            p
+        };
+        let mut pairs = vec![
+            pair(None, 0, JointKind::MultiDof, 0.0),
+            pair(None, 1, JointKind::MultiDof, 0.0),
+            pair(None, 2, JointKind::MultiDof, 0.0),
+            pair(None, 3, JointKind::MultiDof, 0.0),
+            with(0, 1, ball.clone(), 3, 0.01, 0.1),
+            with(0, 2, ball.clone(), 3, 0.012, 0.1),
+            with(0, 3, JointKind::MultiDof, 6, 0.15, 0.5),
+            with(1, 2, JointKind::MultiDof, 6, 0.03, 0.15),
+            with(1, 3, ball.clone(), 3, 0.02, 0.35),
+            with(2, 3, JointKind::MultiDof, 5, 0.025, 0.12),
+        ];
+        pairs[8].distance_m = Some(0.1);
+        // The body the arm is joined to (the tree may root at the arm).
+        let arm_on = |from: usize| {
+            let c = TreeCosts {
+                ball_fit_from_dof: from,
+                ..TreeCosts::default()
+            };
+            let tree = spanning_tree(4, &pairs, &c).expect("tree");
+            let on: Vec<usize> = (0..3)
+                .filter(|&b| tree.parent[3] == Some(b) || tree.parent[b] == Some(3))
+                .collect();
+            on
+        };
+        assert_eq!(arm_on(3), vec![2]);
+        assert_eq!(arm_on(4), vec![1]);
+        assert_eq!(arm_on(7), vec![1]);
     }
 
     /// Poses of bodies at fixed camera positions `origins` (identity rotations) over `n`

@@ -238,6 +238,7 @@ mod tests {
             fit_ratio,
             distance_m: None,
             ball_fit_rms_m: None,
+            ball_reach_m: None,
         }
     }
 
