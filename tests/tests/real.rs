@@ -255,35 +255,16 @@ fn without_the_adjacency_term_the_triads_lose_anatomical_edges() {
 fn the_tennis_serve_tree_joins_neighbours_across_the_segments_it_lacks() {
     let with = run("ktk-tennis-serve");
     let without = run_with("ktk-tennis-serve", |c| c.tree.ball_fit_from_dof = 7);
-    let (a, b) = (
-        skipping_edges(&with, TENNIS_EDGES),
-        skipping_edges(&without, TENNIS_EDGES),
-    );
-    assert!(
-        with.model.joints.len() >= 7,
-        "{} joints",
-        with.model.joints.len()
-    );
-    assert_eq!(
-        a,
-        with.model.joints.len(),
-        "{a} of {} joints join neighbours",
-        with.model.joints.len()
-    );
+    let a = every_joint_joins_neighbours(&with, TENNIS_EDGES, 7);
+    let b = skipping_edges(&without, TENNIS_EDGES);
     assert!(
         b < a,
         "{a} anatomical edges with the ball fit's ranking, {b} without"
     );
-    let name = body_segments(&with);
-    let joined = |p: &str, c: &str| {
-        with.model.joints.iter().any(|j| {
-            let (x, y) = (name[j.parent].as_str(), name[j.child].as_str());
-            (x, y) == (p, c) || (x, y) == (c, p)
-        })
-    };
     assert!(
-        joined("pelvis", "left_thigh") && joined("left_thigh", "left_shank"),
-        "the left thigh between pelvis and shank: {name:?}"
+        joins(&with, "pelvis", "left_thigh") && joins(&with, "left_thigh", "left_shank"),
+        "the left thigh between pelvis and shank: {:?}",
+        body_segments(&with)
     );
 }
 
@@ -296,28 +277,10 @@ fn the_tennis_serve_tree_joins_neighbours_across_the_segments_it_lacks() {
 fn the_wheelchair_racers_arms_hang_on_their_own_scapulae() {
     let with = run("ktk-wheelchair-racing");
     let without = run_with("ktk-wheelchair-racing", |c| c.tree.ball_fit_from_dof = 4);
-    let joined = |o: &Outcome, p: &str, c: &str| {
-        let name = body_segments(o);
-        o.model.joints.iter().any(|j| {
-            let (x, y) = (name[j.parent].as_str(), name[j.child].as_str());
-            (x, y) == (p, c) || (x, y) == (c, p)
-        })
-    };
-    let a = skipping_edges(&with, RACING_EDGES);
-    assert!(
-        with.model.joints.len() >= 8,
-        "{} joints",
-        with.model.joints.len()
-    );
-    assert_eq!(
-        a,
-        with.model.joints.len(),
-        "{a} of {} joints join neighbours",
-        with.model.joints.len()
-    );
+    every_joint_joins_neighbours(&with, RACING_EDGES, 8);
     for side in ["left", "right"] {
         assert!(
-            joined(
+            joins(
                 &with,
                 &format!("{side}_scapula"),
                 &format!("{side}_upper_arm")
@@ -327,7 +290,7 @@ fn the_wheelchair_racers_arms_hang_on_their_own_scapulae() {
         );
     }
     assert!(
-        !joined(&without, "left_scapula", "left_upper_arm"),
+        !joins(&without, "left_scapula", "left_upper_arm"),
         "ranked by DoF the left arm hangs on its scapula too"
     );
 }
@@ -368,6 +331,28 @@ const TENNIS_EDGES: &[(&str, &str)] = &[
     ("right_thigh", "right_shank"),
     ("right_shank", "right_foot"),
 ];
+
+/// Checks that the model has at least `least` joints and that every one joins neighbours of
+/// the anatomical tree `edges` ([`skipping_edges`]); returns how many joints there are.
+fn every_joint_joins_neighbours(o: &Outcome, edges: &[(&str, &str)], least: usize) -> usize {
+    let (good, all) = (skipping_edges(o, edges), o.model.joints.len());
+    assert!(all >= least, "{}: {all} joints", o.folder);
+    assert_eq!(
+        good, all,
+        "{}: {good} of {all} joints join neighbours",
+        o.folder
+    );
+    good
+}
+
+/// Whether a joint joins the bodies named after segments `p` and `c` (either way round).
+fn joins(o: &Outcome, p: &str, c: &str) -> bool {
+    let name = body_segments(o);
+    o.model.joints.iter().any(|j| {
+        let (x, y) = (name[j.parent].as_str(), name[j.child].as_str());
+        (x, y) == (p, c) || (x, y) == (c, p)
+    })
+}
 
 /// How many of the model's joints join two segments that the anatomical tree `edges` joins
 /// directly or through segments no body is named after (a segment without its own body).
