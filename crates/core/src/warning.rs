@@ -35,6 +35,16 @@ pub enum Warning {
         /// Their labels, in the file's order.
         labels: Vec<String>,
     },
+    /// Points whose tracks repeat an earlier point's within a fraction of a millimetre (one
+    /// marker stored twice under two names); they were left out of the tracks.
+    PointsDuplicated {
+        /// The points left out.
+        points: Vec<usize>,
+        /// The point each one repeats, in the same order.
+        of: Vec<usize>,
+        /// The bound on the median distance, metres.
+        within_m: f64,
+    },
     /// A point never visible in any frame; it is discarded.
     PointNeverVisible {
         /// The point.
@@ -312,6 +322,7 @@ impl Warning {
                 std::slice::from_ref(point)
             }
             Warning::ClusterDiscarded { points }
+            | Warning::PointsDuplicated { points, .. }
             | Warning::PointsUnassigned { points }
             | Warning::PointsMakingJointsMultiDof { points }
             | Warning::BodyDropped { points, .. }
@@ -338,6 +349,10 @@ impl Warning {
             }
             Warning::PointNeverVisible { point } | Warning::PointUnpaired { point } => {
                 *point = f(*point);
+            }
+            Warning::PointsDuplicated { points, of, .. } => {
+                all(points);
+                all(of);
             }
             Warning::ClusterDiscarded { points }
             | Warning::PointsAttached { points }
@@ -394,6 +409,15 @@ impl std::fmt::Display for Warning {
                 labels.len(),
                 groups.join("/"),
                 labels.join(", ")
+            ),
+            Warning::PointsDuplicated {
+                points,
+                of,
+                within_m,
+            } => write!(
+                f,
+                "point(s) {points:?} repeat the tracks of point(s) {of:?} (median distance within {:.2} mm: one marker stored twice); left out",
+                within_m * 1e3
             ),
             Warning::PointNeverVisible { point } => {
                 write!(f, "point {point} is never visible; discarded")

@@ -227,6 +227,8 @@ pub struct PipelineConfig {
     pub tree: kinetree_core::TreeCosts,
     /// Which samples are impossible and dropped before anything else (`[pipeline.outliers]`).
     pub outliers: crate::outliers::OutlierParams,
+    /// Which points repeat another's track and are left out next (`[pipeline.duplicates]`).
+    pub duplicates: crate::duplicates::DuplicateParams,
     /// When a discovery runs on a sample of the points and assigns the others to its bodies
     /// afterwards (`[pipeline.sampling]`: tracks with more than 500 points).
     pub sampling: crate::sampling::SamplingParams,
@@ -264,6 +266,7 @@ impl Default for PipelineConfig {
             positions: PositionLimits::default(),
             tree: kinetree_core::TreeCosts::default(),
             outliers: crate::outliers::OutlierParams::default(),
+            duplicates: crate::duplicates::DuplicateParams::default(),
             sampling: crate::sampling::SamplingParams::default(),
             unseen_links: crate::unseen::UnseenLinksParams::default(),
             max_memory_gib: kinetree_core::limits::DEFAULT_MAX_MEMORY_GIB,
@@ -361,6 +364,7 @@ impl PipelineConfig {
         kinetree_core::limits::validate_limit("pipeline.max_memory_gib", self.max_memory_gib)?;
         kinetree_core::limits::validate_minutes("pipeline.max_minutes", self.max_minutes)?;
         self.outliers.validate()?;
+        self.duplicates.validate()?;
         self.sampling.validate()?;
         self.unseen_links.validate()?;
         self.tree.validate("pipeline.tree")?;

@@ -7,6 +7,7 @@
 mod assemble;
 pub mod config;
 pub mod conformance;
+pub mod duplicates;
 pub mod experiment;
 pub mod outliers;
 pub mod repairs;

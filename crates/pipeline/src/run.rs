@@ -47,6 +47,8 @@ pub struct Pipeline {
     pub max_minutes: f64,
     /// Which samples are impossible ([`PipelineConfig::outliers`]).
     pub outliers: crate::outliers::OutlierParams,
+    /// Which points repeat another's track ([`PipelineConfig::duplicates`]).
+    pub duplicates: crate::duplicates::DuplicateParams,
     /// When the discovery runs on a sample of the points ([`PipelineConfig::sampling`]).
     pub sampling: crate::sampling::SamplingParams,
     /// When a link too little seen to pose is put into the tree
@@ -133,6 +135,7 @@ impl Pipeline {
             max_memory_gib: c.max_memory_gib,
             max_minutes: c.max_minutes,
             outliers: c.outliers,
+            duplicates: c.duplicates,
             sampling: c.sampling,
             unseen_links: c.unseen_links,
         })
@@ -150,21 +153,28 @@ impl Pipeline {
         self.group_clean(cleaned.as_ref().unwrap_or(tracks), warnings, &())
     }
 
-    /// The tracks without their impossible samples ([`PipelineConfig::outliers`]; `None`
-    /// when none were dropped), and the warnings: the reader's, then the one saying so.
+    /// The tracks without their impossible samples ([`PipelineConfig::outliers`]) and
+    /// duplicate points ([`PipelineConfig::duplicates`]; `None` when nothing was dropped),
+    /// and the warnings: the reader's, then those saying so.
     fn without_impossible_samples(
         &self,
         tracks: &Tracks,
     ) -> Result<(Option<Tracks>, Vec<Warning>)> {
         // The reader's warnings come first.
         let mut warnings = tracks.warnings().to_vec();
-        let cleaned = match self.outliers.clean(tracks)? {
+        let mut cleaned = match self.outliers.clean(tracks)? {
             Some((cleaned, warning)) => {
                 warnings.push(warning);
                 Some(cleaned)
             }
             None => None,
         };
+        if let Some((deduplicated, warning)) =
+            self.duplicates.clean(cleaned.as_ref().unwrap_or(tracks))?
+        {
+            warnings.push(warning);
+            cleaned = Some(deduplicated);
+        }
         Ok((cleaned, warnings))
     }
 
@@ -190,8 +200,9 @@ impl Pipeline {
             "",
         )?;
         let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
+        let duplicated = duplicated_points(&warnings);
         for (i, &v) in visible.iter().enumerate() {
-            if v == 0 {
+            if v == 0 && !duplicated.contains(&i) {
                 warnings.push(Warning::PointNeverVisible { point: i });
             }
         }
@@ -343,4 +354,17 @@ impl Pipeline {
             sampled: None,
         })
     }
+}
+
+/// The points a [`Warning::PointsDuplicated`] among `warnings` left out: they are not
+/// reported again as never visible.
+pub(crate) fn duplicated_points(warnings: &[Warning]) -> Vec<usize> {
+    warnings
+        .iter()
+        .flat_map(|w| match w {
+            Warning::PointsDuplicated { points, .. } => points.as_slice(),
+            _ => &[],
+        })
+        .copied()
+        .collect()
 }

@@ -276,8 +276,9 @@ pub(crate) fn discover_sampled(
             round += 1;
             continue;
         }
+        let duplicated = crate::run::duplicated_points(warnings);
         let never: Vec<Warning> = (0..n)
-            .filter(|&i| visible[i] == 0)
+            .filter(|&i| visible[i] == 0 && !duplicated.contains(&i))
             .map(|point| Warning::PointNeverVisible { point })
             .collect();
         let before: Vec<Warning> = warnings.iter().cloned().chain(never).collect();
