@@ -72,10 +72,24 @@ impl DuplicateParams {
         let mut candidates: Vec<(usize, usize)> = Vec::new();
         for k in 0..probes {
             let t = k * t_all / probes;
-            // Sorted along x, only points within `within_m` along x can be that close.
-            let mut seen: Vec<(f64, usize, [f64; 3])> = (0..n)
-                .filter_map(|i| tracks.get(t, i).map(|p| (p.x, i, [p.x, p.y, p.z])))
+            // Sorted along the axis the points spread most along (planar data may hold one
+            // coordinate constant), only points within `within_m` along it can be that close.
+            let points: Vec<(usize, [f64; 3])> = (0..n)
+                .filter_map(|i| tracks.get(t, i).map(|p| (i, [p.x, p.y, p.z])))
                 .collect();
+            let spread = |a: usize| {
+                let (lo, hi) = points
+                    .iter()
+                    .fold((f64::MAX, f64::MIN), |(lo, hi), (_, p)| {
+                        (lo.min(p[a]), hi.max(p[a]))
+                    });
+                hi - lo
+            };
+            let axis = (0..3)
+                .max_by(|&a, &b| spread(a).total_cmp(&spread(b)))
+                .unwrap_or(0);
+            let mut seen: Vec<(f64, usize, [f64; 3])> =
+                points.iter().map(|&(i, p)| (p[axis], i, p)).collect();
             seen.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             for (a, &(xa, i, pa)) in seen.iter().enumerate() {
                 for &(xb, j, pb) in &seen[a + 1..] {
