@@ -273,10 +273,10 @@ pub struct PairDof {
     /// a pair with the camera, under three frames, and in files written before it existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ball_fit_rms_m: Option<f64>,
-    /// How far that best point lies from the bodies: the larger of its distances, metres, from the two bodies' origins (their keypoints' centroids). A
-    /// joint passes near both bodies it joins; a body rigid with one's neighbour fits a ball
-    /// as well, but about a centre far from its own keypoints. `None` where
-    /// `ball_fit_rms_m` is.
+    /// How far that best point lies from the bodies: the larger of its distances, metres,
+    /// from the two bodies' origins (their keypoints' centroids). A joint passes near both
+    /// bodies it joins; a body rigid with one's neighbour fits a ball as well, but about a
+    /// centre far from its own keypoints. `None` where `ball_fit_rms_m` is.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ball_reach_m: Option<f64>,
 }

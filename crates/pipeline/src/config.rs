@@ -287,9 +287,9 @@ impl Default for PipelineConfig {
 /// a worse tree re-predicts the markers better; `docs/decisions.md`,
 /// `retest.max_rms_growth`), and ball and multi-DoF pairs ranked for the tree by how well a
 /// ball joint fits them and how near its centre lies to both bodies rather than by their DoF
-/// (`[pipeline.tree] ball_fit_from_dof`), and a lone marker that borrows the markers rigid with it from the
-/// segment below (`[pipeline.repairs.ball_groups] borrow`: sparse marker sets leave a thigh
-/// one marker and put its knee marker on the shank).
+/// (`[pipeline.tree] ball_fit_from_dof`), and a lone marker that borrows the markers rigid
+/// with it from the segment below (`[pipeline.repairs.ball_groups] borrow`: sparse marker
+/// sets leave a thigh one marker and put its knee marker on the shank).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 

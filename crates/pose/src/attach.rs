@@ -132,10 +132,10 @@ pub struct AttachRule {
 /// frames, left out by a split that had kept a wrong one), one run lost on the occlusion
 /// sweep.
 ///
-/// Why `rule.min_own`: a body of two markers and a point it shares is posed through a joint, and
-/// its poses are loose enough away from that joint to explain a far marker on skin data (a
-/// thigh of two markers took the upper arm's marker). Bodies of three or more points of
-/// their own are unaffected.
+/// Why `rule.min_own`: a body of two markers and a point it shares is posed through a
+/// joint, and its poses are loose enough away from that joint to explain a far marker on
+/// skin data (a thigh of two markers took the upper arm's marker). Bodies of three or more
+/// points of their own are unaffected.
 ///
 /// Pairwise tests discard a point whose own noise happened to be high over its few visible
 /// frames, because every pair it belongs to shares that noise. This test looks at the point
