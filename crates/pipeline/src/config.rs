@@ -289,7 +289,9 @@ impl Default for PipelineConfig {
 /// ball joint fits them and how near its centre lies to both bodies rather than by their DoF
 /// (`[pipeline.tree] ball_fit_from_dof`), and a lone marker that borrows the markers rigid
 /// with it from the segment below (`[pipeline.repairs.ball_groups] borrow`: sparse marker
-/// sets leave a thigh one marker and put its knee marker on the shank).
+/// sets leave a thigh one marker and put its knee marker on the shank), counting a marker as
+/// explained by a body, and so not grouped, only within 2 std-devs and a slack of 1 (soft
+/// tissue leaves a three-marker body's poses loose enough to explain a foot's marker).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 
@@ -311,6 +313,8 @@ max_rms_growth = 1e6
 
 [repairs.ball_groups]
 borrow = true
+explained_bound_in_std = 2.0
+explained_slack = 1.0
 
 [tree]
 ball_fit_from_dof = 3
