@@ -4,6 +4,7 @@
 //! one marker twice in every fit. The later copy is left out, with a warning, before
 //! anything else.
 
+use kinetree_core::nalgebra::Point3;
 use kinetree_core::{Result, Tracks, Warning};
 use serde::{Deserialize, Serialize};
 
@@ -74,8 +75,8 @@ impl DuplicateParams {
             let t = k * t_all / probes;
             // Sorted along the axis the points spread most along (planar data may hold one
             // coordinate constant), only points within `within_m` along it can be that close.
-            let points: Vec<(usize, [f64; 3])> = (0..n)
-                .filter_map(|i| tracks.get(t, i).map(|p| (i, [p.x, p.y, p.z])))
+            let points: Vec<(usize, Point3<f64>)> = (0..n)
+                .filter_map(|i| tracks.get(t, i).map(|p| (i, p)))
                 .collect();
             let spread = |a: usize| {
                 let (lo, hi) = points
@@ -88,7 +89,7 @@ impl DuplicateParams {
             let axis = (0..3)
                 .max_by(|&a, &b| spread(a).total_cmp(&spread(b)))
                 .unwrap_or(0);
-            let mut seen: Vec<(f64, usize, [f64; 3])> =
+            let mut seen: Vec<(f64, usize, Point3<f64>)> =
                 points.iter().map(|&(i, p)| (p[axis], i, p)).collect();
             seen.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             for (a, &(xa, i, pa)) in seen.iter().enumerate() {
@@ -96,7 +97,7 @@ impl DuplicateParams {
                     if xb - xa > self.within_m {
                         break;
                     }
-                    if distance(&pa, &pb) <= self.within_m {
+                    if (pa - pb).norm() <= self.within_m {
                         candidates.push((i.min(j), i.max(j)));
                     }
                 }
@@ -165,14 +166,9 @@ impl DuplicateParams {
     }
 }
 
-fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinetree_core::nalgebra::Point3;
 
     /// Four points turning about the origin; point 4 a copy of point 1 off by `offset`
     /// metres along x plus a wobble of amplitude `noise`, point 5 one off by `offset` along

@@ -1000,10 +1000,9 @@ mod tests {
                 ..TreeCosts::default()
             };
             let tree = spanning_tree(4, &pairs, &c).expect("tree");
-            let on: Vec<usize> = (0..3)
+            (0..3)
                 .filter(|&b| tree.parent[3] == Some(b) || tree.parent[b] == Some(3))
-                .collect();
-            on
+                .collect::<Vec<usize>>()
         };
         assert_eq!(arm_on(3), vec![2]);
         assert_eq!(arm_on(4), vec![1]);
