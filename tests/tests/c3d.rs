@@ -315,6 +315,59 @@ fn modelling_outputs_stored_as_points_are_skipped_with_a_warning() {
     assert!(e.to_string().contains("POINT:ANGLES"), "{e}");
 }
 
+/// Vicon lists its output groups in `POINT:TYPE_GROUPS` (group and type name pairs), among
+/// them `MODELED_MARKERS`, the model's copies of the markers; Plug-in Gait also stores each
+/// segment's axes as four points (`PELO`, `PELA`, `PELL`, `PELP`) that no group names. Both
+/// are left out with warnings naming them; a lone `LFEO` without its quartet is kept.
+#[test]
+fn type_groups_and_plug_in_gait_segment_axes_are_skipped_with_warnings() {
+    let labels = [
+        "LASI", "PELO", "PELA", "RASI", "PELL", "PELP", "LASIm", "LFEO", "C7",
+    ];
+    let frames: Vec<Vec<Option<[f64; 3]>>> = (0..4)
+        .map(|t| {
+            (0..labels.len())
+                .map(|i| Some([100.0 * i as f64 + t as f64, 20.0, 30.0 + i as f64]))
+                .collect()
+        })
+        .collect();
+    let groups: [(&str, &[&str]); 2] = [
+        ("TYPE_GROUPS", &["MODELED_MARKERS", "MODELED_MARKER"]),
+        ("MODELED_MARKERS", &["LASIm"]),
+    ];
+    let n = labels.len();
+    for proc in [Proc::Intel, Proc::Dec] {
+        let bytes = write_c3d_counting(proc, true, &labels, &frames, n, n, &groups);
+        let t = c3d_tracks(&bytes).expect("c3d");
+        assert_eq!(t.labels().expect("labels"), ["LASI", "RASI", "LFEO", "C7"]);
+        // RASI keeps its own samples: it is the file's fourth point.
+        let p = t.get(2, 1).expect("visible");
+        assert!((p.x - 0.302).abs() < 1e-6, "{p:?}");
+        assert_eq!(
+            t.warnings(),
+            [
+                kinetree_core::Warning::C3dOutputsSkipped {
+                    groups: vec!["MODELED_MARKERS".into()],
+                    labels: vec!["LASIm".into()],
+                },
+                kinetree_core::Warning::ModelPointsSkipped {
+                    labels: ["PELO", "PELA", "PELL", "PELP"].map(String::from).to_vec(),
+                },
+            ]
+        );
+    }
+    // Without TYPE_GROUPS the modelled copy is an ordinary point.
+    let bytes = write_c3d_counting(Proc::Intel, true, &labels, &frames, n, n, &groups[1..]);
+    let t = c3d_tracks(&bytes).expect("c3d");
+    assert!(t.labels().expect("labels").contains(&"LASIm".to_string()));
+    // A file of nothing but segment axes has no markers.
+    let axes = ["PELO", "PELA", "PELL", "PELP"];
+    let four: Vec<Vec<Option<[f64; 3]>>> = frames.iter().map(|f| f[..4].to_vec()).collect();
+    let only = write_c3d_counting(Proc::Intel, true, &axes, &four, 4, 4, &[]);
+    let e = c3d_tracks(&only).expect_err("no markers");
+    assert!(e.to_string().contains("segment axes"), "{e}");
+}
+
 /// The case the fuzz test (tests/tests/fuzz.rs) shrank to when the parameter walk multiplied
 /// dimensions unchecked: an integer overflow panic in debug builds.
 #[test]

@@ -35,6 +35,13 @@ pub enum Warning {
         /// Their labels, in the file's order.
         labels: Vec<String>,
     },
+    /// Points that a modelling program computed rather than markers, told by their names:
+    /// Plug-in Gait's segment axes (a segment code's `O`, `A`, `L` and `P` points, such as
+    /// `PELO` ... `PELP`) and centre of mass; they were left out of the tracks.
+    ModelPointsSkipped {
+        /// Their labels, in the file's order.
+        labels: Vec<String>,
+    },
     /// Points whose tracks repeat an earlier point's within a fraction of a millimetre (one
     /// marker stored twice under two names); they were left out of the tracks.
     PointsDuplicated {
@@ -408,6 +415,12 @@ impl std::fmt::Display for Warning {
                 "{} C3D point(s) named in POINT:{} are modelling outputs, not markers; left out: {}",
                 labels.len(),
                 groups.join("/"),
+                labels.join(", ")
+            ),
+            Warning::ModelPointsSkipped { labels } => write!(
+                f,
+                "{} point(s) are Plug-in Gait segment axes or centre of mass, a model's outputs, not markers; left out: {}",
+                labels.len(),
                 labels.join(", ")
             ),
             Warning::PointsDuplicated {

@@ -298,9 +298,22 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
         .filter(|l| !l.is_empty())
         .collect();
     labels.resize(n_points, String::new());
-    // A modelling program's outputs stored as points, named by these groups: not markers.
+    // A modelling program's outputs stored as points, named by these groups, and by the
+    // groups that `POINT:TYPE_GROUPS` lists (Vicon's `MODELED_MARKERS`, ...): not markers.
+    // Markers themselves are in no type group.
+    let mut groups: Vec<String> = OUTPUT_GROUPS.iter().map(|g| (*g).to_string()).collect();
+    for g in get("POINT:TYPE_GROUPS")
+        .map(Parameter::strings)
+        .unwrap_or_default()
+    {
+        let g = g.trim().to_ascii_uppercase();
+        let names_markers = g.starts_with("LABELS") || g.starts_with("DESCRIPTIONS");
+        if !g.is_empty() && !names_markers && !groups.contains(&g) {
+            groups.push(g);
+        }
+    }
     let mut outputs: Vec<(String, Vec<String>)> = Vec::new();
-    for group in OUTPUT_GROUPS {
+    for group in &groups {
         let names: Vec<String> = get(&format!("POINT:{group}"))
             .map(Parameter::strings)
             .unwrap_or_default()
@@ -318,22 +331,34 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
             .iter()
             .any(|(_, names)| names.iter().any(|n| n == label))
     };
-    let (kept, outputs_at): (Vec<usize>, Vec<usize>) =
+    let (candidates, outputs_at): (Vec<usize>, Vec<usize>) =
         (0..n_points).partition(|&i| !is_output(&labels[i]));
     let skipped: Vec<String> = outputs_at
         .iter()
         .map(|&i| labels[i].trim().to_string())
         .collect();
+    let candidate_labels: Vec<String> = candidates.iter().map(|&i| labels[i].clone()).collect();
+    let model_at = crate::model_points::segment_axes(&candidate_labels);
+    let model_points: Vec<String> = model_at
+        .iter()
+        .map(|&k| candidate_labels[k].trim().to_string())
+        .collect();
+    let kept: Vec<usize> = candidates
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| model_at.binary_search(k).is_err())
+        .map(|(_, &i)| i)
+        .collect();
     if kept.is_empty() {
+        let mut named: Vec<String> = outputs.iter().map(|(g, _)| format!("POINT:{g}")).collect();
+        if !model_points.is_empty() {
+            named.push("Plug-in Gait's segment axes".into());
+        }
         return Err(malformed(
             "POINT:LABELS",
             format!(
-                "every one of the {n_points} points is a modelling output named in {}; no markers",
-                outputs
-                    .iter()
-                    .map(|(g, _)| format!("POINT:{g}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                "every one of the {n_points} points is a modelling output ({}); no markers",
+                named.join(", ")
             ),
         ));
     }
@@ -402,6 +427,11 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
         warnings.push(kinetree_core::Warning::C3dOutputsSkipped {
             groups: outputs.into_iter().map(|(g, _)| g).collect(),
             labels: skipped,
+        });
+    }
+    if !model_points.is_empty() {
+        warnings.push(kinetree_core::Warning::ModelPointsSkipped {
+            labels: model_points,
         });
     }
     Ok(if warnings.is_empty() {

@@ -4,6 +4,7 @@
 
 mod c3d;
 pub mod export;
+mod model_points;
 mod npy;
 mod npz;
 mod trc;

@@ -160,7 +160,26 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
             }
         }
     }
-    let tracks = Tracks::new(data.len(), n_points, xyz)?.with_labels(labels)?;
+    // Exports from Vicon keep Plug-in Gait's segment axes beside the markers.
+    let model_at = crate::model_points::segment_axes(&labels);
+    let model_points: Vec<String> = model_at.iter().map(|&i| labels[i].clone()).collect();
+    let mut tracks = Tracks::new(data.len(), n_points, xyz)?.with_labels(labels)?;
+    if !model_at.is_empty() {
+        let kept: Vec<usize> = (0..n_points)
+            .filter(|i| model_at.binary_search(i).is_err())
+            .collect();
+        if kept.is_empty() {
+            return Err(malformed(
+                "line 4",
+                "every marker is a Plug-in Gait segment axis or centre of mass, a model's output; no markers",
+            ));
+        }
+        tracks = tracks.select_points(&kept)?.with_warnings(vec![
+            kinetree_core::Warning::ModelPointsSkipped {
+                labels: model_points,
+            },
+        ]);
+    }
     if rate > 0.0 {
         tracks.with_frame_rate(rate)
     } else {
@@ -194,6 +213,35 @@ Frame#\tTime\tRASI\t\t\tLASI\t\t\tC7\t\t\n\
         assert!(t.get(2, 1).is_none() && t.get(2, 2).is_none());
         assert_eq!(t.labels().expect("labels"), ["RASI", "LASI", "C7"]);
         assert_eq!(t.frame_rate_hz(), Some(100.0));
+    }
+
+    #[test]
+    fn plug_in_gait_segment_axes_are_left_out_with_a_warning() {
+        let names = ["RASI", "PELO", "PELA", "PELL", "PELP", "LASI", "C7"];
+        let mut text = format!(
+            "PathFileType\t4\t(X/Y/Z)\tpig.trc\n\
+DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\n100\t100\t2\t{}\tmm\n\
+Frame#\tTime\t{}\n\n",
+            names.len(),
+            names.join("\t\t\t")
+        );
+        for f in 0..2 {
+            let xyz: Vec<String> = (0..3 * names.len())
+                .map(|k| format!("{}", 10 * k + f))
+                .collect();
+            text += &format!("{}\t{}\t{}\n", f + 1, f as f64 / 100.0, xyz.join("\t"));
+        }
+        let t = tracks_within(&text, 1.0).expect("read");
+        assert_eq!(t.labels().expect("labels"), ["RASI", "LASI", "C7"]);
+        // LASI, the file's sixth marker, keeps its own columns (15-17).
+        assert!((t.get(1, 1).expect("seen").x - 0.151).abs() < 1e-12);
+        assert_eq!(t.frame_rate_hz(), Some(100.0));
+        assert_eq!(
+            t.warnings(),
+            [kinetree_core::Warning::ModelPointsSkipped {
+                labels: ["PELO", "PELA", "PELL", "PELP"].map(String::from).to_vec(),
+            }]
+        );
     }
 
     #[test]
