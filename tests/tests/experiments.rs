@@ -1,9 +1,11 @@
 //! Every TOML file under experiments/ parses (unknown keys are errors) and runs, so configs
-//! cannot rot: experiment configs (with an `[experiment]` table) end to end, pipeline configs
-//! (such as experiments/real/pipeline.toml) by building their pipeline.
+//! cannot rot: experiment configs (with an `[experiment]` table) end to end, every value of a
+//! sweep's grid in at least one run, pipeline configs (such as experiments/real/pipeline.toml)
+//! by building their pipeline.
 
 use kinetree_pipeline::sweep::{Sweep, SweepOptions, run_sweep, runs_csv};
 use kinetree_pipeline::{ExperimentConfig, Pipeline, run_experiment};
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 fn tomls(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -32,27 +34,40 @@ fn every_config_under_experiments_parses_and_runs() {
     tomls(&root, &mut files);
     assert!(files.len() >= 2, "{files:?}");
     let (mut experiments, mut pipelines) = (0, 0);
+    // The experiments to run end to end: (file, grid point, config).
+    let mut runs: Vec<(&PathBuf, usize, ExperimentConfig)> = Vec::new();
     for f in &files {
         let text = std::fs::read_to_string(f).expect("read");
         let value: toml::Table =
             toml::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
         // A sweep has a [sweep] table or a list where one value is expected.
         if kinetree_pipeline::sweep::is_sweep(&text) {
-            // Quick profile: every grid point once, with the first seed.
+            // Every grid point builds its pipeline; with the first seed, the points that bring
+            // a grid value no earlier run had run end to end, so every value of every key runs
+            // once without the whole product (the ablation grid alone has 240 points).
             let sweep = Sweep::from_toml(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
             let seed = sweep.seeds().first().copied().unwrap_or(0);
-            for p in 0..sweep.points.len() {
+            let mut ran: Vec<(usize, &toml::Value)> = Vec::new();
+            for (p, values) in sweep.points.iter().enumerate() {
                 let cfg = sweep.config(p, seed).expect("valid point");
-                run_experiment(&cfg, f.parent().expect("dir"))
+                Pipeline::from_config(&cfg.pipeline)
                     .unwrap_or_else(|e| panic!("{} point {p}: {e}", f.display()));
+                let new: Vec<(usize, &toml::Value)> = values
+                    .iter()
+                    .enumerate()
+                    .filter(|kv| !ran.contains(kv))
+                    .collect();
+                if new.is_empty() && p > 0 {
+                    continue;
+                }
+                runs.push((f, p, cfg));
+                ran.extend(new);
             }
             experiments += 1;
         } else if value.contains_key("experiment") {
             let cfg = ExperimentConfig::from_toml(&text)
                 .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-            let out = run_experiment(&cfg, f.parent().expect("dir"))
-                .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-            assert!(!out.discovery.model.bodies.is_empty(), "{}", f.display());
+            runs.push((f, 0, cfg));
             experiments += 1;
         } else {
             let cfg = kinetree_pipeline::config::pipeline_from_toml(&text)
@@ -65,6 +80,12 @@ fn every_config_under_experiments_parses_and_runs() {
         experiments >= 1 && pipelines >= 1,
         "{experiments} {pipelines}"
     );
+    // The runs are independent: run them side by side, as a sweep does.
+    runs.par_iter().for_each(|(f, p, cfg)| {
+        let out = run_experiment(cfg, f.parent().expect("dir"))
+            .unwrap_or_else(|e| panic!("{} point {p}: {e}", f.display()));
+        assert!(!out.discovery.model.bodies.is_empty(), "{}", f.display());
+    });
 }
 
 const SWEEP: &str = r#"
