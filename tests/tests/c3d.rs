@@ -61,6 +61,60 @@ fn real_recordings_match_an_independent_reader() {
     }
 }
 
+/// A Vicon Nexus export (`experiments/real/data/gaitalytics-treadmill`) stores 124 points: 26
+/// markers, 46 Plug-in Gait outputs in `POINT:ANGLES`, `FORCES`, `MOMENTS` and `POWERS`, 16
+/// modelled copies of markers in `POINT:MODELED_MARKERS` (a group `POINT:TYPE_GROUPS` lists) and
+/// 36 segment axes that no group names. The reader keeps the 26 markers, names what it left
+/// out, and nothing it keeps repeats another point's track.
+#[test]
+fn a_vicon_export_keeps_its_markers_and_names_the_models_points() {
+    let dir = "gaitalytics-treadmill";
+    let t = read_c3d(&c3d_in(dir)).expect("c3d");
+    let labels: Vec<String> = serde_json::from_str(
+        &std::fs::read_to_string(data(dir).join("labels.json")).expect("labels"),
+    )
+    .expect("json");
+    assert_eq!(t.labels().expect("labels"), labels);
+    assert_eq!((t.n_frames(), t.n_points()), (1206, 26));
+    assert_eq!(t.frame_rate_hz(), Some(100.0));
+    let mut skipped = 0;
+    for w in t.warnings() {
+        match w {
+            kinetree_core::Warning::C3dOutputsSkipped { groups, labels } => {
+                assert_eq!(
+                    groups,
+                    &["ANGLES", "FORCES", "MOMENTS", "POWERS", "MODELED_MARKERS"]
+                );
+                assert_eq!(labels.len(), 62);
+                assert!(
+                    labels.iter().any(|l| l == "LASI") && labels.iter().any(|l| l == "LHipAngles")
+                );
+                skipped += labels.len();
+            }
+            kinetree_core::Warning::ModelPointsSkipped { labels } => {
+                assert_eq!(labels.len(), 36);
+                assert!(labels.iter().all(|l| l.len() == 4));
+                skipped += labels.len();
+            }
+            other => panic!("unexpected warning {other}"),
+        }
+    }
+    assert_eq!(skipped, 124 - 26);
+    // The markers are seen in every frame, and no two of them keep within a millimetre (the
+    // modelled copies did, at 0.015-0.044 mm).
+    for i in 0..26 {
+        assert_eq!(t.visible_count(i), 1206, "{}", labels[i]);
+        for j in 0..i {
+            let near = (0..1206)
+                .filter(|&f| {
+                    (t.get(f, i).expect("seen") - t.get(f, j).expect("seen")).norm() < 1e-3
+                })
+                .count();
+            assert_eq!(near, 0, "{} and {}", labels[i], labels[j]);
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy)]
 enum Proc {
     Intel,
@@ -193,6 +247,8 @@ fn written_files_read_back_for_every_processor_and_format() {
             let t = c3d_tracks(&bytes).unwrap_or_else(|e| panic!("{proc:?} float {float}: {e}"));
             assert_eq!((t.n_frames(), t.n_points()), (2, 3));
             assert_eq!(t.labels().expect("labels"), ["LASI", "RASI", "C7"]);
+            // No POINT:RATE: the header's rate, in the processor's float format.
+            assert_eq!(t.frame_rate_hz(), Some(100.0), "{proc:?}");
             for (f, frame) in frames.iter().enumerate() {
                 for (i, p) in frame.iter().enumerate() {
                     let got = t.get(f, i);

@@ -415,7 +415,14 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
         }
     }
     let labels: Vec<String> = kept.iter().map(|&i| labels[i].clone()).collect();
-    let tracks = Tracks::new(n_frames, kept.len(), xyz)?.with_labels(labels)?;
+    let mut tracks = Tracks::new(n_frames, kept.len(), xyz)?.with_labels(labels)?;
+    // The point rate: `POINT:RATE`, else the header's (a float at byte 21).
+    let rate = get("POINT:RATE")
+        .and_then(|p| p.float(proc))
+        .unwrap_or(f64::from(proc.f32(four(header, 20, "header rate")?)));
+    if rate.is_finite() && rate > 0.0 {
+        tracks = tracks.with_frame_rate(rate)?;
+    }
     let mut warnings = Vec::new();
     if !unused.is_empty() {
         warnings.push(kinetree_core::Warning::C3dLabelsUnused {

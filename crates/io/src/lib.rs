@@ -130,8 +130,11 @@ pub fn read_tracks_with(path: &Path, options: &ReadOptions) -> Result<Tracks> {
 
 /// Reads the marker trajectories of a C3D motion-capture file: one point per marker in the
 /// file's order, labelled with its `POINT:LABELS` name (`point <i>` when unnamed), converted
-/// to metres from `POINT:UNITS` (`mm`, `cm` or `m`; another unit is an error). Intel, DEC and
-/// MIPS files, integer or float data.
+/// to metres from `POINT:UNITS` (`mm`, `cm` or `m`; another unit is an error), at the frame
+/// rate of `POINT:RATE` (else the header's). Intel, DEC and MIPS files, integer or float data.
+/// Modelling outputs stored as points are left out with warnings naming them: the points that
+/// `POINT:ANGLES`, `FORCES`, `MOMENTS`, `POWERS`, `SCALARS`, `REACTIONS` or a group listed in
+/// `POINT:TYPE_GROUPS` name, and Plug-in Gait's segment axes.
 ///
 /// A sample is *not visible* when its residual word is negative (the C3D convention for an
 /// invalid point), when it is exactly `(0, 0, 0)` (how several writers store a missing
