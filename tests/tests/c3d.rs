@@ -115,6 +115,84 @@ fn a_vicon_export_keeps_its_markers_and_names_the_models_points() {
     }
 }
 
+/// A model's noise-free output stored as integers on a 0.1 mm grid: static markers keep their
+/// rounding in every frame, so their distances do not vary at all, and the noise estimate would
+/// fall below the rounding. It is raised to the rounding's std-dev (step / sqrt 12) with a
+/// warning, and the hinge is still found; stored as floats, no grid is known and no such
+/// warning is given.
+#[test]
+fn noise_estimates_stop_at_the_rounding_of_integer_samples() {
+    let base = [
+        [100.0, 0.0, 0.0],
+        [0.0, 100.0, 0.0],
+        [0.0, 0.0, 100.0],
+        [80.0, 80.0, 20.0],
+    ];
+    let arm = [
+        [300.0, 50.0, 30.0],
+        [400.0, -40.0, 60.0],
+        [350.0, 20.0, -50.0],
+        [450.0, 0.0, 10.0],
+    ];
+    let frames: Vec<Vec<Option<[f64; 3]>>> = (0..80)
+        .map(|t| {
+            let a = 1.2 * (f64::from(t) / 9.0).sin();
+            let (s, c) = a.sin_cos();
+            // The arm turns about the vertical line through (200, 0, 0).
+            let turn = |p: &[f64; 3]| {
+                let (x, y) = (p[0] - 200.0, p[1]);
+                Some([200.0 + c * x - s * y, s * x + c * y, p[2]])
+            };
+            base.iter()
+                .map(|p| Some(*p))
+                .chain(arm.iter().map(turn))
+                .collect()
+        })
+        .collect();
+    let labels = ["B1", "B2", "B3", "B4", "A1", "A2", "A3", "A4"];
+    let integer = c3d_tracks(&write_c3d(Proc::Intel, false, &labels, &frames)).expect("c3d");
+    assert!((integer.precision_m().expect("grid") - 1e-4).abs() < 1e-10);
+    let model =
+        kinetree_pipeline::Pipeline::from_config(&kinetree_pipeline::PipelineConfig::default())
+            .expect("pipeline")
+            .run(&integer)
+            .expect("discover")
+            .model;
+    let floor = 1e-4 / 12f64.sqrt();
+    assert!(
+        (model.noise.sigma_m - floor).abs() < 1e-10,
+        "{}",
+        model.noise.sigma_m
+    );
+    assert!(model.warnings.iter().any(|w| matches!(
+        w,
+        kinetree_core::Warning::NoiseAtPrecision { precision_m, .. } if (precision_m - 1e-4).abs() < 1e-10
+    )));
+    assert_eq!(model.bodies.len(), 2);
+    assert!(
+        model
+            .joints
+            .iter()
+            .any(|j| j.joint_type == kinetree_core::model::JointType::Revolute),
+        "{:?}",
+        model.joints
+    );
+    let float = c3d_tracks(&write_c3d(Proc::Intel, true, &labels, &frames)).expect("c3d");
+    assert_eq!(float.precision_m(), None);
+    let model =
+        kinetree_pipeline::Pipeline::from_config(&kinetree_pipeline::PipelineConfig::default())
+            .expect("pipeline")
+            .run(&float)
+            .expect("discover")
+            .model;
+    assert!(
+        !model
+            .warnings
+            .iter()
+            .any(|w| matches!(w, kinetree_core::Warning::NoiseAtPrecision { .. }))
+    );
+}
+
 #[derive(Debug, Clone, Copy)]
 enum Proc {
     Intel,

@@ -15,6 +15,7 @@ pub struct Tracks {
     xyz: Vec<f64>,
     labels: Option<Vec<String>>,
     frame_rate_hz: Option<f64>,
+    precision_m: Option<f64>,
     warnings: Vec<crate::Warning>,
 }
 
@@ -91,6 +92,7 @@ impl Tracks {
             xyz,
             labels: None,
             frame_rate_hz: None,
+            precision_m: None,
             warnings: Vec::new(),
         })
     }
@@ -160,6 +162,29 @@ impl Tracks {
         }
         self.frame_rate_hz = Some(frame_rate_hz);
         Ok(self)
+    }
+
+    /// Attaches the step of the grid the file stored the coordinates on, in metres (a C3D
+    /// file's integer scale, a text file's last decimal): rounding to it leaves every
+    /// coordinate an error of up to half a step, which no noise estimate can go below.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] unless the step is finite and positive.
+    pub fn with_precision(mut self, step_m: f64) -> Result<Self> {
+        if !(step_m.is_finite() && step_m > 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "precision_m".into(),
+                message: format!("must be finite and positive, got {step_m}"),
+            });
+        }
+        self.precision_m = Some(step_m);
+        Ok(self)
+    }
+
+    /// The step of the grid the coordinates were stored on, metres, when the reader knows it
+    /// ([`Tracks::with_precision`]).
+    pub fn precision_m(&self) -> Option<f64> {
+        self.precision_m
     }
 
     /// Number of frames `T`.
@@ -237,6 +262,7 @@ impl Tracks {
     fn described(&self, mut out: Self) -> Self {
         out.labels.clone_from(&self.labels);
         out.frame_rate_hz = self.frame_rate_hz;
+        out.precision_m = self.precision_m;
         out.warnings.clone_from(&self.warnings);
         out
     }
@@ -299,6 +325,7 @@ impl Tracks {
                 .as_ref()
                 .map(|l| points.iter().map(|&i| l[i].clone()).collect()),
             frame_rate_hz: self.frame_rate_hz,
+            precision_m: self.precision_m,
             warnings: Vec::new(),
         })
     }

@@ -305,6 +305,14 @@ pub enum Warning {
         /// The estimate, per-coordinate std-dev in metres.
         sigma_m: f64,
     },
+    /// The noise estimate fell below the error of rounding the coordinates to the file's
+    /// grid, and was raised to it: the data may be a model's noise-free output.
+    NoiseAtPrecision {
+        /// The level used, `precision_m / sqrt 12` (the std-dev of rounding), metres.
+        sigma_m: f64,
+        /// The grid's step (a C3D file's integer scale, a text file's last decimal), metres.
+        precision_m: f64,
+    },
 }
 
 /// Why a `joint_not_identifiable` warning finds a joint's type undecided by the data.
@@ -625,6 +633,15 @@ impl std::fmt::Display for Warning {
             Warning::NoiseEstimated { sigma_m } => write!(
                 f,
                 "noise level estimated from the data: sigma = {:.3} mm per coordinate",
+                sigma_m * 1e3
+            ),
+            Warning::NoiseAtPrecision {
+                sigma_m,
+                precision_m,
+            } => write!(
+                f,
+                "the noise estimate fell below the rounding of the file's coordinates to {:.4} mm; raised to its std-dev, {:.4} mm (noise-free model output?)",
+                precision_m * 1e3,
                 sigma_m * 1e3
             ),
         }

@@ -423,6 +423,11 @@ pub(crate) fn tracks_within(bytes: &[u8], max_memory_gib: f64) -> Result<Tracks>
     if rate.is_finite() && rate > 0.0 {
         tracks = tracks.with_frame_rate(rate)?;
     }
+    // Integer samples lie on a grid of the scale's step; float samples carry f32's relative
+    // rounding instead, which has no one step.
+    if !is_float && point_scale > 0.0 {
+        tracks = tracks.with_precision(point_scale * to_m)?;
+    }
     let mut warnings = Vec::new();
     if !unused.is_empty() {
         warnings.push(kinetree_core::Warning::C3dLabelsUnused {

@@ -128,6 +128,9 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
     }
     crate::check_size(data.len() as u64, n_points as u64, max_memory_gib)?;
     let mut xyz = Vec::with_capacity(data.len() * n_points * 3);
+    // The most decimals any coordinate is written with: the grid the writer rounded to
+    // (none when a coordinate has an exponent).
+    let mut decimals: Option<usize> = Some(0);
     for (k, text) in &data {
         let row = fields(text);
         let extra = row.iter().skip(2 + 3 * n_points).find(|f| !f.is_empty());
@@ -152,6 +155,10 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
                         format!("{f:?} is not a number (marker {label})"),
                     )
                 })? * to_m;
+                decimals = match (decimals, f.contains(['e', 'E'])) {
+                    (Some(d), false) => Some(d.max(f.find('.').map_or(0, |at| f.len() - at - 1))),
+                    _ => None,
+                };
             }
             if seen && p.iter().all(|v| v.is_finite()) {
                 xyz.extend(p);
@@ -164,6 +171,9 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
     let model_at = crate::model_points::segment_axes(&labels);
     let model_points: Vec<String> = model_at.iter().map(|&i| labels[i].clone()).collect();
     let mut tracks = Tracks::new(data.len(), n_points, xyz)?.with_labels(labels)?;
+    if let Some(d) = decimals.and_then(|d| i32::try_from(d).ok()) {
+        tracks = tracks.with_precision(10f64.powi(-d) * to_m)?;
+    }
     if !model_at.is_empty() {
         let kept: Vec<usize> = (0..n_points)
             .filter(|i| model_at.binary_search(i).is_err())
@@ -213,6 +223,13 @@ Frame#\tTime\tRASI\t\t\tLASI\t\t\tC7\t\t\n\
         assert!(t.get(2, 1).is_none() && t.get(2, 2).is_none());
         assert_eq!(t.labels().expect("labels"), ["RASI", "LASI", "C7"]);
         assert_eq!(t.frame_rate_hz(), Some(100.0));
+        // Whole millimetres: a grid of 1 mm; a coordinate with more decimals sets a finer one,
+        // and one with an exponent leaves the grid unknown.
+        assert_eq!(t.precision_m(), Some(1e-3));
+        let finer = tracks_within(&WALK.replace("\t202\t", "\t202.25\t"), 1.0).expect("read");
+        assert!((finer.precision_m().expect("grid") - 1e-5).abs() < 1e-18);
+        let exponent = tracks_within(&WALK.replace("\t202\t", "\t2.02e2\t"), 1.0).expect("read");
+        assert_eq!(exponent.precision_m(), None);
     }
 
     #[test]

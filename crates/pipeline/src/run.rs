@@ -240,13 +240,28 @@ impl Pipeline {
                 NoiseSource::Estimated,
             ),
         };
+        // An estimate cannot go below the rounding of the coordinates to the file's grid
+        // (a uniform error of a step's width: std-dev step / sqrt 12).
+        let rounding = tracks
+            .precision_m()
+            .filter(|_| noise_source == NoiseSource::Estimated)
+            .map(|step| (step, step / 12f64.sqrt()));
+        if let Some((step, floor)) = rounding
+            && sigma < floor
+        {
+            sigma = floor;
+            warnings.push(Warning::NoiseAtPrecision {
+                sigma_m: floor,
+                precision_m: step,
+            });
+        }
         let first_guess = (noise_source == NoiseSource::Estimated
             && self.noise_estimator == NoiseEstimator::Mode)
             .then_some(sigma);
         observer.stage("clustering");
         let (s, dmat, seg, trace) =
             crate::runner::grouping(self, tracks, &stats, sigma, first_guess, observer)?;
-        sigma = s;
+        sigma = rounding.map_or(s, |(_, floor)| s.max(floor));
         if noise_source == NoiseSource::Estimated {
             warnings.push(Warning::NoiseEstimated { sigma_m: sigma });
         }
