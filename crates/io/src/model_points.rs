@@ -4,9 +4,10 @@
 //! Plug-in Gait writes each segment's frame as four points named by a three-letter segment
 //! code and a letter: `O` the origin, `A` anterior, `L` lateral, `P` proximal (`PELO`,
 //! `PELA`, `PELL`, `PELP` for the pelvis), and the body's centre of mass as
-//! `CentreOfMass` and `CentreOfMassFloor`. No C3D group names them, and they are exactly
-//! rigid with each other, so they would be read as a segment's best markers. Only a full
-//! quartet of a known code counts, so a marker that happens to be called `PELO` stays.
+//! `CentreOfMass` and `CentreOfMassFloor`. No C3D group names them; they follow the model's
+//! segments rather than the skin, often rigid with each other to the file's rounding, and
+//! would be read as markers. Only a full quartet of a known code counts, so a marker that
+//! happens to be called `PELO` stays.
 
 /// Plug-in Gait's segment codes: head, thorax, pelvis, and per side clavicle, humerus,
 /// radius, hand, femur, tibia, foot and toe.

@@ -171,8 +171,11 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
     let model_at = crate::model_points::segment_axes(&labels);
     let model_points: Vec<String> = model_at.iter().map(|&i| labels[i].clone()).collect();
     let mut tracks = Tracks::new(data.len(), n_points, xyz)?.with_labels(labels)?;
-    if let Some(d) = decimals.and_then(|d| i32::try_from(d).ok()) {
-        tracks = tracks.with_precision(10f64.powi(-d) * to_m)?;
+    let step = decimals
+        .and_then(|d| i32::try_from(d).ok())
+        .map(|d| 10f64.powi(-d) * to_m);
+    if let Some(step) = step.filter(|s| s.is_normal()) {
+        tracks = tracks.with_precision(step)?;
     }
     if !model_at.is_empty() {
         let kept: Vec<usize> = (0..n_points)
