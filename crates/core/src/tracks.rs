@@ -27,6 +27,18 @@ pub const MAX_COORDINATE: f64 = 1e100;
 /// The fewest points the method can use (one rigid body needs three).
 pub const MIN_POINTS: usize = 3;
 
+/// `value` when it is finite and positive, else an error naming `name`.
+fn finite_positive(name: &str, value: f64) -> Result<f64> {
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(Error::InvalidParameter {
+            name: name.into(),
+            message: format!("must be finite and positive, got {value}"),
+        })
+    }
+}
+
 impl Tracks {
     /// Builds tracks from a frame-major buffer of `n_frames * n_points * 3` coordinates.
     ///
@@ -154,13 +166,7 @@ impl Tracks {
     /// # Errors
     /// [`Error::InvalidParameter`] unless the rate is finite and positive.
     pub fn with_frame_rate(mut self, frame_rate_hz: f64) -> Result<Self> {
-        if !(frame_rate_hz.is_finite() && frame_rate_hz > 0.0) {
-            return Err(Error::InvalidParameter {
-                name: "frame_rate_hz".into(),
-                message: format!("must be finite and positive, got {frame_rate_hz}"),
-            });
-        }
-        self.frame_rate_hz = Some(frame_rate_hz);
+        self.frame_rate_hz = Some(finite_positive("frame_rate_hz", frame_rate_hz)?);
         Ok(self)
     }
 
@@ -171,13 +177,7 @@ impl Tracks {
     /// # Errors
     /// [`Error::InvalidParameter`] unless the step is finite and positive.
     pub fn with_precision(mut self, step_m: f64) -> Result<Self> {
-        if !(step_m.is_finite() && step_m > 0.0) {
-            return Err(Error::InvalidParameter {
-                name: "precision_m".into(),
-                message: format!("must be finite and positive, got {step_m}"),
-            });
-        }
-        self.precision_m = Some(step_m);
+        self.precision_m = Some(finite_positive("precision_m", step_m)?);
         Ok(self)
     }
 
@@ -414,6 +414,33 @@ mod tests {
             Err(Error::NoVisibleData)
         ));
         assert!(hidden.select_points(&[0, 4, 5]).is_ok());
+    }
+
+    #[test]
+    fn the_frame_rate_and_the_grid_step_go_with_selections_and_bad_ones_are_named() {
+        let t = sample()
+            .with_frame_rate(100.0)
+            .and_then(|t| t.with_precision(1e-4))
+            .expect("valid");
+        for s in [
+            t.select_points(&[2, 0, 1]).expect("points"),
+            t.select_frames(&[3, 1]).expect("frames"),
+        ] {
+            assert_eq!(
+                (s.frame_rate_hz(), s.precision_m()),
+                (Some(100.0), Some(1e-4))
+            );
+        }
+        for (bad, name) in [
+            (sample().with_precision(0.0), "precision_m"),
+            (sample().with_precision(f64::NAN), "precision_m"),
+            (sample().with_frame_rate(-1.0), "frame_rate_hz"),
+        ] {
+            assert!(
+                matches!(&bad, Err(Error::InvalidParameter { name: n, .. }) if n == name),
+                "{bad:?}"
+            );
+        }
     }
 
     #[test]
