@@ -237,20 +237,24 @@ Frame#\tTime\tRASI\t\t\tLASI\t\t\tC7\t\t\n\
 
     #[test]
     fn plug_in_gait_segment_axes_are_left_out_with_a_warning() {
-        let names = ["RASI", "PELO", "PELA", "PELL", "PELP", "LASI", "C7"];
-        let mut text = format!(
-            "PathFileType\t4\t(X/Y/Z)\tpig.trc\n\
+        // Two frames of these markers, coordinate k of a frame f at 10 k + f millimetres.
+        let trc = |names: &[&str]| {
+            let mut text = format!(
+                "PathFileType\t4\t(X/Y/Z)\tpig.trc\n\
 DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\n100\t100\t2\t{}\tmm\n\
 Frame#\tTime\t{}\n\n",
-            names.len(),
-            names.join("\t\t\t")
-        );
-        for f in 0..2 {
-            let xyz: Vec<String> = (0..3 * names.len())
-                .map(|k| format!("{}", 10 * k + f))
-                .collect();
-            text += &format!("{}\t{}\t{}\n", f + 1, f as f64 / 100.0, xyz.join("\t"));
-        }
+                names.len(),
+                names.join("\t\t\t")
+            );
+            for f in 0..2 {
+                let xyz: Vec<String> = (0..3 * names.len())
+                    .map(|k| format!("{}", 10 * k + f))
+                    .collect();
+                text += &format!("{}\t{}\t{}\n", f + 1, f as f64 / 100.0, xyz.join("\t"));
+            }
+            text
+        };
+        let text = trc(&["RASI", "PELO", "PELA", "PELL", "PELP", "LASI", "C7"]);
         let t = tracks_within(&text, 1.0).expect("read");
         assert_eq!(t.labels().expect("labels"), ["RASI", "LASI", "C7"]);
         // LASI, the file's sixth marker, keeps its own columns (15-17).
@@ -261,6 +265,13 @@ Frame#\tTime\t{}\n\n",
             [kinetree_core::Warning::ModelPointsSkipped {
                 labels: ["PELO", "PELA", "PELL", "PELP"].map(String::from).to_vec(),
             }]
+        );
+        // A file of nothing but segment axes has no markers: an error naming the line.
+        let e =
+            tracks_within(&trc(&["PELO", "PELA", "PELL", "PELP"]), 1.0).expect_err("no markers");
+        assert!(
+            e.to_string().contains("line 4") && e.to_string().contains("segment axis"),
+            "{e}"
         );
     }
 
