@@ -126,8 +126,18 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
     if data.is_empty() {
         return Err(malformed("line 6", "no frames after the header"));
     }
-    crate::check_size(data.len() as u64, n_points as u64, max_memory_gib)?;
-    let mut xyz = Vec::with_capacity(data.len() * n_points * 3);
+    // Exports from Vicon keep Plug-in Gait's segment axes beside the markers: their columns
+    // are read and checked like the others, and not stored.
+    let model_at = crate::model_points::segment_axes(&labels);
+    if model_at.len() == n_points {
+        return Err(malformed(
+            "line 4",
+            "every marker is a Plug-in Gait segment axis or centre of mass, a model's output; no markers",
+        ));
+    }
+    let n_kept = n_points - model_at.len();
+    crate::check_size(data.len() as u64, n_kept as u64, max_memory_gib)?;
+    let mut xyz = Vec::with_capacity(data.len() * n_kept * 3);
     // The most decimals any coordinate is written with: the grid the writer rounded to
     // (none when a coordinate has an exponent).
     let mut decimals: Option<usize> = Some(0);
@@ -160,6 +170,9 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
                     _ => None,
                 };
             }
+            if model_at.binary_search(&i).is_ok() {
+                continue;
+            }
             if seen && p.iter().all(|v| v.is_finite()) {
                 xyz.extend(p);
             } else {
@@ -167,31 +180,25 @@ pub(crate) fn tracks_within(text: &str, max_memory_gib: f64) -> Result<Tracks> {
             }
         }
     }
-    // Exports from Vicon keep Plug-in Gait's segment axes beside the markers.
-    let model_at = crate::model_points::segment_axes(&labels);
-    let model_points: Vec<String> = model_at.iter().map(|&i| labels[i].clone()).collect();
-    let mut tracks = Tracks::new(data.len(), n_points, xyz)?.with_labels(labels)?;
+    let (mut model_points, mut kept_labels) = (Vec::new(), Vec::new());
+    for (i, label) in labels.into_iter().enumerate() {
+        if model_at.binary_search(&i).is_ok() {
+            model_points.push(label);
+        } else {
+            kept_labels.push(label);
+        }
+    }
+    let mut tracks = Tracks::new(data.len(), n_kept, xyz)?.with_labels(kept_labels)?;
     let step = decimals
         .and_then(|d| i32::try_from(d).ok())
         .map(|d| 10f64.powi(-d) * to_m);
     if let Some(step) = step.filter(|s| s.is_normal()) {
         tracks = tracks.with_precision(step)?;
     }
-    if !model_at.is_empty() {
-        let kept: Vec<usize> = (0..n_points)
-            .filter(|i| model_at.binary_search(i).is_err())
-            .collect();
-        if kept.is_empty() {
-            return Err(malformed(
-                "line 4",
-                "every marker is a Plug-in Gait segment axis or centre of mass, a model's output; no markers",
-            ));
-        }
-        tracks = tracks.select_points(&kept)?.with_warnings(vec![
-            kinetree_core::Warning::ModelPointsSkipped {
-                labels: model_points,
-            },
-        ]);
+    if !model_points.is_empty() {
+        tracks = tracks.with_warnings(vec![kinetree_core::Warning::ModelPointsSkipped {
+            labels: model_points,
+        }]);
     }
     if rate > 0.0 {
         tracks.with_frame_rate(rate)
