@@ -401,19 +401,25 @@ fn point_counts_that_disagree_are_errors_and_unused_labels_warnings() {
     assert!(c3d_tracks(&write_c3d(Proc::Intel, true, &labels, &frames)).is_ok());
 }
 
+/// Four frames of `n` points in millimetres: point `i` of frame `t` at
+/// `(100 i + t, 20, 30 + i)`, so each point's samples tell which column they came from.
+fn spaced_points(n: usize) -> Vec<Vec<Option<[f64; 3]>>> {
+    (0..4)
+        .map(|t| {
+            (0..n)
+                .map(|i| Some([100.0 * i as f64 + f64::from(t), 20.0, 30.0 + i as f64]))
+                .collect()
+        })
+        .collect()
+}
+
 /// Vicon and Plug-in Gait store joint angles, forces, moments and powers as points and name
 /// them in `POINT:ANGLES`, `POINT:MOMENTS`, ...: they are left out, with a warning naming
 /// them, and a file of nothing else is an error.
 #[test]
 fn modelling_outputs_stored_as_points_are_skipped_with_a_warning() {
     let labels = ["LASI", "LHipAngles", "RASI", "LHipMoment", "C7"];
-    let frames: Vec<Vec<Option<[f64; 3]>>> = (0..4)
-        .map(|t| {
-            (0..5)
-                .map(|i| Some([100.0 * i as f64 + t as f64, 20.0, 30.0 + i as f64]))
-                .collect()
-        })
-        .collect();
+    let frames = spaced_points(labels.len());
     let groups: [(&str, &[&str]); 2] = [
         ("ANGLES", &["LHipAngles", "RHipAngles"]),
         ("MOMENTS", &["LHipMoment"]),
@@ -458,13 +464,7 @@ fn type_groups_and_plug_in_gait_segment_axes_are_skipped_with_warnings() {
     let labels = [
         "LASI", "PELO", "PELA", "RASI", "PELL", "PELP", "LASIm", "LFEO", "C7",
     ];
-    let frames: Vec<Vec<Option<[f64; 3]>>> = (0..4)
-        .map(|t| {
-            (0..labels.len())
-                .map(|i| Some([100.0 * i as f64 + t as f64, 20.0, 30.0 + i as f64]))
-                .collect()
-        })
-        .collect();
+    let frames = spaced_points(labels.len());
     let groups: [(&str, &[&str]); 2] = [
         ("TYPE_GROUPS", &["MODELED_MARKERS", "MODELED_MARKER"]),
         ("MODELED_MARKERS", &["LASIm"]),
