@@ -291,7 +291,10 @@ impl Default for PipelineConfig {
 /// with it from the segment below (`[pipeline.repairs.ball_groups] borrow`: sparse marker
 /// sets leave a thigh one marker and put its knee marker on the shank), counting a marker as
 /// explained by a body, and so not grouped, only within 2 std-devs and a slack of 1 (soft
-/// tissue leaves a three-marker body's poses loose enough to explain a foot's marker).
+/// tissue leaves a three-marker body's poses loose enough to explain a foot's marker), in
+/// `balls` as in `ball_groups` (`balls` poses the bodies `ball_groups` makes, on a parent
+/// that explains none of their markers; judged more loosely, the parent `ball_groups` chose
+/// is refused and the body is dropped unposed).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 
@@ -313,6 +316,10 @@ max_rms_growth = 1e6
 
 [repairs.ball_groups]
 borrow = true
+explained_bound_in_std = 2.0
+explained_slack = 1.0
+
+[repairs.balls]
 explained_bound_in_std = 2.0
 explained_slack = 1.0
 

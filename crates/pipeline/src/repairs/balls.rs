@@ -166,7 +166,10 @@ pub struct BallsParams {
     /// Least motion on the parent ([`BallBounds::min_swing_in_sigma`], default 5).
     pub min_swing_in_sigma: f64,
     /// A body explaining a keypoint of the group within this many std-devs is no parent
-    /// ([`BallBounds::explained_bound_in_std`], default 4).
+    /// ([`BallBounds::explained_bound_in_std`], default 4). Keep it, with its slack, no
+    /// looser than `ball_groups`': this repair poses the bodies that one makes, and a parent
+    /// it refuses leaves such a body unposed (`docs/decisions.md`,
+    /// `balls.explained_bound_in_std`).
     pub explained_bound_in_std: f64,
     /// Slack on that bound ([`BallBounds::explained_slack`], default 2).
     pub explained_slack: f64,
