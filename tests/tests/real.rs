@@ -84,7 +84,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
         .map(|f| run(f))
         .collect();
     let mut table = String::from(
-        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | joints (revolute / prismatic / spherical / universal / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|\n",
+        "| recording | frames x markers | sigma (mm) | segments (3+ markers) | bodies | ARI | tree edges joined | joints (revolute / prismatic / spherical / universal / multi-DoF / rigid) | re-prediction (sigma) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for o in &outcomes {
         let count = |t: &str| {
@@ -94,9 +94,11 @@ fn real_recordings_segment_into_their_labelled_segments() {
                 .filter(|j| j.joint_type.as_str() == t)
                 .count()
         };
+        let tree = segments_tree(o.folder);
+        let pairs: Vec<(&str, &str)> = tree.iter().map(|(p, c)| (p.as_str(), c.as_str())).collect();
         let _ = writeln!(
             table,
-            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} / {} / {} / {} / {} / {} | {} |",
+            "| {} | {} x {} | {:.2} | {} ({}) | {} | {:.3} | {} of {} | {} / {} / {} / {} / {} / {} | {} |",
             o.folder,
             o.frames,
             o.markers,
@@ -105,6 +107,8 @@ fn real_recordings_segment_into_their_labelled_segments() {
             o.segments_3,
             o.model.bodies.len(),
             o.ari,
+            anatomical_edges(o, &pairs),
+            pairs.len(),
             count("revolute"),
             count("prismatic"),
             count("spherical"),
@@ -119,7 +123,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
     if std::env::var_os("KINETREE_WRITE_TABLE").is_some() {
         let path = root().join("results.md");
         let text = format!(
-            "# Results on the real recordings\n\nWritten by `KINETREE_WRITE_TABLE=1 cargo test --release -p kinetree-tests --test real` with `experiments/real/pipeline.toml`. ARI: the bodies against the segments of 3+ markers named in each `segments.json`, over their markers visible in 2+ frames.\n\n{table}"
+            "# Results on the real recordings\n\nWritten by `KINETREE_WRITE_TABLE=1 cargo test --release -p kinetree-tests --test real` with `experiments/real/pipeline.toml`. ARI: the bodies against the segments of 3+ markers named in each `segments.json`, over their markers visible in 2+ frames. Tree edges joined: the edges of the tree in `segments.json` (its anatomical joints, and the subject's contact with a chair) that a joint of the model joins, each body named by the segment most of its own markers belong to; an edge whose segment has fewer than 3 markers can be joined only when that segment is found through its joint.\n\n{table}"
         );
         std::fs::write(&path, text).expect("write table");
     }
@@ -415,6 +419,24 @@ fn anatomical_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
             })
         })
         .count()
+}
+
+/// The edges of the tree in the recording's `segments.json` (`[parent, child, note]` each).
+fn segments_tree(folder: &str) -> Vec<(String, String)> {
+    let dir = kinetree_tests::real_data(folder);
+    let seg: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
+    )
+    .expect("json");
+    seg["tree"]
+        .as_array()
+        .expect("a tree")
+        .iter()
+        .map(|e| {
+            let name = |k: usize| e[k].as_str().expect("a segment name").to_string();
+            (name(0), name(1))
+        })
+        .collect()
 }
 
 /// Each body's segment: the one most of its markers belong to (empty when none).
