@@ -77,9 +77,17 @@ fn run_with(folder: &'static str, change: impl FnOnce(&mut PipelineConfig)) -> O
     }
 }
 
+/// Recordings the pipeline does not reach yet, listed in the table beside the others: the
+/// Vicon treadmill walk (see its own test below).
+const TARGETS: [&str; 1] = ["gaitalytics-treadmill"];
+
 #[test]
 fn real_recordings_segment_into_their_labelled_segments() {
+    // The table lists the targets too; the checks below hold for the recordings.
     let outcomes: Vec<Outcome> = kinetree_tests::RECORDINGS
+        .iter()
+        .chain(&TARGETS)
+        .collect::<Vec<_>>()
         .par_iter()
         .map(|f| run(f))
         .collect();
@@ -191,7 +199,7 @@ fn real_recordings_segment_into_their_labelled_segments() {
     assert_eq!(joint.joint_type, kinetree_core::model::JointType::Revolute);
     let [lo, hi] = joint.range.expect("range");
     assert!(hi - lo > 30.0, "the wheel turned {} rad", hi - lo);
-    for o in &outcomes {
+    for o in outcomes.iter().filter(|o| !TARGETS.contains(&o.folder)) {
         // Skin markers: rigid to 0.1-5 mm (the default estimator said 5-20 mm).
         let sigma = o.model.noise.sigma_m;
         assert!((1e-4..5e-3).contains(&sigma), "{}: sigma {sigma}", o.folder);
