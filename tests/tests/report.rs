@@ -140,7 +140,11 @@ about every axis, at 20 % extra occlusion over 300 frames. A pair turning about 
 axis is a ball joint when a centre fixed in both bodies explains its motion (the revolute
 test's pivot fit); the centre column is the largest distance from a true centre to the
 model's, in the parent's frame. The misses at 1 mm are links hidden in most frames; at 1 cm
-the bodies themselves (mean ARI 0.70-0.75). The last three columns set kinetree's hinge axes
+the bodies themselves (mean ARI 0.70-0.75). A link that shows its keypoints only a few at a
+time has few poses of its own; with `[pipeline.repairs.balls] partial_views` the ball fit
+links its shape through the frames that show parts of it and poses it through its joint,
+one run more exact at each 1 mm point and at 3 joints and 1 cm (off by default: on other
+sweeps it keeps fragments of hinged links as bodies; docs/decisions.md). The last three columns set kinetree's hinge axes
 in the parent's frame beside the functional methods of biomechanics, SCoRE for centres and
 SARA for axes (Ehrig et al. 2006, 2007), run on the poses of the true segmentation: at 1 mm
 kinetree's worst centre is 0.34 and 0.53 mm against SCoRE's 1.16 and 1.68 mm, and its worst
@@ -291,13 +295,17 @@ the rows with `{{}}`); the rows with the rule off show the trees it replaces.
 
 ## Real recordings (experiments/real)
 
-Five motion-capture recordings by others: full-body triads, gait clusters, wheelchair racing
-and sprinting, a tennis serve. Markers on skin are rigid only to 1-5 mm, so these runs use a
+Six motion-capture recordings by others: full-body triads, gait clusters, wheelchair racing
+and sprinting, a tennis serve, and a treadmill walk kept as a target the pipeline does not
+reach yet (experiments/real/README.md). Markers on skin are rigid only to 1-5 mm, so these runs use a
 noise estimate from each marker's most rigid partners, the distance std-dev as dissimilarity
 and a 3 mm / 0.02 rad model error in the DoF test (experiments/real/README.md says why).
 
 {real}
-The segments come out where the marker labels put them (ARI 1 on four recordings); the
+The tree edges column counts the edges of each recording's `segments.json` tree that a joint
+joins; an edge to a segment of fewer than three markers counts only when that segment is
+found through its joint. The segments come out where the marker labels put them (ARI 1 on
+four recordings); the
 wheelchair's wheel is a revolute joint over 42 rad relative to the chair. Human joints come
 out spherical where a centre fixed in both segments explains their motion within the model
 error (6 of the wheelchair racer's joints, 3 of the sprinter's, 2 of the tennis player's),

@@ -801,3 +801,100 @@ fn rigidity_from_pair_statistics_matches_the_tracks() {
         );
     }
 }
+
+/// A link of a random tree turns on a ball joint on the static base and shows its keypoints
+/// only a few at a time: no frame shows every one, and three or more in 52 of 300 frames,
+/// so it has few poses of its own. With `partial_views` the ball fit places each keypoint
+/// in the link's shape from frames that show it with two placed ones (without, it needs a
+/// frame that shows them all) and poses the link through the ball in
+/// every frame that shows two keypoints, with its centre within 2 mm of the joint's; with
+/// `[pipeline.repairs.balls] partial_views` the discovery then finds every joint of the tree
+/// with its type, and without it misses the link's.
+#[test]
+fn a_link_never_seen_whole_is_posed_through_its_ball_joint() {
+    let data = simulate(&kinetree_synth::random_scenario(
+        &kinetree_synth::RandomParams {
+            n_joints: 3,
+            tree: true,
+            prismatic_fraction: 0.0,
+            spherical_fraction: 0.5,
+            dropout: 0.2,
+            n_frames: 300,
+            seed: 3,
+            ..kinetree_synth::RandomParams::default()
+        },
+    ))
+    .expect("simulate");
+    let mech = &data.truth.mechanism;
+    let (base, link) = (0, 1);
+    let joint = mech
+        .joints
+        .iter()
+        .find(|j| (j.parent, j.child) == (base, link))
+        .expect("the link's joint");
+    assert_eq!(joint.joint_type, kinetree_synth::JointType::Spherical);
+    let seen = |t: usize, i: usize| data.tracks.get(t, i).is_some();
+    let markers: Vec<usize> = (0..data.tracks.n_points())
+        .filter(|&i| data.truth.point_body[i] == link)
+        .filter(|&i| (0..data.tracks.n_frames()).filter(|&t| seen(t, i)).count() >= 3)
+        .collect();
+    let shown = |t: usize| markers.iter().filter(|&&i| seen(t, i)).count();
+    let frames = 0..data.tracks.n_frames();
+    assert!(markers.len() >= 4, "{} keypoints seen", markers.len());
+    assert!(
+        frames.clone().all(|t| shown(t) < markers.len()),
+        "a frame shows the whole link"
+    );
+    let poses = true_body_poses(&data);
+    let sigma = 0.001;
+    let fit = |partial_views: bool| {
+        kinetree_pose::balled_body(
+            &data.tracks,
+            &poses,
+            Some(base),
+            &markers,
+            sigma,
+            &kinetree_pose::BallLimits {
+                partial_views,
+                ..kinetree_pose::BallLimits::default()
+            },
+        )
+    };
+    assert!(
+        fit(false).is_none(),
+        "a ball without a frame that shows the link whole"
+    );
+    let ball = fit(true).expect("a ball");
+    let two = frames.clone().filter(|&t| shown(t) >= 2).count();
+    let three = frames.clone().filter(|&t| shown(t) >= 3).count();
+    assert!(
+        ball.track.n_registered() > three && ball.track.n_registered() <= two,
+        "posed in {} frames; {three} show three keypoints, {two} two",
+        ball.track.n_registered()
+    );
+    // The base is static and posed in every frame: the truth's centre, in the camera frame,
+    // in the base's frame.
+    let cam = data.truth.cam_from_world;
+    let base_pose = poses.bodies[base].cam_from_body[0].expect("the base's pose");
+    let centre = base_pose.inverse_transform_point(&(cam * Point3::from(joint.anchor)));
+    let off = (ball.centre - centre).norm();
+    assert!(off < 0.002, "centre {off} m off the joint's");
+    let mut cfg = kinetree_pipeline::PipelineConfig::default();
+    let exact = |cfg: &kinetree_pipeline::PipelineConfig| {
+        let model = kinetree_tests::discover_with(&data.tracks, cfg);
+        kinetree_eval::evaluate(&model, &data.truth).joints_exact
+    };
+    assert!(!exact(&cfg), "every joint found without partial views");
+    cfg.repairs.balls.partial_views = true;
+    let model = kinetree_tests::discover_with(&data.tracks, &cfg);
+    let e = kinetree_eval::evaluate(&model, &data.truth);
+    assert!(
+        e.joints_exact,
+        "joints: {:?}",
+        model
+            .joints
+            .iter()
+            .map(|j| (j.parent, j.child, j.joint_type))
+            .collect::<Vec<_>>()
+    );
+}

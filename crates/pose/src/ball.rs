@@ -33,6 +33,12 @@ pub struct BallLimits {
     /// (RMS along their second principal direction) for a frame to be posed, else the turn
     /// about the keypoints' line is not determined (default 3).
     pub min_lever_in_sigma: f64,
+    /// Whether a group that no frame shows whole is fitted, its shape linked through the
+    /// frames that show parts of it (default false: a frame must show every keypoint).
+    /// Posing a body the clustering found, as a link seen a few keypoints at a time, needs
+    /// it; making a body of leftover keypoints asks for the stronger evidence of one frame
+    /// that shows them all.
+    pub partial_views: bool,
 }
 
 impl Default for BallLimits {
@@ -40,6 +46,7 @@ impl Default for BallLimits {
         Self {
             min_frames: MIN_BALL_FRAMES,
             min_lever_in_sigma: MIN_BALL_LEVER_IN_SIGMA,
+            partial_views: false,
         }
     }
 }
@@ -160,13 +167,72 @@ fn kabsch_covariances(points: &[Point3<f64>], var: &[f64]) -> Option<(Matrix3<f6
     Some((rot, origin))
 }
 
+/// The group's first shape, keypoints then the centre, in the parent's frame at one frame:
+/// the first of `frames` that shows every keypoint of `z` (samples in the parent's frame by
+/// keypoint and frame). A body seen only in part at a time (an occluded link) has no such
+/// frame; its shape starts from the frame that shows the most keypoints, and each other
+/// keypoint is placed from a frame that shows it with two placed ones, posed on those and
+/// the centre (Kabsch-Umeyama), the frame with the most placed keypoints first. `None` when
+/// a keypoint is never seen with two placed ones.
+fn initial_shape(
+    z: &[Vec<Option<Point3<f64>>>],
+    frames: &[usize],
+    centre: Point3<f64>,
+) -> Option<Vec<Point3<f64>>> {
+    let m = z.len();
+    let seen = |t: usize| (0..m).filter(|&k| z[k][t].is_some()).count();
+    let mut shape: Vec<Option<Point3<f64>>> = match frames.iter().find(|&&t| seen(t) == m) {
+        Some(&t0) => z.iter().map(|zk| zk[t0]).collect(),
+        None => {
+            // The earliest of the frames that show the most keypoints.
+            let most = frames.iter().map(|&t| seen(t)).max()?;
+            let t0 = *frames.iter().find(|&&t| seen(t) == most)?;
+            z.iter().map(|zk| zk[t0]).collect()
+        }
+    };
+    while shape.iter().any(Option::is_none) {
+        // The frame that shows an unplaced keypoint with the most placed ones (at least
+        // two), the earliest among equals.
+        let placed_in = |t: usize| -> Vec<usize> {
+            (0..m)
+                .filter(|&k| shape[k].is_some() && z[k][t].is_some())
+                .collect()
+        };
+        let best = frames
+            .iter()
+            .copied()
+            .filter(|&t| (0..m).any(|k| shape[k].is_none() && z[k][t].is_some()))
+            .map(|t| (placed_in(t).len(), t))
+            .filter(|&(n, _)| n >= 2)
+            .max_by(|x, y| x.0.cmp(&y.0).then(y.1.cmp(&x.1)));
+        let (_, t) = best?;
+        let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = placed_in(t)
+            .into_iter()
+            .filter_map(|k| Some((shape[k]?, z[k][t]?)))
+            .chain(std::iter::once((centre, centre)))
+            .unzip();
+        let rel = kabsch(&src, &dst)?;
+        for k in 0..m {
+            if shape[k].is_none()
+                && let Some(p) = z[k][t]
+            {
+                shape[k] = Some(rel.inverse_transform_point(&p));
+            }
+        }
+    }
+    let mut out: Vec<Point3<f64>> = shape.into_iter().collect::<Option<Vec<_>>>()?;
+    out.push(centre);
+    Some(out)
+}
+
 /// Fits a ball joint between `parent`'s poses (`None`: the camera frame) and the keypoints
 /// `points`, and poses them through it. Returns `None` for a parent that is not a body of
 /// `poses`, a noise level that is not a positive number, tracks and poses of different
 /// lengths, and when the data cannot support the hypothesis at all: fewer than two
 /// keypoints, a keypoint with under 3 frames or under [`BallLimits::min_frames`] frames
-/// with the parent posed and two keypoints visible, a singular sphere fit, or no frame in
-/// which the centre and the visible keypoints spread. Whether the ball *holds* is the
+/// with the parent posed and two keypoints visible, a singular sphere fit, a keypoint never
+/// seen with two others (without [`BallLimits::partial_views`], no frame that shows every
+/// keypoint), or no frame in which the centre and the visible keypoints spread. Whether the ball *holds* is the
 /// caller's decision, from [`Ball::chi2_per_dof`], [`Ball::rms_residual_m`],
 /// [`Ball::centre_std_in_sigma`] and [`Ball::swing_in_sigma`], and from `group_rigidity` (the
 /// same for every parent).
@@ -174,7 +240,8 @@ fn kabsch_covariances(points: &[Point3<f64>], var: &[f64]) -> Option<(Matrix3<f6
 /// Method: in the parent's frame every keypoint stays on a sphere about the centre, so the
 /// centre is the common centre of spheres with one radius per keypoint (`sphere_centre`).
 /// The group's shape (keypoints and centre, body frame) and its poses relative to the
-/// parent (Kabsch on the centre and the visible keypoints) are then refined in turn. Each
+/// parent (Kabsch on the centre and the visible keypoints) are then refined in turn, from a
+/// first shape that needs no frame showing every keypoint (`initial_shape`). Each
 /// frame's stated precision holds the parent pose's, the keypoints' and the centre's.
 ///
 /// Complexity: O(T m) per sphere step and per shape round for m keypoints.
@@ -267,12 +334,11 @@ pub fn balled_body(
         return None;
     }
     // Shape (keypoints, then the centre) and relative poses, in turn, from the first frame
-    // that shows every keypoint.
-    let t0 = *frames
-        .iter()
-        .find(|&&t| z.iter().all(|zk| zk[t].is_some()))?;
-    let mut shape: Vec<Point3<f64>> = z.iter().map(|zk| zk[t0].unwrap_or(centre)).collect();
-    shape.push(centre);
+    // that shows every keypoint, or else linked through the frames that show some.
+    if !limits.partial_views && !frames.iter().any(|&t| z.iter().all(|zk| zk[t].is_some())) {
+        return None;
+    }
+    let mut shape = initial_shape(&z, &frames, centre)?;
     let lever_ok = |shape: &[Point3<f64>], t: usize| {
         let pts: Vec<Point3<f64>> = (0..m)
             .filter(|&k| z[k][t].is_some())

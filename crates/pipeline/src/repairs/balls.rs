@@ -178,6 +178,13 @@ pub struct BallsParams {
     /// Least spread of the centre with the visible keypoints
     /// ([`kinetree_pose::BallLimits::min_lever_in_sigma`], default 3).
     pub min_lever_in_sigma: f64,
+    /// Whether a body no frame shows whole is posed, its shape linked through the frames
+    /// that show parts of it ([`kinetree_pose::BallLimits::partial_views`]; default false).
+    /// On, links on ball joints seen a few keypoints at a time get their joints, but
+    /// fragments of hinged links are kept as bodies too (`docs/decisions.md`,
+    /// `balls.partial_views`). `ball_groups` makes bodies only of groups some frame shows
+    /// whole.
+    pub partial_views: bool,
 }
 
 impl Default for BallsParams {
@@ -196,6 +203,7 @@ impl Default for BallsParams {
             explained_slack: b.explained_slack,
             min_fit_frames: b.fit.min_frames,
             min_lever_in_sigma: b.fit.min_lever_in_sigma,
+            partial_views: false,
         }
     }
 }
@@ -225,6 +233,7 @@ impl BallsParams {
             fit: kinetree_pose::BallLimits {
                 min_frames: self.min_fit_frames,
                 min_lever_in_sigma: self.min_lever_in_sigma,
+                partial_views: self.partial_views,
             },
         }
     }
@@ -384,6 +393,7 @@ impl BallGroupsParams {
             fit: kinetree_pose::BallLimits {
                 min_frames: self.min_fit_frames,
                 min_lever_in_sigma: self.min_lever_in_sigma,
+                partial_views: false,
             },
         }
     }
