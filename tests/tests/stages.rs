@@ -803,13 +803,13 @@ fn rigidity_from_pair_statistics_matches_the_tracks() {
 }
 
 /// A link of a random tree turns on a ball joint on the static base and shows its keypoints
-/// only a few at a time: no frame shows every one, and three or more in 52 of 300 frames,
-/// so it has few poses of its own. With `partial_views` the ball fit places each keypoint
-/// in the link's shape from frames that show it with two placed ones (without, it needs a
-/// frame that shows them all) and poses the link through the ball in
-/// every frame that shows two keypoints, with its centre within 2 mm of the joint's; with
-/// `[pipeline.repairs.balls] partial_views` the discovery then finds every joint of the tree
-/// with its type, and without it misses the link's.
+/// only a few at a time: no frame shows every one, and few show three, so it has few poses
+/// of its own. The ball fit needs a frame that shows the whole group, unless asked for
+/// partial views: it then places each keypoint in the link's shape from frames that show it
+/// with two placed ones, and poses the link through the ball in more frames than show three
+/// keypoints, with its centre within 2 mm of the joint's. With `[pipeline.repairs.balls]
+/// partial_views` the discovery finds every joint of the tree with its type; without, it
+/// misses the link's.
 #[test]
 fn a_link_never_seen_whole_is_posed_through_its_ball_joint() {
     let data = simulate(&kinetree_synth::random_scenario(

@@ -232,17 +232,18 @@ fn initial_shape(
 /// keypoints, a keypoint with under 3 frames or under [`BallLimits::min_frames`] frames
 /// with the parent posed and two keypoints visible, a singular sphere fit, a keypoint never
 /// seen with two others (without [`BallLimits::partial_views`], no frame that shows every
-/// keypoint), or no frame in which the centre and the visible keypoints spread. Whether the ball *holds* is the
-/// caller's decision, from [`Ball::chi2_per_dof`], [`Ball::rms_residual_m`],
+/// keypoint), or no frame in which the centre and the visible keypoints spread. Whether the
+/// ball *holds* is the caller's decision, from [`Ball::chi2_per_dof`], [`Ball::rms_residual_m`],
 /// [`Ball::centre_std_in_sigma`] and [`Ball::swing_in_sigma`], and from `group_rigidity` (the
 /// same for every parent).
 ///
 /// Method: in the parent's frame every keypoint stays on a sphere about the centre, so the
 /// centre is the common centre of spheres with one radius per keypoint (`sphere_centre`).
 /// The group's shape (keypoints and centre, body frame) and its poses relative to the
-/// parent (Kabsch on the centre and the visible keypoints) are then refined in turn, from a
-/// first shape that needs no frame showing every keypoint (`initial_shape`). Each
-/// frame's stated precision holds the parent pose's, the keypoints' and the centre's.
+/// parent (Kabsch on the centre and the visible keypoints) are then refined in turn, from
+/// one frame's shape or, with [`BallLimits::partial_views`], from one linked through the
+/// frames that show parts of the group (`initial_shape`). Each frame's stated precision
+/// holds the parent pose's, the keypoints' and the centre's.
 ///
 /// Complexity: O(T m) per sphere step and per shape round for m keypoints.
 pub fn balled_body(
