@@ -33,7 +33,6 @@ fn run(folder: &'static str) -> Outcome {
 
 /// [`run`] with the pipeline changed by `change`.
 fn run_with(folder: &'static str, change: impl FnOnce(&mut PipelineConfig)) -> Outcome {
-    let dir = kinetree_tests::real_data(folder);
     let tracks = kinetree_io::read_c3d(&kinetree_tests::real_c3d(folder)).expect("read");
     let text = std::fs::read_to_string(root().join("pipeline.toml")).expect("pipeline.toml");
     let mut cfg = kinetree_pipeline::config::pipeline_from_toml(&text).expect("config");
@@ -43,10 +42,7 @@ fn run_with(folder: &'static str, change: impl FnOnce(&mut PipelineConfig)) -> O
         .run(&tracks)
         .expect("discover")
         .model;
-    let seg: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
-    )
-    .expect("json");
+    let seg = segments_json(folder);
     let mut segment_of: BTreeMap<String, usize> = BTreeMap::new();
     let segments = seg["segments"].as_object().expect("segments");
     let mut segments_3 = 0;
@@ -429,14 +425,15 @@ fn anatomical_edges(o: &Outcome, edges: &[(&str, &str)]) -> usize {
         .count()
 }
 
+/// The recording's `segments.json`: its segments' markers and its anatomical tree.
+fn segments_json(folder: &str) -> serde_json::Value {
+    let path = kinetree_tests::real_data(folder).join("segments.json");
+    serde_json::from_str(&std::fs::read_to_string(path).expect("segments")).expect("json")
+}
+
 /// The edges of the tree in the recording's `segments.json` (`[parent, child, note]` each).
 fn segments_tree(folder: &str) -> Vec<(String, String)> {
-    let dir = kinetree_tests::real_data(folder);
-    let seg: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
-    )
-    .expect("json");
-    seg["tree"]
+    segments_json(folder)["tree"]
         .as_array()
         .expect("a tree")
         .iter()
@@ -449,11 +446,7 @@ fn segments_tree(folder: &str) -> Vec<(String, String)> {
 
 /// Each body's segment: the one most of its markers belong to (empty when none).
 fn body_segments(o: &Outcome) -> Vec<String> {
-    let dir = kinetree_tests::real_data(o.folder);
-    let seg: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("segments.json")).expect("segments"),
-    )
-    .expect("json");
+    let seg = segments_json(o.folder);
     let mut segment_of: BTreeMap<&str, &str> = BTreeMap::new();
     for (name, markers) in seg["segments"].as_object().expect("segments") {
         for m in markers.as_array().expect("markers") {

@@ -170,19 +170,22 @@ fn kabsch_covariances(points: &[Point3<f64>], var: &[f64]) -> Option<(Matrix3<f6
 /// The group's first shape, keypoints then the centre, in the parent's frame at one frame:
 /// the first of `frames` that shows every keypoint of `z` (samples in the parent's frame by
 /// keypoint and frame). A body seen only in part at a time (an occluded link) has no such
-/// frame; its shape starts from the frame that shows the most keypoints, and each other
-/// keypoint is placed from a frame that shows it with two placed ones, posed on those and
-/// the centre (Kabsch-Umeyama), the frame with the most placed keypoints first. `None` when
-/// a keypoint is never seen with two placed ones.
+/// frame; with `partial_views` its shape starts from the frame that shows the most
+/// keypoints, and each other keypoint is placed from a frame that shows it with two placed
+/// ones, posed on those and the centre (Kabsch-Umeyama), the frame with the most placed
+/// keypoints first. `None` without such a frame and `partial_views`, or when a keypoint is
+/// never seen with two placed ones.
 fn initial_shape(
     z: &[Vec<Option<Point3<f64>>>],
     frames: &[usize],
     centre: Point3<f64>,
+    partial_views: bool,
 ) -> Option<Vec<Point3<f64>>> {
     let m = z.len();
     let seen = |t: usize| (0..m).filter(|&k| z[k][t].is_some()).count();
     let mut shape: Vec<Option<Point3<f64>>> = match frames.iter().find(|&&t| seen(t) == m) {
         Some(&t0) => z.iter().map(|zk| zk[t0]).collect(),
+        None if !partial_views => return None,
         None => {
             // The earliest of the frames that show the most keypoints.
             let most = frames.iter().map(|&t| seen(t)).max()?;
@@ -336,10 +339,7 @@ pub fn balled_body(
     }
     // Shape (keypoints, then the centre) and relative poses, in turn, from the first frame
     // that shows every keypoint, or else linked through the frames that show some.
-    if !limits.partial_views && !frames.iter().any(|&t| z.iter().all(|zk| zk[t].is_some())) {
-        return None;
-    }
-    let mut shape = initial_shape(&z, &frames, centre)?;
+    let mut shape = initial_shape(&z, &frames, centre, limits.partial_views)?;
     let lever_ok = |shape: &[Point3<f64>], t: usize| {
         let pts: Vec<Point3<f64>> = (0..m)
             .filter(|&k| z[k][t].is_some())
