@@ -294,7 +294,10 @@ impl Default for PipelineConfig {
 /// tissue leaves a three-marker body's poses loose enough to explain a foot's marker), in
 /// `balls` as in `ball_groups` (`balls` poses the bodies `ball_groups` makes, on a parent
 /// that explains none of their markers; judged more loosely, the parent `ball_groups` chose
-/// is refused and the body is dropped unposed).
+/// is refused and the body is dropped unposed), and markers shared by two segments judged
+/// rigid up to the segments' own looseness, at most the DoF test's 3 mm
+/// (`[pipeline.repairs.share_points] model_error_m`: skin markers on a joint's axis are no
+/// more rigid with the next segment than a segment's markers are with each other).
 /// `experiments/real/README.md` gives the measurements behind each setting.
 pub const MOTION_CAPTURE_TOML: &str = r#"noise_estimator = "nearest_rigid"
 
@@ -322,6 +325,9 @@ explained_slack = 1.0
 [repairs.balls]
 explained_bound_in_std = 2.0
 explained_slack = 1.0
+
+[repairs.share_points]
+model_error_m = 0.003
 
 [tree]
 ball_fit_from_dof = 3

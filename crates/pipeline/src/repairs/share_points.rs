@@ -53,6 +53,14 @@ pub struct SharePointsParams {
     /// `docs/decisions.md`). With soft tissue a segment's marker near a joint can be clustered
     /// with the neighbouring segment, which then loses its own pose.
     pub loose_share: f64,
+    /// The most model error, in metres, the rigidity tests allow (default 0: none). Each test
+    /// takes the distances' variance as `2 sigma^2 + e^2`, where `e` is the largest spread
+    /// of any body's own distances beyond the noise (the root of its pairs' mean variance
+    /// less `2 sigma^2`), at most this value. Skin markers on one segment move against each
+    /// other by more than the sensor noise the estimate gives, and a marker on a joint's axis
+    /// is then no more rigid with the neighbouring segment than the segments are in
+    /// themselves; on rigid bodies `e` is about zero and nothing changes.
+    pub model_error_m: f64,
 }
 
 impl Default for SharePointsParams {
@@ -65,6 +73,7 @@ impl Default for SharePointsParams {
             min_shared: 2,
             max_own_points: 3,
             loose_share: 0.5,
+            model_error_m: 0.0,
         }
     }
 }
@@ -81,7 +90,8 @@ impl SharePointsParams {
         in_range(NAME, "slack", self.slack, 0.1, 100.0)?;
         count_in_range(NAME, "min_shared", self.min_shared, 1, 1_000_000)?;
         count_in_range(NAME, "max_own_points", self.max_own_points, 0, 1_000_000)?;
-        in_range(NAME, "loose_share", self.loose_share, 0.0, 1.0)
+        in_range(NAME, "loose_share", self.loose_share, 0.0, 1.0)?;
+        in_range(NAME, "model_error_m", self.model_error_m, 0.0, 1.0)
     }
 
     /// The points of bodies of more than the fewest points a pose needs whose pairs with more
@@ -187,6 +197,32 @@ impl SharePointsParams {
     }
 }
 
+/// The largest spread of a body's own distances beyond the noise: over the bodies with at
+/// least the fewest points a pose needs, the root of their own pairs' mean distance variance
+/// (weighted by the frames each pair is seen in) less `2 sigma^2`, or zero.
+fn body_model_error(stats: &PairStats, seg: &kinetree_core::Segmentation, sigma: f64) -> f64 {
+    let mut largest: f64 = 0.0;
+    for own in own_members(seg) {
+        if own.len() < MIN_BODY_POINTS {
+            continue;
+        }
+        let (mut sum, mut frames) = (0.0, 0.0);
+        for (x, &i) in own.iter().enumerate() {
+            for &j in &own[x + 1..] {
+                if let Some(v) = stats.var(i, j) {
+                    let k = f64::from(stats.count(i, j));
+                    sum += k * v;
+                    frames += k;
+                }
+            }
+        }
+        if frames > 0.0 {
+            largest = largest.max(sum / frames - 2.0 * sigma * sigma);
+        }
+    }
+    largest.sqrt()
+}
+
 /// Each body's own points (not those it shares with another body), ascending.
 fn own_members(seg: &kinetree_core::Segmentation) -> Vec<Vec<usize>> {
     let mut own = vec![Vec::new(); seg.n_bodies()];
@@ -230,7 +266,15 @@ impl Repair for SharePoints {
     }
 
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
-        let (tracks, sigma, seg) = (ctx.tracks, ctx.noise_sigma_m, &draft.segmentation);
+        let (tracks, seg) = (ctx.tracks, &draft.segmentation);
+        let sigma = ctx.noise_sigma_m;
+        let error = if self.params.model_error_m > 0.0 {
+            body_model_error(ctx.stats, seg, sigma).min(self.params.model_error_m)
+        } else {
+            0.0
+        };
+        // The level every rigidity test below is judged at: `2 sigma^2 + e^2` per distance.
+        let sigma = (sigma * sigma + 0.5 * error * error).sqrt();
         let seen = |i: usize| tracks.visible_count(i) >= self.params.min_frames;
         // A loose point is no shared point: the points of two links clustered as one are
         // each other's loose points, and the split separates them.
