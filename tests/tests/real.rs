@@ -528,7 +528,7 @@ fn the_treadmill_walks_pelvis_trunk_and_feet_are_bodies_of_their_own_markers() {
 }
 
 /// The treadmill walk's knee and ankle edges. Each shank carries one marker of its own beside
-/// markers on its knee's and ankle's axes, which move with the shank about as rigidly (1.5-3.7
+/// markers on its knee's and ankle's axes, which move with the shank about as rigidly (1.5-4.2
 /// mm of distance std-dev) as the thigh's and foot's own markers move with each other, and
 /// several times the 0.9 mm noise level. With the preset those markers are shared, judged
 /// against the bodies' own spread beyond the noise: both shanks make a body and at least three
