@@ -377,3 +377,58 @@ impl Repair for SharePoints {
         Ok(Some(p))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::body_model_error;
+    use kinetree_core::{Segmentation, Tracks};
+    use rand::{Rng, SeedableRng};
+
+    /// Two bodies of three points each over 2000 frames at 1 mm of noise, the second one's
+    /// points also wobbling independently by `wobble` metres per coordinate (skin under
+    /// markers): each distance of the second body varies by `2 sigma^2 + 2 wobble^2`, so the
+    /// spread beyond the noise is `sqrt(2) wobble`.
+    fn spread(wobble: f64) -> f64 {
+        let (frames, sigma) = (2000, 0.001);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut gauss = || {
+            // Box-Muller: the crate's uniform draws, two at a time.
+            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        let places = [
+            [0.0, 0.0, 0.0],
+            [0.1, 0.0, 0.0],
+            [0.0, 0.1, 0.0],
+            [0.5, 0.0, 0.0],
+            [0.6, 0.0, 0.0],
+            [0.5, 0.1, 0.0],
+        ];
+        let mut xyz = Vec::with_capacity(frames * places.len() * 3);
+        for _ in 0..frames {
+            for (i, p) in places.iter().enumerate() {
+                let extra = if i >= 3 { wobble } else { 0.0 };
+                for c in p {
+                    xyz.push(c + sigma * gauss() + extra * gauss());
+                }
+            }
+        }
+        let tracks = Tracks::new(frames, places.len(), xyz).expect("tracks");
+        let stats = kinetree_dissimilarity::pair_stats(&tracks);
+        let labels = [Some(0), Some(0), Some(0), Some(1), Some(1), Some(1)];
+        body_model_error(&stats, &Segmentation::from_raw(&labels, 1), sigma)
+    }
+
+    #[test]
+    fn the_bodies_spread_beyond_the_noise_is_the_loosest_bodys() {
+        let loose = spread(0.002);
+        let expected = 2f64.sqrt() * 0.002;
+        assert!(
+            (loose - expected).abs() < 0.1 * expected,
+            "{loose} against {expected}"
+        );
+        // Rigid bodies: only the sampling scatter of the noise's variance is left.
+        let rigid = spread(0.0);
+        assert!(rigid < 0.25e-3, "{rigid}");
+    }
+}
