@@ -199,28 +199,18 @@ impl SharePointsParams {
 
 /// The largest spread of a body's own distances beyond the noise: over the bodies with at
 /// least the fewest points a pose needs, the root of their own pairs' mean distance variance
-/// (weighted by the frames each pair is seen in) less `2 sigma^2`, or zero.
+/// (the pairs weighted by their frames, as [`PairStats::rigidity`] weighs them) less
+/// `2 sigma^2`, or zero.
 fn body_model_error(stats: &PairStats, seg: &kinetree_core::Segmentation, sigma: f64) -> f64 {
-    let mut largest: f64 = 0.0;
-    for own in own_members(seg) {
-        if own.len() < MIN_BODY_POINTS {
-            continue;
-        }
-        let (mut sum, mut frames) = (0.0, 0.0);
-        for (x, &i) in own.iter().enumerate() {
-            for &j in &own[x + 1..] {
-                if let Some(v) = stats.var(i, j) {
-                    let k = f64::from(stats.count(i, j));
-                    sum += k * v;
-                    frames += k;
-                }
-            }
-        }
-        if frames > 0.0 {
-            largest = largest.max(sum / frames - 2.0 * sigma * sigma);
-        }
-    }
-    largest.sqrt()
+    let noise = 2.0 * sigma * sigma;
+    own_members(seg)
+        .iter()
+        .filter(|own| own.len() >= MIN_BODY_POINTS)
+        .map(|own| stats.rigidity(own, sigma))
+        .filter(|&(_, dof)| dof > 0.0)
+        .map(|(per_dof, _)| noise * (per_dof - 1.0))
+        .fold(0.0, f64::max)
+        .sqrt()
 }
 
 /// Each body's own points (not those it shares with another body), ascending.
