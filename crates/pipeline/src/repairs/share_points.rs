@@ -372,7 +372,8 @@ impl Repair for SharePoints {
 mod tests {
     use super::body_model_error;
     use kinetree_core::{Segmentation, Tracks};
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
 
     /// Two bodies of three points each over 2000 frames at 1 mm of noise, the second one's
     /// points also wobbling independently by `wobble` metres per coordinate (skin under
@@ -381,11 +382,7 @@ mod tests {
     fn spread(wobble: f64) -> f64 {
         let (frames, sigma) = (2000, 0.001);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let mut gauss = || {
-            // Box-Muller: the crate's uniform draws, two at a time.
-            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-        };
+        let mut gauss = || -> f64 { StandardNormal.sample(&mut rng) };
         let places = [
             [0.0, 0.0, 0.0],
             [0.1, 0.0, 0.0],
