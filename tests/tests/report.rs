@@ -202,7 +202,11 @@ them against the measured noise level (`dof.hidden_hinge_ratio`). The knuckles' 
 quarter of the flexion range) hides in the
 small links' pose noise, so the pair tests find hinges there, and a universal knuckle found
 as a hinge counts as wrong; a finger hinged on its neighbour about the same knuckle line then
-fits better than on one hinge on the palm, and stays there.
+fits better than on one hinge on the palm, and stays there. The whole-tree fit sees the
+abduction: with `type_by_fit.hinges_as_universal` (the rows with it; off by default, as it
+costs about four times the discovery) every hinge whose ball places its child clearly better
+is tried as a universal joint and kept when the second axis gains at least 5 noise variances
+a frame: 94 of 150 joints right at 0.5 mm and 59 at 1 mm, against 87 and 44.
 
 ### Arms with a hidden link (experiments/sweeps/hidden-links.toml)
 

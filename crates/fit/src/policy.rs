@@ -452,6 +452,18 @@ pub struct TypeByFitLimits {
     /// residual, in noise variances, over the `K` frames where both joints have positions,
     /// by more than `K` plus this many `sqrt(2 K)` (default 5, as `min_ball_gain_in_std`).
     pub min_universal_gain_in_std: f64,
+    /// ... and by at least this many noise variances per frame (default 5;
+    /// `docs/decisions.md`, `type_by_fit.min_universal_gain_per_frame`): a true hinge below a
+    /// small or noisy parent gains a few per frame from any second axis, more than the
+    /// chi-square bound allows over hundreds of frames, where a knuckle's abduction gains
+    /// tens.
+    pub min_universal_gain_per_frame: f64,
+    /// A hinge is tried as a universal joint only when a ball about its pivot places the
+    /// child's keypoints better than the hinge by at least this many noise variances per
+    /// frame, each frame fitted on the parent's fitted pose in closed form (default 2.5;
+    /// a true hinge gains a chi-square of two degrees of freedom; `docs/decisions.md`,
+    /// `type_by_fit.universal_screen_per_frame`).
+    pub universal_screen_per_frame: f64,
     /// A candidate whose excess, refined but before the bundle adjustment, is above this is
     /// not adjusted and not kept (default 1000): over every sweep the adjustment cut a
     /// candidate's excess at most 178-fold, so such a candidate cannot reach `max_excess`,
@@ -478,6 +490,8 @@ impl Default for TypeByFitLimits {
             min_ball_gain_in_std: BALL_GAIN_IN_STD,
             hinges_as_universal: false,
             min_universal_gain_in_std: BALL_GAIN_IN_STD,
+            min_universal_gain_per_frame: UNIVERSAL_GAIN_PER_FRAME,
+            universal_screen_per_frame: UNIVERSAL_SCREEN_PER_FRAME,
             max_excess_to_adjust: TYPE_EXCESS_TO_ADJUST,
             screen_locally: true,
             max_local_excess: LOCAL_EXCESS,
@@ -642,7 +656,8 @@ fn universal_by_fit(
 /// squared residual, in noise variances, over the `K` frames where both joints have
 /// positions, by more than `K` plus `min_universal_gain_in_std` times `sqrt(2 K)`: the hinge
 /// is the universal joint with its second angle held at zero, so on a true hinge the extra
-/// coordinate gains a chi-square of `K` degrees of freedom.
+/// coordinate gains a chi-square of `K` degrees of freedom; and by at least
+/// `min_universal_gain_per_frame` times `K`.
 fn universal_from_hinge(
     model: &mut Model,
     k: usize,
@@ -723,6 +738,7 @@ fn universal_from_hinge(
     let z = (gain - frames) / (2.0 * frames).sqrt();
     if frames > 0.0
         && z > limits.min_universal_gain_in_std
+        && gain >= limits.min_universal_gain_per_frame * frames
         && !any_above(&excess, limits.others_max_excess)
     {
         record_typed_by_fit(model, k, excess[k].unwrap_or(0.0));
@@ -732,9 +748,74 @@ fn universal_from_hinge(
     Ok(None)
 }
 
+/// How much better a ball about hinge `k`'s pivot places the child's keypoints than the
+/// hinge does, in noise variances per frame, each frame on the parent's pose in `fits`: the
+/// best hinge angle and the best rotation about the pivot both in closed form (the rotation
+/// from the singular values of the keypoints' cross-covariance about the pivot). A true hinge
+/// gains a chi-square of two degrees of freedom a frame, a universal joint its second angle
+/// too. `None` when no frame shows three of the child's keypoints with the parent posed.
+fn local_ball_gain_per_frame(
+    observer: &Observer,
+    k: usize,
+    tracks: &Tracks,
+    fits: &[FrameFit],
+) -> Option<f64> {
+    let j = &observer.joints[k];
+    let Measure::Revolute(axis, pivot) = j.measure else {
+        return None;
+    };
+    // The child's keypoints about the pivot at joint position zero, in the parent's frame.
+    let at_rest: Vec<(usize, Vector3<f64>)> = observer.bodies[j.child]
+        .shape
+        .iter()
+        .map(|(i, s)| (*i, (j.reference * s) - pivot))
+        .collect();
+    let (mut frames, mut gain) = (0.0_f64, 0.0_f64);
+    for (t, f) in fits.iter().enumerate() {
+        let Some(parent) = f.poses.get(j.parent).copied().flatten() else {
+            continue;
+        };
+        let to_parent = parent.inverse();
+        let mut cross = Matrix3::zeros();
+        // `sum b . turn(theta) a = along + across cos(theta) + turned sin(theta)`.
+        let (mut along, mut across, mut turned, mut seen) = (0.0, 0.0, 0.0, 0);
+        for (i, a) in &at_rest {
+            let Some(z) = tracks.get(t, *i) else {
+                continue;
+            };
+            let b = (to_parent * z) - pivot;
+            cross += a * b.transpose();
+            let on_axis = axis.dot(a) * axis.dot(&b);
+            along += on_axis;
+            across += a.dot(&b) - on_axis;
+            turned += axis.cross(a).dot(&b);
+            seen += 1;
+        }
+        if seen < 3 {
+            continue;
+        }
+        let hinge = along + across.hypot(turned);
+        let mut sv: Vec<f64> = cross
+            .svd(false, false)
+            .singular_values
+            .iter()
+            .copied()
+            .collect();
+        sv.sort_by(|x, y| y.total_cmp(x));
+        let ball = sv[0] + sv[1] + cross.determinant().signum() * sv[2];
+        frames += 1.0;
+        gain += 2.0 * (ball - hinge).max(0.0);
+    }
+    (frames > 0.0).then(|| gain / observer.sigma.powi(2) / frames)
+}
+
 /// The hinges of `model` typed universal by [`universal_from_hinge`], parents first (the
 /// joints are in tree order), each on the fit the typings before it left: a parent's missed
 /// second axis shows in its children's fit too.
+///
+/// A hinge whose ball places its child no better than `universal_screen_per_frame` noise
+/// variances per frame ([`local_ball_gain_per_frame`]) is not tried: a trial costs two fits
+/// of every frame and a bundle adjustment.
 fn universals_from_hinges(
     model: &mut Model,
     tracks: &Tracks,
@@ -747,6 +828,11 @@ fn universals_from_hinges(
         if model.joints[k].joint_type != JointType::Revolute
             || observer.freed[k]
             || !matches!(observer.joints[k].measure, Measure::Revolute(..))
+        {
+            continue;
+        }
+        if local_ball_gain_per_frame(&observer, k, tracks, &fits)
+            .is_none_or(|g| g < limits.universal_screen_per_frame)
         {
             continue;
         }
@@ -1396,6 +1482,12 @@ const BALL_OFF_AXIS: f64 = 20.0;
 /// Default of [`TypeByFitLimits::min_ball_gain_in_std`] (`docs/decisions.md`,
 /// `type_by_fit.min_ball_gain_in_std`).
 const BALL_GAIN_IN_STD: f64 = 5.0;
+
+/// [`TypeByFitLimits::min_universal_gain_per_frame`]'s default.
+const UNIVERSAL_GAIN_PER_FRAME: f64 = 5.0;
+
+/// [`TypeByFitLimits::universal_screen_per_frame`]'s default.
+const UNIVERSAL_SCREEN_PER_FRAME: f64 = 2.5;
 
 /// Default bound of [`readmit_freed_joints`] (`docs/decisions.md`,
 /// `readmit_joints.max_excess`).

@@ -40,6 +40,13 @@ pub struct TypeByFitParams {
     /// residual, in noise variances, by more than the `K` frames where both joints have
     /// positions plus this many `sqrt(2 K)` (default 5).
     pub min_universal_gain_in_std: f64,
+    /// ... and by at least this many noise variances per frame (default 5;
+    /// `docs/decisions.md`).
+    pub min_universal_gain_per_frame: f64,
+    /// Only hinges whose child a ball about the pivot places better than the hinge by at
+    /// least this many noise variances per frame, on the parent's fitted poses, are tried
+    /// (default 2.5; a true hinge gains about two; `docs/decisions.md`).
+    pub universal_screen_per_frame: f64,
     /// A candidate whose excess before its bundle adjustment is above this is dropped
     /// unadjusted (default 1000; `docs/decisions.md`).
     pub max_excess_to_adjust: f64,
@@ -70,6 +77,8 @@ impl Default for TypeByFitParams {
             min_ball_gain_in_std: l.min_ball_gain_in_std,
             hinges_as_universal: l.hinges_as_universal,
             min_universal_gain_in_std: l.min_universal_gain_in_std,
+            min_universal_gain_per_frame: l.min_universal_gain_per_frame,
+            universal_screen_per_frame: l.universal_screen_per_frame,
             max_excess_to_adjust: l.max_excess_to_adjust,
             screen_locally: l.screen_locally,
             max_local_excess: l.max_local_excess,
@@ -114,6 +123,20 @@ impl TypeByFitParams {
             NAME,
             "min_universal_gain_in_std",
             self.min_universal_gain_in_std,
+            0.0,
+            1e6,
+        )?;
+        in_range(
+            NAME,
+            "min_universal_gain_per_frame",
+            self.min_universal_gain_per_frame,
+            0.0,
+            1e6,
+        )?;
+        in_range(
+            NAME,
+            "universal_screen_per_frame",
+            self.universal_screen_per_frame,
             0.0,
             1e6,
         )?;
@@ -173,6 +196,8 @@ impl Repair for TypeByFit {
             min_ball_gain_in_std: p.min_ball_gain_in_std,
             hinges_as_universal: p.hinges_as_universal,
             min_universal_gain_in_std: p.min_universal_gain_in_std,
+            min_universal_gain_per_frame: p.min_universal_gain_per_frame,
+            universal_screen_per_frame: p.universal_screen_per_frame,
             max_excess_to_adjust: p.max_excess_to_adjust,
             screen_locally: p.screen_locally,
             max_local_excess: p.max_local_excess,
