@@ -218,19 +218,27 @@ fn fingers_on_universal_knuckles_hang_on_the_palm() {
     );
 }
 
+/// The true joint between the bodies model joint `j` joins, parent above child (`map` from
+/// [`body_map`]).
+fn true_joint<'a>(
+    j: &kinetree_core::model::Joint,
+    map: &[usize],
+    data: &'a SynthData,
+) -> Option<&'a kinetree_synth::JointSpec> {
+    data.truth
+        .mechanism
+        .joints
+        .iter()
+        .find(|t| t.parent == map[j.parent] && t.child == map[j.child])
+}
+
 /// The model's joints between the bodies a true joint joins, parent above child.
 fn true_edges(model: &Model, data: &SynthData) -> usize {
     let map = body_map(model, &data.truth);
     model
         .joints
         .iter()
-        .filter(|j| {
-            data.truth
-                .mechanism
-                .joints
-                .iter()
-                .any(|t| t.parent == map[j.parent] && t.child == map[j.child])
-        })
+        .filter(|j| true_joint(j, &map, data).is_some())
         .count()
 }
 
@@ -333,9 +341,7 @@ fn knuckles_hidden_in_the_pair_test_are_typed_universal_by_the_fit() {
             .iter()
             .filter(|j| {
                 j.joint_type == JointType::Universal
-                    && data.truth.mechanism.joints.iter().any(|t| {
-                        t.parent == map[j.parent] && t.child == map[j.child] && t.joint_type == kind
-                    })
+                    && true_joint(j, &map, &data).is_some_and(|t| t.joint_type == kind)
             })
             .count()
     };

@@ -750,8 +750,8 @@ fn universal_from_hinge(
 
 /// How much better a ball about hinge `k`'s pivot places the child's keypoints than the
 /// hinge does, in noise variances per frame, each frame on the parent's pose in `fits`: the
-/// best hinge angle and the best rotation about the pivot both in closed form (the rotation
-/// from the singular values of the keypoints' cross-covariance about the pivot). A true hinge
+/// best hinge angle in closed form, the best rotation about the pivot by Kabsch on the
+/// keypoints about the pivot (no centring). A true hinge
 /// gains a chi-square of two degrees of freedom a frame, a universal joint its second angle
 /// too. `None` when no frame shows three of the child's keypoints with the parent posed.
 fn local_ball_gain_per_frame(
@@ -795,14 +795,10 @@ fn local_ball_gain_per_frame(
             continue;
         }
         let hinge = along + across.hypot(turned);
-        let mut sv: Vec<f64> = cross
-            .svd(false, false)
-            .singular_values
-            .iter()
-            .copied()
-            .collect();
-        sv.sort_by(|x, y| y.total_cmp(x));
-        let ball = sv[0] + sv[1] + cross.determinant().signum() * sv[2];
+        let Some(turn) = kinetree_core::geom::kabsch_rotation_by_svd(&cross, 0.0) else {
+            continue;
+        };
+        let ball = (turn * cross).trace();
         frames += 1.0;
         gain += 2.0 * (ball - hinge).max(0.0);
     }
