@@ -4,12 +4,15 @@
 //! halves (the `halves` clustering slot on the body's own sub-matrix; a side of fewer than
 //! three points is left on no body) are apart on average in the pairwise measure, or when the
 //! halves, posed as bodies of their own, fit its points far better than the body does
-//! ([`Split::halves_fit_better`]). One point of each part goes into the `cannot_link`
-//! constraints so that the merge does not rejoin them (a part with poor poses can "test
-//! rigid" against a body it moves against), and the body's points into `undone_bodies`, so
-//! that the attachment does not remake it.
+//! ([`Split::halves_gain`]); a slender body (a rod's keypoints) is also tried cut along its
+//! long axis, where two rods in line that bend at a joint barely change their keypoints'
+//! distances. One point of each part goes into the `cannot_link` constraints so that the
+//! merge does not rejoin them (a part with poor poses can "test rigid" against a body it moves
+//! against), and the body's points into `undone_bodies`, so that the attachment does not
+//! remake it.
 
 use super::{count_in_range, cut_in_two, halves, in_range, mean_cross, poses_of};
+use kinetree_core::nalgebra::{Matrix3, Point3, Vector3};
 use kinetree_core::{
     BodyTrack, Constraints, DissimilarityMatrix, Draft, Edit, MIN_BODY_POINTS, PoseInput,
     PoseQuality, Proposal, Repair, RepairContext, RepairLimit, RepairPhase, Result, Segmentation,
@@ -54,6 +57,16 @@ pub struct SplitParams {
     /// 0.25). A body carrying a few keypoints of another cuts into halves that mix both, as
     /// alike across as within; two bodies cut apart are not.
     pub profile_contrast: f64,
+    /// Slender bodies (a rod's keypoints: the reference shape spreads across its long axis by
+    /// less than this fraction of its spread along it, as `pose.slender_aspect`) are tried cut
+    /// along that axis, at the cut whose halves fit best, kept when they fit better than the
+    /// body and than any other halves (default 0.1; 0 turns it off; `docs/decisions.md`,
+    /// `split.axis_cut_aspect`). Two rods in line that bend at a joint barely change their
+    /// keypoints' distances.
+    pub axis_cut_aspect: f64,
+    /// Most cut positions tried along a slender body's axis, spread evenly over its points
+    /// (default 12).
+    pub axis_cut_positions: usize,
 }
 
 impl Default for SplitParams {
@@ -70,6 +83,8 @@ impl Default for SplitParams {
             profile_points: 200,
             profile_peel: 2,
             profile_contrast: 0.25,
+            axis_cut_aspect: 0.1,
+            axis_cut_positions: 12,
         }
     }
 }
@@ -96,7 +111,15 @@ impl SplitParams {
         )?;
         count_in_range(NAME, "profile_points", self.profile_points, 1, 1_000_000)?;
         count_in_range(NAME, "profile_peel", self.profile_peel, 0, 100)?;
-        in_range(NAME, "profile_contrast", self.profile_contrast, 0.0, 100.0)
+        in_range(NAME, "profile_contrast", self.profile_contrast, 0.0, 100.0)?;
+        in_range(NAME, "axis_cut_aspect", self.axis_cut_aspect, 0.0, 1.0)?;
+        count_in_range(
+            NAME,
+            "axis_cut_positions",
+            self.axis_cut_positions,
+            1,
+            1_000_000,
+        )
     }
 }
 
@@ -116,23 +139,24 @@ impl Split {
         Ok(Self { params })
     }
 
-    /// Whether a body's two halves, each posed as a rigid body, explain its points better than
-    /// the body's own poses by more than two extra poses could: over the frames where all
-    /// three are posed, the drop in the sum of squared residuals, in noise variances, against
-    /// the chi-square bound with 6 degrees of freedom per frame (the second half's pose) at
-    /// `lr_bound_in_std` standard deviations, times `lr_slack`.
+    /// How much better a body's two halves, each posed as a rigid body, explain its points than
+    /// the body's own poses, against what two extra poses could: over the frames where all
+    /// three are posed, the drop in the sum of squared residuals, in noise variances per
+    /// degree of freedom, over the chi-square bound with 6 degrees of freedom per frame (the
+    /// second half's pose) at `lr_bound_in_std` standard deviations, times `lr_slack`. The
+    /// halves fit better when it is over 1; `None` when too few frames judge them.
     ///
     /// A small slider merged with the link that turns on it can fit as one at a median 1.5
     /// sigma, with the halves' mean dissimilarity under the cut, while the halves' fits lower
     /// the residual by about 3 times the 6 variances per frame an extra pose buys
     /// (`docs/decisions.md`, `split.lr_slack`).
-    fn halves_fit_better(
+    fn halves_gain(
         &self,
         union: &BodyTrack,
         first: &BodyTrack,
         second: &BodyTrack,
         sigma: f64,
-    ) -> bool {
+    ) -> Option<f64> {
         let sse = |q: &PoseQuality| q.rms_residual_m.powi(2) * q.n_visible as f64;
         let (mut drop, mut frames) = (0.0, 0usize);
         for t in 0..union.quality.len() {
@@ -151,25 +175,29 @@ impl Split {
         }
         let share = frames as f64 / union.n_registered().max(1) as f64;
         if frames < self.params.min_frames || share < self.params.min_frame_share || sigma <= 0.0 {
-            return false;
+            return None;
         }
         let k = 6.0 * frames as f64;
-        drop / (sigma * sigma) / k
-            > self.params.lr_slack
-                * kinetree_core::stats::chi2_per_dof_quantile(k, self.params.lr_bound_in_std)
+        Some(
+            drop / (sigma * sigma)
+                / k
+                / (self.params.lr_slack
+                    * kinetree_core::stats::chi2_per_dof_quantile(k, self.params.lr_bound_in_std)),
+        )
     }
 }
 
 impl Split {
-    /// For each `(body, halves)` of two halves, whether the halves, posed as bodies of their
-    /// own (all in one call), fit the body's points better ([`Split::halves_fit_better`]).
-    fn better_halves(
+    /// For each `(body, halves)` of two halves, how much better the halves, posed as bodies of
+    /// their own (all in one call), fit the body's points ([`Split::halves_gain`]; over 1 when
+    /// they fit better).
+    fn halves_gains(
         &self,
         ctx: &RepairContext<'_>,
         bodies: &[BodyTrack],
         sets: &[(usize, &[Vec<usize>])],
         sigma: f64,
-    ) -> Result<Vec<bool>> {
+    ) -> Result<Vec<Option<f64>>> {
         if sets.is_empty() {
             return Ok(Vec::new());
         }
@@ -195,14 +223,157 @@ impl Split {
         Ok(sets
             .iter()
             .map(|(b, parts)| {
-                let (Some(ia), Some(ib)) = (index_of(parts[0][0]), index_of(parts[1][0])) else {
-                    return false;
-                };
+                let (ia, ib) = (index_of(parts[0][0])?, index_of(parts[1][0])?);
                 let (first, second) = (&half_poses.bodies[ia], &half_poses.bodies[ib]);
-                self.halves_fit_better(&bodies[*b], first, second, sigma)
+                self.halves_gain(&bodies[*b], first, second, sigma)
             })
             .collect())
     }
+}
+
+impl Split {
+    /// Cuts the slender bodies among `candidates` along their long axis
+    /// ([`SplitParams::axis_cut_aspect`]): of the cuts between consecutive points in their
+    /// order along it, at most `axis_cut_positions` spread evenly with three points or more on
+    /// each side, the one whose halves fit best, when they fit better than the body and than
+    /// the halves it was to be split into otherwise.
+    fn cut_along_axes(
+        &self,
+        ctx: &RepairContext<'_>,
+        bodies: &[BodyTrack],
+        candidates: &mut [(usize, f64, Vec<Vec<usize>>, bool)],
+        sigma: f64,
+    ) -> Result<()> {
+        if self.params.axis_cut_aspect <= 0.0 {
+            return Ok(());
+        }
+        // (candidate, points in order along the axis, cut positions)
+        let rods: Vec<(usize, Vec<usize>, Vec<usize>)> = candidates
+            .iter()
+            .enumerate()
+            .filter_map(|(k, c)| {
+                let order = along_long_axis(&bodies[c.0], self.params.axis_cut_aspect)?;
+                let cuts = cut_positions(order.len(), self.params.axis_cut_positions);
+                (!cuts.is_empty()).then_some((k, order, cuts))
+            })
+            .collect();
+        // A rod split already (its residual, or halves by another measure) keeps its halves
+        // unless a cut along its axis fits better than they do.
+        let mut best: Vec<(f64, usize)> = vec![(1.0, 0); rods.len()];
+        let split: Vec<(usize, usize, Vec<Vec<usize>>)> = rods
+            .iter()
+            .enumerate()
+            .map(|(r, (k, _, _))| (r, &candidates[*k]))
+            .filter(|(_, c)| c.3 && c.2.len() == 2)
+            .map(|(r, c)| (r, c.0, c.2.clone()))
+            .collect();
+        let sets: Vec<(usize, &[Vec<usize>])> =
+            split.iter().map(|(_, b, parts)| (*b, &parts[..])).collect();
+        let gains = self.halves_gains(ctx, bodies, &sets, sigma)?;
+        for ((r, _, _), gain) in split.iter().zip(gains) {
+            best[*r].0 = best[*r].0.max(gain.unwrap_or(1.0));
+        }
+        // One call per slot poses every rod's cut at that slot; each rod keeps its best cut.
+        let slots = rods.iter().map(|r| r.2.len()).max().unwrap_or(0);
+        for slot in 0..slots {
+            let halves: Vec<(usize, usize, [Vec<usize>; 2])> = rods
+                .iter()
+                .enumerate()
+                .filter_map(|(r, (k, order, cuts))| {
+                    let &at = cuts.get(slot)?;
+                    Some((r, candidates[*k].0, split_at(order, at)))
+                })
+                .collect();
+            let sets: Vec<(usize, &[Vec<usize>])> = halves
+                .iter()
+                .map(|(_, b, parts)| (*b, &parts[..]))
+                .collect();
+            let gains = self.halves_gains(ctx, bodies, &sets, sigma)?;
+            for ((r, _, _), gain) in halves.iter().zip(gains) {
+                if let Some(g) = gain.filter(|&g| g > best[*r].0) {
+                    best[*r] = (g, rods[*r].2[slot]);
+                }
+            }
+        }
+        for ((k, order, _), (gain, at)) in rods.into_iter().zip(best) {
+            if fits_better(Some(gain)) && at > 0 {
+                candidates[k].2 = split_at(&order, at).to_vec();
+                candidates[k].3 = true;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Whether halves fit better than their body ([`Split::halves_gain`] over 1).
+fn fits_better(gain: Option<f64>) -> bool {
+    gain.is_some_and(|g| g > 1.0)
+}
+
+/// A body's placed points in their order along the long axis of its reference shape, when
+/// the shape is slender: it spreads across that axis (the second principal axis's standard
+/// deviation) by less than `aspect` times its spread along it. `None` for fuller shapes and
+/// bodies of fewer than six placed points.
+fn along_long_axis(body: &BodyTrack, aspect: f64) -> Option<Vec<usize>> {
+    let placed: Vec<(usize, Point3<f64>)> = body
+        .points
+        .iter()
+        .zip(&body.shape)
+        .zip(&body.placed)
+        .filter(|(_, placed)| **placed)
+        .map(|((&i, &p), _)| (i, p))
+        .collect();
+    if placed.len() < 2 * MIN_BODY_POINTS {
+        return None;
+    }
+    let shape: Vec<Point3<f64>> = placed.iter().map(|(_, p)| *p).collect();
+    let centre = kinetree_core::geom::centroid(&shape);
+    let scatter = shape
+        .iter()
+        .map(|p| (p - centre) * (p - centre).transpose())
+        .fold(Matrix3::zeros(), |a, m| a + m);
+    let eigen = scatter.symmetric_eigen();
+    let mut axes: Vec<(f64, Vector3<f64>)> = (0..3)
+        .map(|k| {
+            (
+                eigen.eigenvalues[k].max(0.0),
+                eigen.eigenvectors.column(k).into_owned(),
+            )
+        })
+        .collect();
+    axes.sort_by(|a, b| b.0.total_cmp(&a.0));
+    if axes[1].0.sqrt() >= aspect * axes[0].0.sqrt() {
+        return None;
+    }
+    let along = axes[0].1;
+    let mut order: Vec<(f64, usize)> = placed
+        .iter()
+        .map(|(i, p)| ((p - centre).dot(&along), *i))
+        .collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    Some(order.into_iter().map(|(_, i)| i).collect())
+}
+
+/// Up to `most` cut positions (the first side's size) spread evenly over `3..=n - 3`.
+fn cut_positions(n: usize, most: usize) -> Vec<usize> {
+    if n < 2 * MIN_BODY_POINTS {
+        return Vec::new();
+    }
+    let (lo, hi) = (MIN_BODY_POINTS, n - MIN_BODY_POINTS);
+    let count = (hi - lo + 1).min(most.max(1));
+    let mut cuts: Vec<usize> = (0..count)
+        .map(|k| lo + (k * (hi - lo)).checked_div(count - 1).unwrap_or(0))
+        .collect();
+    cuts.dedup();
+    cuts
+}
+
+/// `order`'s first `at` points and the rest, each ascending.
+fn split_at(order: &[usize], at: usize) -> [Vec<usize>; 2] {
+    let (mut first, mut second) = (order[..at].to_vec(), order[at..].to_vec());
+    first.sort_unstable();
+    second.sort_unstable();
+    [first, second]
 }
 
 /// Mean dissimilarity over the observed pairs within `points`; `None` when no pair was
@@ -338,9 +509,9 @@ impl Repair for Split {
             .iter()
             .map(|&c| (candidates[c].0, &candidates[c].2[..]))
             .collect();
-        let better = self.better_halves(ctx, &poses.bodies, &sets, sigma)?;
-        for (&c, better) in undecided.iter().zip(better) {
-            candidates[c].3 = better;
+        let gains = self.halves_gains(ctx, &poses.bodies, &sets, sigma)?;
+        for (&c, gain) in undecided.iter().zip(gains) {
+            candidates[c].3 = fits_better(gain);
         }
         // Bodies whose halves by the pairwise measure do not fit better: halves by profile.
         let profiled: Vec<(usize, Vec<Vec<usize>>)> = candidates
@@ -375,13 +546,14 @@ impl Repair for Split {
             .iter()
             .map(|(c, parts)| (candidates[*c].0, &parts[..]))
             .collect();
-        let better = self.better_halves(ctx, &poses.bodies, &sets, sigma)?;
-        for ((c, parts), better) in profiled.into_iter().zip(better) {
-            if better {
+        let gains = self.halves_gains(ctx, &poses.bodies, &sets, sigma)?;
+        for ((c, parts), gain) in profiled.into_iter().zip(gains) {
+            if fits_better(gain) {
                 candidates[c].2 = parts;
                 candidates[c].3 = true;
             }
         }
+        self.cut_along_axes(ctx, &poses.bodies, &mut candidates, sigma)?;
         let mut labels: Vec<Option<usize>> = seg.labels().to_vec();
         let mut next_id = seg.n_bodies();
         let mut p = Proposal::new(Edit::Segmentation(seg.clone()), "");
@@ -424,5 +596,56 @@ impl Repair for Split {
         p.edit = Edit::Segmentation(out);
         p.constraints = constraints;
         Ok(Some(p))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cut_positions_leave_three_points_a_side_and_spread_evenly() {
+        assert!(cut_positions(5, 12).is_empty());
+        assert_eq!(cut_positions(6, 12), vec![3]);
+        assert_eq!(cut_positions(12, 12), (3..=9).collect::<Vec<_>>());
+        let many = cut_positions(100, 12);
+        assert_eq!(many.len(), 12);
+        assert_eq!((many[0], many[11]), (3, 97));
+        assert!(many.windows(2).all(|w| w[1] > w[0]));
+    }
+
+    fn body(shape: Vec<Point3<f64>>) -> BodyTrack {
+        let n = shape.len();
+        BodyTrack {
+            points: (10..10 + n).collect(),
+            placed: vec![true; n],
+            shape,
+            reference_frame: 0,
+            cam_from_body: Vec::new(),
+            quality: Vec::new(),
+            frames_too_few_points: 0,
+            frames_degenerate: 0,
+        }
+    }
+
+    #[test]
+    fn a_rods_points_are_ordered_along_it_and_a_box_is_not_slender() {
+        // Six points along a 30 cm rod 4 mm across, listed out of order.
+        let along = [0.1, -0.15, 0.05, 0.15, -0.05, -0.1];
+        let rod: Vec<Point3<f64>> = along
+            .iter()
+            .enumerate()
+            .map(|(k, &z)| Point3::new(0.002 * (k % 2) as f64, 0.001, z))
+            .collect();
+        let order = along_long_axis(&body(rod), 0.1).expect("slender");
+        let z = |i: usize| along[i - 10];
+        let ascending = order.windows(2).all(|w| z(w[0]) < z(w[1]));
+        let descending = order.windows(2).all(|w| z(w[0]) > z(w[1]));
+        assert!(ascending || descending, "{order:?}");
+        let cube: Vec<Point3<f64>> = (0..8)
+            .map(|k| Point3::new((k & 1) as f64, ((k >> 1) & 1) as f64, (k >> 2) as f64))
+            .collect();
+        assert!(along_long_axis(&body(cube), 0.1).is_none());
+        assert!(along_long_axis(&body(vec![Point3::origin(); 5]), 0.1).is_none());
     }
 }
