@@ -246,10 +246,13 @@ Arms of three rods of 15-30 cm, 4 mm or 1.5 cm square, with six keypoints inside
 nearly collinear: a 4 mm rod's keypoints spread across it by about 1.2 mm RMS. Every axis
 is parallel (a planar manipulator) or random; 10 % burst dropout, 300 frames. A rod is posed
 when its frames spread across it by half the noise (`pose.slender_min_spread_in_sigma`), with
-a pose that is poor about the rod's own axis. At 1 mm every joint is right in all planar arms
-and in 8 of 10 spatial arms of 4 mm rods. At 3 mm a 4 mm rod is collinear within the noise:
+a pose that is poor about the rod's own axis. Two rods in line whose joint turns about an
+axis near their common direction bend by a few degrees, which changes their keypoints'
+distances by about the noise, so the clustering makes one body of both; the split tries a
+slender body cut along its axis (`split.axis_cut_aspect`), where the halves' poses part them.
+At 1 mm every joint is right in every arm. At 3 mm a 4 mm rod is collinear within the noise:
 its roll is not determined by its own keypoints, it gets few poses, and neighbouring rods
-merge; the 1.5 cm rods hold at 3 mm in the plane, half of them in space.
+merge; half of those arms have every joint right, and 8 of 10 spatial arms of 1.5 cm rods.
 
 ### Universal joints (experiments/sweeps/universal.toml)
 
