@@ -12,7 +12,7 @@
 //! remake it.
 
 use super::{count_in_range, cut_in_two, halves, in_range, mean_cross, poses_of};
-use kinetree_core::nalgebra::{Matrix3, Point3, Vector3};
+use kinetree_core::nalgebra::{Matrix3, Point3};
 use kinetree_core::{
     BodyTrack, Constraints, DissimilarityMatrix, Draft, Edit, MIN_BODY_POINTS, PoseInput,
     PoseQuality, Proposal, Repair, RepairContext, RepairLimit, RepairPhase, Result, Segmentation,
@@ -260,18 +260,16 @@ impl Split {
         // A rod split already (its residual, or halves by another measure) keeps its halves
         // unless a cut along its axis fits better than they do.
         let mut best: Vec<(f64, usize)> = vec![(1.0, 0); rods.len()];
-        let split: Vec<(usize, usize, Vec<Vec<usize>>)> = rods
+        let (split, sets): (Vec<usize>, Vec<_>) = rods
             .iter()
             .enumerate()
             .map(|(r, (k, _, _))| (r, &candidates[*k]))
             .filter(|(_, c)| c.3 && c.2.len() == 2)
-            .map(|(r, c)| (r, c.0, c.2.clone()))
-            .collect();
-        let sets: Vec<(usize, &[Vec<usize>])> =
-            split.iter().map(|(_, b, parts)| (*b, &parts[..])).collect();
+            .map(|(r, c)| (r, (c.0, &c.2[..])))
+            .unzip();
         let gains = self.halves_gains(ctx, bodies, &sets, sigma)?;
-        for ((r, _, _), gain) in split.iter().zip(gains) {
-            best[*r].0 = best[*r].0.max(gain.unwrap_or(1.0));
+        for (&r, gain) in split.iter().zip(gains) {
+            best[r].0 = best[r].0.max(gain.unwrap_or(1.0));
         }
         // One call per slot poses every rod's cut at that slot; each rod keeps its best cut.
         let slots = rods.iter().map(|r| r.2.len()).max().unwrap_or(0);
@@ -295,8 +293,10 @@ impl Split {
                 }
             }
         }
-        for ((k, order, _), (gain, at)) in rods.into_iter().zip(best) {
-            if fits_better(Some(gain)) && at > 0 {
+        // `best` starts at a gain of 1 (or the other halves'), so a rod has a cut only when its
+        // halves fit better than the body and than those.
+        for ((k, order, _), (_, at)) in rods.into_iter().zip(best) {
+            if at > 0 {
                 candidates[k].2 = split_at(&order, at).to_vec();
                 candidates[k].3 = true;
             }
@@ -315,40 +315,30 @@ fn fits_better(gain: Option<f64>) -> bool {
 /// deviation) by less than `aspect` times its spread along it. `None` for fuller shapes and
 /// bodies of fewer than six placed points.
 fn along_long_axis(body: &BodyTrack, aspect: f64) -> Option<Vec<usize>> {
-    let placed: Vec<(usize, Point3<f64>)> = body
+    let (points, shape): (Vec<usize>, Vec<Point3<f64>>) = body
         .points
         .iter()
         .zip(&body.shape)
         .zip(&body.placed)
         .filter(|(_, placed)| **placed)
         .map(|((&i, &p), _)| (i, p))
-        .collect();
-    if placed.len() < 2 * MIN_BODY_POINTS {
+        .unzip();
+    // The pose stage's own measure of a slender body (`pose.slender_aspect`).
+    let spread = kinetree_pose::spread(&shape);
+    if points.len() < 2 * MIN_BODY_POINTS || spread[1] >= aspect * spread[0] {
         return None;
     }
-    let shape: Vec<Point3<f64>> = placed.iter().map(|(_, p)| *p).collect();
     let centre = kinetree_core::geom::centroid(&shape);
-    let scatter = shape
+    let scatter: Matrix3<f64> = shape
         .iter()
         .map(|p| (p - centre) * (p - centre).transpose())
-        .fold(Matrix3::zeros(), |a, m| a + m);
+        .sum();
     let eigen = scatter.symmetric_eigen();
-    let mut axes: Vec<(f64, Vector3<f64>)> = (0..3)
-        .map(|k| {
-            (
-                eigen.eigenvalues[k].max(0.0),
-                eigen.eigenvectors.column(k).into_owned(),
-            )
-        })
-        .collect();
-    axes.sort_by(|a, b| b.0.total_cmp(&a.0));
-    if axes[1].0.sqrt() >= aspect * axes[0].0.sqrt() {
-        return None;
-    }
-    let along = axes[0].1;
-    let mut order: Vec<(f64, usize)> = placed
+    let along = eigen.eigenvectors.column(eigen.eigenvalues.imax());
+    let mut order: Vec<(f64, usize)> = points
         .iter()
-        .map(|(i, p)| ((p - centre).dot(&along), *i))
+        .zip(&shape)
+        .map(|(&i, p)| ((p - centre).dot(&along), i))
         .collect();
     order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     Some(order.into_iter().map(|(_, i)| i).collect())
