@@ -335,18 +335,21 @@ pub fn fit_margin_ties(pairs: &[PairDof], tree: &Tree) -> Vec<(usize, usize, usi
 }
 
 /// The bodies `v` of `tree` that hang by a hinge on a parent `u` that itself hangs by a hinge
-/// on `w`, where the two hinges turn about one line and `v`'s pair with `w` is a hinge too
-/// (`(w, u, v)`, in order of `v`; `v` may carry other bodies). Two fingers whose knuckles
-/// flex about one line move relative to each other by a hinge about it, which can test
-/// clearer than either finger's hinge on the palm: the finger on the palm has its own coordinate
-/// (the tree a roboticist draws), on the other finger a difference of two. One line: the
-/// median over the frames that pose `w` and `u` of the angle between the two axes is at most
-/// `max_angle_rad`, and of the distances of `u`'s hinge line from the other's, at the points
-/// nearest `u`'s and `v`'s origins, at most `max_offset` times the distance between those
-/// origins. And `v`'s hinge on `w` passes by `w`: the nearest of `w`'s placed points to it
-/// is within `max_reach` times their RMS distance from `w`'s origin (the median over the
-/// frames), as a knuckle line runs along the palm's edge, where a shoulder's axis seen from
-/// the pelvis does not. Whether the two trees fit alike is for a whole-tree fit to tell (the
+/// on `w`, where the two hinges turn about one line and `v`'s pair with `w` is a hinge or a
+/// universal joint (`(w, u, v)`, in order of `v`; `v` may carry other bodies). Two fingers
+/// whose knuckles flex about one line move relative to each other by a hinge about it, which
+/// can test clearer than either finger's hinge on the palm: the finger on the palm has its own
+/// coordinate (the tree a roboticist draws), on the other finger a difference of two. A
+/// knuckle that also swings the finger sideways (a universal joint) can hide that second
+/// angle in the pair test between two fingers and show it in the test with the palm. One
+/// line: the median over the frames that pose `w` and `u` of the angle between the two axes
+/// is at most `max_angle_rad`, and of the distances of `u`'s hinge line from the other's, at
+/// the points nearest `u`'s and `v`'s origins, at most `max_offset` times the distance
+/// between those origins. And `v`'s joint on `w` passes by `w`: the nearest of `w`'s placed
+/// points to its hinge line (a universal joint's first axis through its centre) is within
+/// `max_reach` times their RMS distance from `w`'s origin (the median over the frames), as
+/// a knuckle line runs along the palm's edge, where a shoulder's axis seen from the pelvis
+/// does not. Whether the two trees fit alike is for a whole-tree fit to tell (the
 /// `sibling_ties` repair): serial hinges through one anchor a few degrees apart pass here.
 pub fn collinear_hinge_ties(
     pairs: &[PairDof],
@@ -356,21 +359,25 @@ pub fn collinear_hinge_ties(
     max_offset: f64,
     max_reach: f64,
 ) -> Vec<(usize, usize, usize)> {
-    // A pair's hinge as (axis, pivot) in the camera frame at frame `t`.
-    let hinge_at = |x: usize, y: usize, t: usize| -> Option<(Vector3<f64>, Vector3<f64>)> {
-        let p = find_pair(pairs, Some(x), y)?;
-        let JointKind::Revolute { axis, pivot } = p.joint else {
-            return None;
+    // A pair's hinge (or, with `universal`, a universal joint's first axis through its
+    // centre) as (axis, pivot) in the camera frame at frame `t`.
+    let line_at =
+        |x: usize, y: usize, t: usize, universal: bool| -> Option<(Vector3<f64>, Vector3<f64>)> {
+            let p = find_pair(pairs, Some(x), y)?;
+            let (axis, pivot) = match p.joint {
+                JointKind::Revolute { axis, pivot } => (axis, pivot),
+                JointKind::Universal { axis, centre, .. } if universal => (axis, centre),
+                _ => return None,
+            };
+            let pose = poses
+                .bodies
+                .get(p.a?)?
+                .cam_from_body
+                .get(t)
+                .copied()
+                .flatten()?;
+            Some((pose.rotation * axis, (pose * pivot).coords))
         };
-        let pose = poses
-            .bodies
-            .get(p.a?)?
-            .cam_from_body
-            .get(t)
-            .copied()
-            .flatten()?;
-        Some((pose.rotation * axis, (pose * pivot).coords))
-    };
     let origin = |b: usize, t: usize| -> Option<Vector3<f64>> {
         let pose = poses
             .bodies
@@ -421,8 +428,12 @@ pub fn collinear_hinge_ties(
             .reduce(f64::min)?;
         (*radius > 0.0).then_some(nearest / radius)
     };
+    let hinge_at = |x: usize, y: usize, t: usize| line_at(x, y, t, false);
     let is_hinge = |x: usize, y: usize| {
         find_pair(pairs, Some(x), y).is_some_and(|p| matches!(p.joint, JointKind::Revolute { .. }))
+    };
+    let is_universal = |x: usize, y: usize| {
+        find_pair(pairs, Some(x), y).is_some_and(|p| matches!(p.joint, JointKind::Universal { .. }))
     };
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -432,13 +443,15 @@ pub fn collinear_hinge_ties(
         .filter_map(|v| {
             let u = tree.parent[v]?;
             let w = tree.parent[u]?;
-            if !(is_hinge(w, u) && is_hinge(u, v) && is_hinge(w, v)) {
+            if !(is_hinge(w, u) && is_hinge(u, v) && (is_hinge(w, v) || is_universal(w, v))) {
                 return None;
             }
             let (mut angles, mut offsets, mut reaches) = (Vec::new(), Vec::new(), Vec::new());
             let of_w = placed(w);
             for t in 0..poses.n_frames {
-                if let Some(r) = hinge_at(w, v, t).and_then(|(a, p)| reach(w, &of_w, t, &a, &p)) {
+                if let Some(r) =
+                    line_at(w, v, t, true).and_then(|(a, p)| reach(w, &of_w, t, &a, &p))
+                {
                     reaches.push(r);
                 }
                 let (Some((a1, p1)), Some((a2, p2)), Some(ou), Some(ov)) = (

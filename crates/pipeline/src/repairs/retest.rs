@@ -15,6 +15,7 @@ use kinetree_core::{
     Draft, Edit, Error, Proposal, Repair, RepairContext, RepairPhase, Result, Warning,
 };
 use kinetree_fit::FittedMotions;
+use kinetree_structure::find_pair;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of [`Retest`] (`[pipeline.repairs.retest]`).
@@ -114,7 +115,16 @@ impl Repair for Retest {
             FittedMotions::freeing(&found.model, ctx.tracks, &typed)?
         };
         let fitted = motions.onto_body_poses(poses)?;
-        let pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m)?;
+        let mut pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m)?;
+        // The static body keeps its test against the camera on its own poses: the fit poses
+        // the root freely, from its keypoints and those below it, so the misfit of the doubtful
+        // joints under it moves it and that test would find motion that is not there.
+        if let (Some(s), Some(own)) = (found.model.static_body, draft.pairs.as_ref())
+            && let Some(own) = find_pair(own, None, s)
+            && let Some(slot) = pairs.iter_mut().find(|p| p.a.is_none() && p.b == s)
+        {
+            *slot = own.clone();
+        }
         // The rebuilt model costs as much as the first: build it only if its tree has fewer
         // multi-DoF edges or gives a joint the fit did not follow another parent.
         let tree =

@@ -12,12 +12,15 @@
 //! For each, this repair fits the tree with the body on its grandparent whole, and keeps the
 //! hoist when the keypoints' squared residual grows by at most `max_cost_per_frame` noise
 //! variances per frame the body is seen with the grandparent: a joint a few degrees off the
-//! parent's axis costs more. The hoists kept are proposed together; the proposal stands when
-//! the finished model has no more doubtful joints and re-predicts the keypoints within
-//! `rms_tolerance` of the model.
+//! parent's axis costs more. A body whose pair with the grandparent is a universal joint (a
+//! knuckle that also swings its finger sideways) has one more coordinate there, so the fit
+//! must instead gain at least `universal_min_gain_per_frame`. The hoists kept are proposed
+//! together; the proposal stands when the finished model has no more doubtful joints (or,
+//! with a body on a universal joint, which counts as doubtful, no more joints the fit cannot
+//! follow) and re-predicts the keypoints within `rms_tolerance` of the model.
 
-use super::{count_in_range, in_range, plain_sse, tree_inputs, tree_stands};
-use kinetree_core::{Draft, Edit, Proposal, Repair, RepairContext, RepairPhase, Result};
+use super::{count_in_range, in_range, not_followed, plain_sse, tree_inputs, tree_stands};
+use kinetree_core::{Draft, Edit, JointKind, Proposal, Repair, RepairContext, RepairPhase, Result};
 use kinetree_structure::find_pair;
 use serde::{Deserialize, Serialize};
 
@@ -46,6 +49,11 @@ pub struct SiblingTiesParams {
     /// keypoint, over the RMS distance of the grandparent's keypoints from its origin: the
     /// hinge must pass by the grandparent (default 1).
     pub collinear_max_reach: f64,
+    /// A body whose pair with its grandparent is a universal joint is moved onto it only when
+    /// the fit gains at least this many noise variances per frame the two are seen together
+    /// (default 5, as `type_by_fit.min_universal_gain_per_frame`): the second axis is one more
+    /// coordinate, which gains about one per frame by chance.
+    pub universal_min_gain_per_frame: f64,
 }
 
 impl Default for SiblingTiesParams {
@@ -58,6 +66,7 @@ impl Default for SiblingTiesParams {
             collinear_max_angle_deg: 20.0,
             collinear_max_offset: 0.4,
             collinear_max_reach: 1.0,
+            universal_min_gain_per_frame: 5.0,
         }
     }
 }
@@ -97,6 +106,13 @@ impl SiblingTiesParams {
             self.collinear_max_reach,
             0.0,
             1e3,
+        )?;
+        in_range(
+            NAME,
+            "universal_min_gain_per_frame",
+            self.universal_min_gain_per_frame,
+            0.0,
+            1e6,
         )?;
         count_in_range(NAME, "max_alternatives", self.max_alternatives, 0, 100)
     }
@@ -197,8 +213,15 @@ impl Repair for SiblingTies {
             tried += 1;
             let mut parent = tree.parent.clone();
             parent[v] = Some(w);
+            let universal = find_pair(pairs, Some(w), v)
+                .is_some_and(|p| matches!(p.joint, JointKind::Universal { .. }));
+            let bound = if universal {
+                -self.params.universal_min_gain_per_frame
+            } else {
+                self.params.max_cost_per_frame
+            };
             if let Some(cost) = cost_of(&off_the_tree(pairs, &parent), w, v)?
-                && cost <= self.params.max_cost_per_frame
+                && cost <= bound
             {
                 hoisted[v] = Some(w);
                 costs.push(format!("{v} from {u} onto {w}: {cost:.3}"));
@@ -219,14 +242,50 @@ impl Repair for SiblingTies {
 
     fn stands(
         &self,
-        _ctx: &RepairContext<'_>,
-        _edit: &Edit,
+        ctx: &RepairContext<'_>,
+        edit: &Edit,
         before: &Draft,
         after: &Draft,
     ) -> Result<bool> {
-        Ok(tree_stands(before, after, |x, m| {
-            x <= m * (1.0 + self.params.rms_tolerance)
-        }))
+        let within = |x: f64, m: f64| x <= m * (1.0 + self.params.rms_tolerance);
+        if tree_stands(before, after, within) {
+            return Ok(true);
+        }
+        // A body moved onto its grandparent by a universal joint passed
+        // `universal_min_gain_per_frame` in `propose`, so here the universal joint (or the
+        // ball the fit may type it) does not count as doubtful, as it otherwise does (a
+        // hinge noise can fake one): the move stands when the fit frees no more joints and
+        // the model re-predicts the keypoints as well.
+        let (Edit::Tree(excluded), Some(b), Some(a), Some(pairs)) = (
+            edit,
+            before.model.as_ref(),
+            after.model.as_ref(),
+            before.pairs.as_ref(),
+        ) else {
+            return Ok(false);
+        };
+        let (model, alt) = (&b.model, &a.model);
+        let Some(tree) = kinetree_structure::spanning_tree_without(
+            before.segmentation.n_bodies(),
+            pairs,
+            excluded,
+            &ctx.tree,
+        ) else {
+            return Ok(false);
+        };
+        let moved_onto_universal = (0..tree.parent.len()).any(|v| {
+            tree.parent[v].is_some_and(|w| {
+                !model.joints.iter().any(|j| (j.parent, j.child) == (w, v))
+                    && find_pair(pairs, Some(w), v)
+                        .is_some_and(|p| matches!(p.joint, JointKind::Universal { .. }))
+            })
+        });
+        Ok(moved_onto_universal
+            && not_followed(alt).len() <= not_followed(model).len()
+            && matches!(
+                (alt.reprediction_rms_in_sigma, model.reprediction_rms_in_sigma),
+                (Some(x), Some(m)) if within(x, m)
+            ))
     }
 }
 
