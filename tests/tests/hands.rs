@@ -244,10 +244,11 @@ fn true_edges(model: &Model, data: &SynthData) -> usize {
 
 /// A knuckle that also swings its finger sideways is a universal joint: on the palm the
 /// finger's pair test finds it, while between two fingers that sideways swing can hide and the
-/// pair passes for a hinge about the knuckle line, which the tree prefers. `sibling_ties` then
-/// tries the finger on the palm by that universal joint and keeps it when the fit gains more
-/// than `universal_min_gain_per_frame`; on this hand (0.5 mm, seed 4, no dropout) no finger's
-/// first link then hangs on another's, and with the bound out of reach two do.
+/// pair passes for a hinge about the knuckle line, which the tree prefers. With
+/// `universal_candidates`, `sibling_ties` tries the finger on the palm by that universal joint
+/// and keeps it when the fit gains more than `universal_min_gain_per_frame`; on this hand
+/// (0.5 mm, seed 4, no dropout) no finger's first link then hangs on another's, and without
+/// them (the default) two do.
 #[test]
 fn fingers_hidden_from_a_universal_knuckle_are_moved_onto_the_palm() {
     let params = HandParams {
@@ -257,9 +258,9 @@ fn fingers_hidden_from_a_universal_knuckle_are_moved_onto_the_palm() {
         ..HandParams::default()
     };
     let data = simulate(&hand_scenario(&params)).expect("simulate");
-    let mut off = PipelineConfig::default();
-    off.repairs.sibling_ties.universal_min_gain_per_frame = 1e6;
-    let [on, off] = [PipelineConfig::default(), off]
+    let mut with = PipelineConfig::default();
+    with.repairs.sibling_ties.universal_candidates = true;
+    let [on, off] = [with, PipelineConfig::default()]
         .map(|config| first_links_on_first_links(&discover(&config, &data), &data));
     assert!(on < off, "{on} with the universal moves, {off} without");
 }
@@ -296,21 +297,19 @@ fn edges_the_fit_misses_by_far_are_rerouted() {
 
 /// Pair tests on the whole-tree fit's poses confirm the joints those poses were fitted
 /// through, so `retest` can rebuild a tree with fewer doubtful joints that explains the
-/// keypoints worse. On this hand (1 mm, seed 9) the rebuilt tree re-predicts them about a fifth
-/// worse and hangs fingers on the wrong links, within the default `max_rms_growth` of 0.25;
-/// with a bound of 0.1 `retest` keeps the first model, which re-predicts better and has more
-/// true joints.
+/// keypoints worse. On this hand (1 mm, seed 4) the rebuilt tree re-predicts them about half
+/// again as badly and hangs fingers on the wrong links; `retest` keeps the first model unless
+/// the rebuilt one re-predicts within `max_rms_growth` of it.
 #[test]
 fn a_rebuilt_model_that_explains_the_keypoints_worse_is_refused() {
     let params = HandParams {
-        seed: 9,
+        seed: 4,
         ..HandParams::default()
     };
     let data = simulate(&hand_scenario(&params)).expect("simulate");
-    let mut strict = PipelineConfig::default();
-    strict.repairs.retest.max_rms_growth = 0.1;
-    let [rebuilt, kept] =
-        [PipelineConfig::default(), strict].map(|config| discover(&config, &data));
+    let mut any = PipelineConfig::default();
+    any.repairs.retest.max_rms_growth = 1e6;
+    let [kept, rebuilt] = [PipelineConfig::default(), any].map(|config| discover(&config, &data));
     let retested = |m: &Model| {
         m.trace
             .iter()

@@ -12,9 +12,10 @@
 //! For each, this repair fits the tree with the body on its grandparent whole, and keeps the
 //! hoist when the keypoints' squared residual grows by at most `max_cost_per_frame` noise
 //! variances per frame the body is seen with the grandparent: a joint a few degrees off the
-//! parent's axis costs more. A body whose pair with the grandparent is a universal joint (a
-//! knuckle that also swings its finger sideways) has one more coordinate there, so the fit
-//! must instead gain at least `universal_min_gain_per_frame`. The hoists kept are proposed
+//! parent's axis costs more. With `universal_candidates`, a body whose pair with the
+//! grandparent is a universal joint (a knuckle that also swings its finger sideways) is a
+//! candidate too; it has one more coordinate there, so the fit must instead gain at least
+//! `universal_min_gain_per_frame`. The hoists kept are proposed
 //! together; the proposal stands when the finished model has no more doubtful joints (or,
 //! with a body on a universal joint, which counts as doubtful, no more joints the fit cannot
 //! follow) and re-predicts the keypoints within `rms_tolerance` of the model.
@@ -49,10 +50,14 @@ pub struct SiblingTiesParams {
     /// keypoint, over the RMS distance of the grandparent's keypoints from its origin: the
     /// hinge must pass by the grandparent (default 1).
     pub collinear_max_reach: f64,
-    /// A body whose pair with its grandparent is a universal joint is moved onto it only when
-    /// the fit gains at least this many noise variances per frame the two are seen together
-    /// (default 5, as `type_by_fit.min_universal_gain_per_frame`): the second axis is one more
-    /// coordinate, which gains about one per frame by chance.
+    /// Whether a body whose pair with its grandparent is a universal joint is a candidate too
+    /// (default false: on the hands sweep it hangs more fingers on the palm, whose knuckles
+    /// the fit then types as balls; `docs/decisions.md`, `sibling_ties.universal_candidates`).
+    pub universal_candidates: bool,
+    /// Such a body is moved onto its grandparent only when the fit gains at least this many
+    /// noise variances per frame the two are seen together (default 5, as
+    /// `type_by_fit.min_universal_gain_per_frame`): the second axis is one more coordinate,
+    /// which gains about one per frame by chance.
     pub universal_min_gain_per_frame: f64,
 }
 
@@ -66,6 +71,7 @@ impl Default for SiblingTiesParams {
             collinear_max_angle_deg: 20.0,
             collinear_max_offset: 0.4,
             collinear_max_reach: 1.0,
+            universal_candidates: false,
             universal_min_gain_per_frame: 5.0,
         }
     }
@@ -207,14 +213,17 @@ impl Repair for SiblingTies {
             self.params.collinear_max_offset,
             self.params.collinear_max_reach,
         ) {
+            let universal = find_pair(pairs, Some(w), v)
+                .is_some_and(|p| matches!(p.joint, JointKind::Universal { .. }));
+            if universal && !self.params.universal_candidates {
+                continue;
+            }
             if tried == self.params.max_alternatives {
                 break;
             }
             tried += 1;
             let mut parent = tree.parent.clone();
             parent[v] = Some(w);
-            let universal = find_pair(pairs, Some(w), v)
-                .is_some_and(|p| matches!(p.joint, JointKind::Universal { .. }));
             let bound = if universal {
                 -self.params.universal_min_gain_per_frame
             } else {
