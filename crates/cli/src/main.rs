@@ -406,6 +406,20 @@ enum Command {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
     },
+    /// Compare a model with the simulator's truth (`truth.json` beside the tracks `simulate`
+    /// wrote): the segmentation's ARI, the bodies, and each true joint found with its type,
+    /// its errors, or why it was missed (wrong type, child missing or split, reversed, on its
+    /// grandparent, a sibling or another body)
+    Evaluate {
+        /// Model JSON written by `discover` or `run`.
+        model: PathBuf,
+        /// The truth: `truth.json` written by `simulate`.
+        #[arg(long)]
+        truth: PathBuf,
+        /// Also write the comparison as JSON (the `kinetree_eval::Evaluation` fields).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+    },
     /// Fit a joint to one point's track (a door or drawer handle): revolute (axis, centre,
     /// radius) or prismatic (axis), printed and written as JSON.
     FitTrack {
@@ -558,27 +572,9 @@ fn run(config: Option<PathBuf>, results: &Path, limits: Limits, flags: &SweepFla
         "\nTable I: non-zero singular values of translation (T, m), rotation (R, rad) and centre (C, m)"
     );
     emit(&table_text(model));
-    if let Some(e) = &outcome.evaluation {
-        emitln!(
-            "\nagainst the simulator's truth: ARI {:.3}, bodies {}/{}, joints exact: {}, structure exact: {}",
-            e.ari,
-            e.n_bodies_found,
-            e.n_bodies_true,
-            e.joints_exact,
-            e.structure_exact
-        );
-        for j in &e.joints {
-            emitln!(
-                "  true joint {}: found {}, type ok {}, axis error {}, joint RMS {} (smoothed {})",
-                j.joint,
-                j.found,
-                j.type_ok,
-                j.axis_error_deg
-                    .map_or("-".into(), |v| format!("{v:.3} deg")),
-                j.position_rms.map_or("-".into(), |v| format!("{v:.4}")),
-                j.smoothed_rms.map_or("-".into(), |v| format!("{v:.4}"))
-            );
-        }
+    if let (Some(e), Some(truth)) = (&outcome.evaluation, &outcome.truth) {
+        emit("\n");
+        emit(&kinetree_pipeline::report::evaluation_text(e, truth));
     }
     let dir = results.join(&cfg.experiment.name);
     write_results(&cfg, &outcome, &dir)?;
@@ -852,6 +848,25 @@ fn run_command() -> Result<()> {
                 .with_context(|| format!("viewing {}", model.display()))?;
             kinetree_io::write_text(&output, &html)?;
             emitln!("wrote {} ({} KiB)", output.display(), html.len() / 1024);
+            Ok(())
+        }
+        Command::Evaluate {
+            model,
+            truth,
+            output,
+        } => {
+            if let Some(out) = &output {
+                refuse_overwriting(out, &[&model, &truth])?;
+            }
+            let m = kinetree_io::read_model(&model)?;
+            let t: kinetree_synth::GroundTruth = kinetree_io::read_json(&truth)?;
+            kinetree_eval::check_comparable(&m, &t).map_err(|e| e.in_file(&truth))?;
+            let e = kinetree_eval::evaluate(&m, &t);
+            emit(&kinetree_pipeline::report::evaluation_text(&e, &t));
+            if let Some(out) = &output {
+                kinetree_io::write_json(out, &e)?;
+                emitln!("wrote {}", out.display());
+            }
             Ok(())
         }
         Command::Inspect { model } => {

@@ -916,3 +916,72 @@ fn skeletons_are_simulated_with_soft_tissue_and_other_mechanisms_refuse_it() {
     simulate_refused(&dir, &far, "--soft-tissue");
     simulate_refused(&dir, &["--soft-tissue", "0.005"], "--soft-tissue");
 }
+
+/// `kinetree evaluate` compares a discovered model with `simulate`'s truth: every joint of
+/// the paper arm right, and its JSON the same verdicts; a truth of other keypoints, or one that
+/// is not JSON, is refused with the field or the line named and no output written.
+#[test]
+fn evaluate_compares_a_model_with_the_truth_and_refuses_another_mechanisms() {
+    let (dir, model) = discovered_paper_arm("evaluate");
+    let json = dir.join("evaluation.json");
+    let out = run_ok(
+        kinetree()
+            .arg("evaluate")
+            .arg(&model)
+            .arg("--truth")
+            .arg(dir.join("truth.json"))
+            .arg("-o")
+            .arg(&json),
+    );
+    assert!(out.contains("joints exact: true"), "{out}");
+    assert!(out.contains("2 of 2 joints right"), "{out}");
+    let e = read_json(&json);
+    let joints = e["joints"].as_array().expect("joints");
+    assert_eq!(joints.len(), 2);
+    assert!(
+        joints
+            .iter()
+            .all(|j| j["miss"].is_null() && j["found"] == true)
+    );
+
+    // A hand's truth: other keypoints.
+    let hand = tmp("evaluate-hand");
+    run_ok(
+        kinetree()
+            .args(["simulate", "--mechanism", "hand", "--frames", "100", "-o"])
+            .arg(&hand),
+    );
+    let refused = dir.join("refused.json");
+    let out = kinetree()
+        .arg("evaluate")
+        .arg(&model)
+        .arg("--truth")
+        .arg(hand.join("truth.json"))
+        .arg("-o")
+        .arg(&refused)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("truth.json") && stderr.contains("point_body"),
+        "{stderr}"
+    );
+    assert!(!refused.exists());
+
+    let broken = dir.join("broken.json");
+    std::fs::write(&broken, "{\"point_body\": [0, 1,").expect("write");
+    let out = kinetree()
+        .arg("evaluate")
+        .arg(&model)
+        .arg("--truth")
+        .arg(&broken)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("broken.json") && stderr.contains("line 1"),
+        "{stderr}"
+    );
+}

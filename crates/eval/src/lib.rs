@@ -5,7 +5,10 @@ mod functional;
 mod truth;
 
 pub use functional::{FunctionalEval, functional_errors, sara_axis, score_centre};
-pub use truth::{Evaluation, JointEval, ambiguous_points, body_map, evaluate, identifiable_ari};
+pub use truth::{
+    Evaluation, JointEval, JointMiss, ambiguous_points, body_map, check_comparable, evaluate,
+    identifiable_ari,
+};
 
 use nalgebra::{Point3, Vector3};
 

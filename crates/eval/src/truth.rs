@@ -4,7 +4,7 @@ use crate::{
     adjusted_rand_index, aligned_rms, axis_error_deg, point_line_distance, precision_check,
 };
 use kinetree_core::model::RootJoint;
-use kinetree_core::{Model, Tracks};
+use kinetree_core::{Error, Model, Result, Tracks};
 use kinetree_synth::{GroundTruth, JointType};
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -81,6 +81,74 @@ pub struct JointEval {
     /// `second_axis_error_in_child_deg` in units of the model's `Joint::second_axis_std_deg`.
     #[serde(default)]
     pub second_axis_z: Option<f64>,
+    /// The type of the model joint between the two bodies, where there is one.
+    #[serde(default)]
+    pub model_type: Option<kinetree_core::model::JointType>,
+    /// Why the joint is not right (`None` when it is found with its type).
+    #[serde(default)]
+    pub miss: Option<JointMiss>,
+}
+
+/// Why a true joint was not recovered: the first of these that holds, in this order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JointMiss {
+    /// A model joint links the two bodies, with another type.
+    WrongType,
+    /// No model body stands for the true child: its points went to other bodies or to none.
+    ChildMissing,
+    /// No model body stands for the true parent.
+    ParentMissing,
+    /// A model joint links the two bodies with the child as its parent.
+    Reversed,
+    /// More than one model body stands for the true child, and none hangs on the parent.
+    ChildSplit,
+    /// The child's body hangs on no body: it is the model's root.
+    ChildIsRoot,
+    /// The child hangs on its true parent's parent (the parent skipped).
+    OnGrandparent,
+    /// The child hangs on another child of its true parent (a sibling).
+    OnSibling,
+    /// The child hangs on one of its own descendants.
+    OnDescendant,
+    /// The child hangs on another body.
+    OnOther,
+    /// The truth's free root (a floating mechanism): the model's root is static or not free.
+    RootNotFree,
+}
+
+impl JointMiss {
+    /// Every class, in order.
+    pub const ALL: [JointMiss; 11] = [
+        Self::WrongType,
+        Self::ChildMissing,
+        Self::ParentMissing,
+        Self::Reversed,
+        Self::ChildSplit,
+        Self::ChildIsRoot,
+        Self::OnGrandparent,
+        Self::OnSibling,
+        Self::OnDescendant,
+        Self::OnOther,
+        Self::RootNotFree,
+    ];
+
+    /// The name written in files (`wrong_type`, ...).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::WrongType => "wrong_type",
+            Self::ChildMissing => "child_missing",
+            Self::ParentMissing => "parent_missing",
+            Self::Reversed => "reversed",
+            Self::ChildSplit => "child_split",
+            Self::ChildIsRoot => "child_is_root",
+            Self::OnGrandparent => "on_grandparent",
+            Self::OnSibling => "on_sibling",
+            Self::OnDescendant => "on_descendant",
+            Self::OnOther => "on_other",
+            Self::RootNotFree => "root_not_free",
+        }
+    }
 }
 
 /// The comparison of a model with the truth.
@@ -257,6 +325,8 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
             second_axis_error_in_parent_deg: None,
             second_axis_error_in_child_deg: None,
             second_axis_z: None,
+            model_type: None,
+            miss: None,
         };
         if spec.joint_type == JointType::Free {
             // A free joint from the unseen world is the model's free root; from a seen body
@@ -367,6 +437,10 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
                     precision_check(&j.smoothed_positions, &j.smoothed_std, q).map(|(_, z)| z);
             }
         }
+        e.model_type = found.map(|j| j.joint_type);
+        if !(e.found && e.type_ok) {
+            e.miss = Some(miss(model, truth, &map, k, floating, found.is_some()));
+        }
         all_ok &= e.found && e.type_ok;
         joints.push(e);
     }
@@ -379,6 +453,136 @@ pub fn evaluate(model: &Model, truth: &GroundTruth) -> Evaluation {
         structure_exact: all_ok && (ari - 1.0).abs() < 1e-12,
         joints,
     }
+}
+
+/// Why true joint `k` is not right ([`JointMiss`]), `map` from [`body_map`]; `joined` when a
+/// model joint links the two bodies.
+fn miss(
+    model: &Model,
+    truth: &GroundTruth,
+    map: &[usize],
+    k: usize,
+    floating: bool,
+    joined: bool,
+) -> JointMiss {
+    let spec = &truth.mechanism.joints[k];
+    if floating && spec.joint_type == JointType::Free {
+        return JointMiss::RootNotFree;
+    }
+    if joined {
+        return JointMiss::WrongType;
+    }
+    let standing_for = |t: usize| (0..map.len()).filter(move |&b| map[b] == t);
+    let children: Vec<usize> = standing_for(spec.child).collect();
+    let Some(&child) = children.first() else {
+        return JointMiss::ChildMissing;
+    };
+    if standing_for(spec.parent).next().is_none() {
+        return JointMiss::ParentMissing;
+    }
+    if model
+        .joints
+        .iter()
+        .any(|j| map[j.parent] == spec.child && map[j.child] == spec.parent)
+    {
+        return JointMiss::Reversed;
+    }
+    if children.len() > 1 {
+        return JointMiss::ChildSplit;
+    }
+    let Some(on) = model
+        .joints
+        .iter()
+        .find(|j| j.child == child)
+        .map(|j| map[j.parent])
+    else {
+        return JointMiss::ChildIsRoot;
+    };
+    let true_parent = |b: usize| {
+        truth
+            .mechanism
+            .joints
+            .iter()
+            .find(|j| j.child == b)
+            .map(|j| j.parent)
+    };
+    if true_parent(spec.parent) == Some(on) {
+        return JointMiss::OnGrandparent;
+    }
+    if true_parent(on) == Some(spec.parent) {
+        return JointMiss::OnSibling;
+    }
+    // Up from `on` through the true tree (a tree: at most one step per body).
+    let mut up = Some(on);
+    for _ in 0..truth.n_bodies() {
+        match up {
+            Some(b) if b == spec.child => return JointMiss::OnDescendant,
+            Some(b) => up = true_parent(b),
+            None => break,
+        }
+    }
+    JointMiss::OnOther
+}
+
+/// Checks that `model` was discovered on tracks of `truth`'s keypoints and frames, and that
+/// `truth` holds together, so that [`evaluate`] can compare them.
+///
+/// # Errors
+/// [`Error::Malformed`] naming the field of the truth that does not fit, or
+/// [`Error::Config`] for a mechanism that is not a tree.
+pub fn check_comparable(model: &Model, truth: &GroundTruth) -> Result<()> {
+    truth.mechanism.validate()?;
+    let bad = |position: &str, message: String| Error::Malformed {
+        position: position.into(),
+        message,
+    };
+    let n = truth.point_body.len();
+    if model.point_body.len() != n {
+        return Err(bad(
+            "point_body",
+            format!("has {n} keypoints, the model {}", model.point_body.len()),
+        ));
+    }
+    for (field, len) in [
+        ("visible_frames", truth.visible_frames.len()),
+        ("body_points", truth.body_points.len()),
+    ] {
+        if len != n {
+            return Err(bad(field, format!("has {len} entries for {n} keypoints")));
+        }
+    }
+    let bodies = truth.n_bodies();
+    if let Some(i) = truth.point_body.iter().position(|&b| b >= bodies) {
+        return Err(bad(
+            &format!("point_body[{i}]"),
+            format!("is body {}, of {bodies}", truth.point_body[i]),
+        ));
+    }
+    let coordinates = truth.mechanism.n_coordinates();
+    if truth.joint_positions.len() != coordinates {
+        return Err(bad(
+            "joint_positions",
+            format!(
+                "has {} rows for the mechanism's {coordinates} coordinates",
+                truth.joint_positions.len()
+            ),
+        ));
+    }
+    if let Some(i) = truth
+        .joint_positions
+        .iter()
+        .position(|q| q.len() != model.n_frames)
+    {
+        return Err(bad(
+            &format!("joint_positions[{i}]"),
+            format!(
+                "has {} frames, the model {}",
+                truth.joint_positions[i].len(),
+                model.n_frames
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Points that no method can place: their noisy track fits another body's *true* motion as

@@ -652,6 +652,22 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     })
 }
 
+/// Reads a JSON file into `T` (a simulator's `truth.json`, say).
+///
+/// # Errors
+/// [`Error::File`] around an I/O error or [`Error::Malformed`] with the line and column
+/// where the JSON does not parse or does not fit `T`.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let inner = || -> Result<T> {
+        let reader = BufReader::new(File::open(path)?);
+        serde_json::from_reader(reader).map_err(|e| Error::Malformed {
+            position: format!("line {}, column {}", e.line(), e.column()),
+            message: e.to_string(),
+        })
+    };
+    inner().map_err(|e| e.in_file(path))
+}
+
 /// Reads a model JSON file and checks it with [`Model::validate`].
 ///
 /// # Errors

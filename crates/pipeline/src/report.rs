@@ -252,3 +252,71 @@ pub fn inspect(model: &Model) -> String {
     }
     s
 }
+
+/// A model's comparison with the simulator's truth, for a terminal: the segmentation's ARI,
+/// bodies found, and for each true joint (named by its bodies) whether it was found with its
+/// type, its axis and position errors, and otherwise why it was missed.
+pub fn evaluation_text(
+    e: &kinetree_eval::Evaluation,
+    truth: &kinetree_synth::GroundTruth,
+) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "against the simulator's truth: ARI {:.3}, bodies {}/{}, joints exact: {}, structure exact: {}",
+        e.ari, e.n_bodies_found, e.n_bodies_true, e.joints_exact, e.structure_exact
+    );
+    let name = |b: usize| {
+        truth
+            .mechanism
+            .bodies
+            .get(b)
+            .map_or_else(|| format!("body {b}"), |s| s.name.clone())
+    };
+    let mut missed = std::collections::BTreeMap::new();
+    for j in &e.joints {
+        let Some(spec) = truth.mechanism.joints.get(j.joint) else {
+            continue;
+        };
+        let _ = write!(
+            s,
+            "  true joint {} ({} -> {}, {}): ",
+            j.joint,
+            name(spec.parent),
+            name(spec.child),
+            format!("{:?}", spec.joint_type).to_lowercase()
+        );
+        match j.miss {
+            None => {
+                let _ = writeln!(
+                    s,
+                    "right, axis error {}, joint RMS {} (smoothed {})",
+                    j.axis_error_deg
+                        .map_or("-".into(), |v| format!("{v:.3} deg")),
+                    j.position_rms.map_or("-".into(), |v| format!("{v:.4}")),
+                    j.smoothed_rms.map_or("-".into(), |v| format!("{v:.4}"))
+                );
+            }
+            Some(m) => {
+                *missed.entry(m).or_insert(0) += 1;
+                let found = j
+                    .model_type
+                    .map_or(String::new(), |t| format!(" (found as {})", t.as_str()));
+                let _ = writeln!(s, "missed: {}{found}", m.as_str().replace('_', " "));
+            }
+        }
+    }
+    let right = e.joints.iter().filter(|j| j.miss.is_none()).count();
+    let classes: Vec<String> = missed
+        .iter()
+        .map(|(m, c)| format!("{} {c}", m.as_str().replace('_', " ")))
+        .collect();
+    let _ = writeln!(
+        s,
+        "  {right} of {} joints right{}{}",
+        e.joints.len(),
+        if classes.is_empty() { "" } else { "; missed: " },
+        classes.join(", ")
+    );
+    s
+}

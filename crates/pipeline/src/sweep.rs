@@ -70,8 +70,10 @@ pub struct SweepSpec {
     /// Counts the true joints of each synthetic run and those recovered (found between the
     /// right bodies with their type, as `kinetree_eval::JointEval` judges them): the columns
     /// [`PER_JOINT_COLUMNS`] in `runs.csv` and, per grid point, the share of its true joints
-    /// recovered in `table.md`. A run that misses one joint of twenty fails `joints exact`
-    /// as one that misses them all; this column tells them apart.
+    /// recovered in `table.md`, with the others counted by why they were missed
+    /// (`kinetree_eval::JointMiss`: wrong type, child on its grandparent or a sibling, ...).
+    /// A run that misses one joint of twenty fails `joints exact` as one that misses them
+    /// all; these columns tell them apart.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub per_joint: bool,
 }
@@ -156,6 +158,9 @@ pub struct SweepRun {
     pub joints_true: Option<usize>,
     /// ... of which a model joint links the same two bodies with the same type.
     pub joints_right: Option<usize>,
+    /// ... and the others by why they were missed, in the order of
+    /// [`kinetree_eval::JointMiss::ALL`].
+    pub joints_missed: Option<[usize; JOINT_MISSES]>,
     /// Bodies found.
     pub bodies: Option<usize>,
     /// Wall time of the run, seconds (with `[sweep] timing = true`).
@@ -594,6 +599,7 @@ impl Sweep {
             functional_max_axis_error_deg: None,
             joints_true: None,
             joints_right: None,
+            joints_missed: None,
             bodies: None,
             seconds: None,
         };
@@ -635,6 +641,11 @@ impl Sweep {
                         run.joints_true = Some(e.joints.len());
                         run.joints_right =
                             Some(e.joints.iter().filter(|j| j.found && j.type_ok).count());
+                        let mut missed = [0; JOINT_MISSES];
+                        for m in e.joints.iter().filter_map(|j| j.miss) {
+                            missed[m as usize] += 1;
+                        }
+                        run.joints_missed = Some(missed);
                     }
                     let max = |v: Vec<f64>| v.into_iter().reduce(f64::max);
                     run.max_axis_error_deg =
@@ -717,9 +728,28 @@ pub const FUNCTIONAL_COLUMNS: [&str; 3] = [
     "functional_max_axis_error_deg",
 ];
 
+/// The classes of [`kinetree_eval::JointMiss`].
+pub const JOINT_MISSES: usize = kinetree_eval::JointMiss::ALL.len();
+
 /// The columns of `runs.csv` after the standard and functional ones with `[sweep] per_joint =
-/// true`.
-pub const PER_JOINT_COLUMNS: [&str; 2] = ["joints_true", "joints_right"];
+/// true`: the true joints, those right, and the others by why they were missed
+/// (`missed_` and [`kinetree_eval::JointMiss::as_str`], in the order of
+/// [`kinetree_eval::JointMiss::ALL`]).
+pub const PER_JOINT_COLUMNS: [&str; 2 + JOINT_MISSES] = [
+    "joints_true",
+    "joints_right",
+    "missed_wrong_type",
+    "missed_child_missing",
+    "missed_parent_missing",
+    "missed_reversed",
+    "missed_child_split",
+    "missed_child_is_root",
+    "missed_on_grandparent",
+    "missed_on_sibling",
+    "missed_on_descendant",
+    "missed_on_other",
+    "missed_root_not_free",
+];
 
 /// The header line of `runs.csv`.
 fn csv_header(sweep: &Sweep) -> String {
@@ -782,6 +812,9 @@ fn csv_row(sweep: &Sweep, r: &SweepRun) -> String {
     if sweep.spec.per_joint {
         let count = |c: Option<usize>| c.map_or(String::new(), |c| c.to_string());
         let _ = write!(s, ",{},{}", count(r.joints_true), count(r.joints_right));
+        for k in 0..JOINT_MISSES {
+            let _ = write!(s, ",{}", count(r.joints_missed.map(|m| m[k])));
+        }
     }
     if sweep.spec.timing {
         let _ = write!(s, ",{:.3}", r.seconds.unwrap_or(f64::NAN));
@@ -919,6 +952,20 @@ pub fn parse_runs_csv(sweep: &Sweep, text: &str) -> Result<Vec<SweepRun>> {
             functional_max_axis_error_deg: functional.map(|i| num(i + 2)).transpose()?.flatten(),
             joints_true: per_joint.map(count).transpose()?.flatten(),
             joints_right: per_joint.map(|i| count(i + 1)).transpose()?.flatten(),
+            joints_missed: match per_joint {
+                Some(i) => {
+                    let mut missed = [0; JOINT_MISSES];
+                    let mut all = true;
+                    for (k, m) in missed.iter_mut().enumerate() {
+                        match count(i + 2 + k)? {
+                            Some(c) => *m = c,
+                            None => all = false,
+                        }
+                    }
+                    all.then_some(missed)
+                }
+                None => None,
+            },
             seconds: if sweep.spec.timing {
                 rest[RUN_COLUMNS.len()
                     + functional.map_or(0, |_| FUNCTIONAL_COLUMNS.len())
@@ -962,7 +1009,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
             ""
         },
         if sweep.spec.per_joint {
-            " joints right |"
+            " joints right | joints missed, by why |"
         } else {
             ""
         },
@@ -978,7 +1025,7 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
     } else {
         0
     };
-    let per_joint_cols = usize::from(sweep.spec.per_joint);
+    let per_joint_cols = 2 * usize::from(sweep.spec.per_joint);
     let _ = writeln!(
         s,
         "|{}",
@@ -1074,6 +1121,27 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
                     100.0 * right as f64 / total as f64
                 );
             }
+            let mut missed = [0; JOINT_MISSES];
+            for m in rs.iter().filter_map(|r| r.joints_missed) {
+                for (sum, c) in missed.iter_mut().zip(m) {
+                    *sum += c;
+                }
+            }
+            let classes: Vec<String> = kinetree_eval::JointMiss::ALL
+                .iter()
+                .zip(missed)
+                .filter(|&(_, c)| c > 0)
+                .map(|(m, c)| format!("{} {c}", m.as_str().replace('_', " ")))
+                .collect();
+            let _ = write!(
+                s,
+                " {} |",
+                if classes.is_empty() {
+                    "-".to_string()
+                } else {
+                    classes.join(", ")
+                }
+            );
         }
         if sweep.spec.timing {
             let times: Vec<f64> = rs.iter().filter_map(|r| r.seconds).collect();
