@@ -674,14 +674,7 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
 /// [`Error::File`] wrapping the I/O error, [`Error::Malformed`] with the line and column, or
 /// [`Error::InvalidModel`] naming the field that breaks the schema's rules.
 pub fn read_model(path: &Path) -> Result<Model> {
-    let inner = || -> Result<Model> {
-        let reader = BufReader::new(File::open(path)?);
-        let model: Model = serde_json::from_reader(reader).map_err(|e| Error::Malformed {
-            position: format!("line {}, column {}", e.line(), e.column()),
-            message: e.to_string(),
-        })?;
-        model.validate()?;
-        Ok(model)
-    };
-    inner().map_err(|e| e.in_file(path))
+    let model: Model = read_json(path)?;
+    model.validate().map_err(|e| e.in_file(path))?;
+    Ok(model)
 }
