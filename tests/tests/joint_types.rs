@@ -685,7 +685,15 @@ fn a_floating_pelvis_is_the_free_root_and_its_pose_follows_the_truth() {
         for j in &e.joints {
             joints += 1;
             typed += usize::from(j.found && j.type_ok);
+            assert_eq!(j.miss.is_none(), j.found && j.type_ok, "{j:?}");
         }
+        // The same model with its root held static misses the free root, and says so.
+        let mut pinned = model.clone();
+        pinned.static_body = Some(pinned.root_body);
+        assert_eq!(
+            evaluate(&pinned, &data.truth).joints[0].miss,
+            Some(kinetree_eval::JointMiss::RootNotFree)
+        );
         let seen =
             kinetree_fit::observe(&model, &data.tracks, Default::default()).expect("observe");
         assert!(seen.joint_names[0].starts_with("root_"));
