@@ -44,15 +44,6 @@ fn joint_of(model: &Model, of: &[usize], child: usize) -> usize {
         .expect("joint")
 }
 
-fn true_parent(truth: &GroundTruth, b: usize) -> Option<usize> {
-    truth
-        .mechanism
-        .joints
-        .iter()
-        .find(|j| j.child == b)
-        .map(|j| j.parent)
-}
-
 /// The miss of true joint `k` after `edit` of the model.
 fn miss_after(
     truth: &GroundTruth,
@@ -73,14 +64,14 @@ fn each_missed_joint_is_named_by_why() {
     // A joint two levels down (its parent has a parent), and two siblings.
     let deep = joints
         .iter()
-        .position(|j| true_parent(&truth, j.parent).is_some())
+        .position(|j| truth.mechanism.parent_of(j.parent).is_some())
         .expect("the tree has a joint two levels down");
     let (first, second) = (0..joints.len())
         .flat_map(|a| (a + 1..joints.len()).map(move |b| (a, b)))
         .find(|&(a, b)| joints[a].parent == joints[b].parent)
         .expect("the tree has siblings");
     let (parent, child) = (joints[deep].parent, joints[deep].child);
-    let grandparent = true_parent(&truth, parent).expect("grandparent");
+    let grandparent = truth.mechanism.parent_of(parent).expect("grandparent");
     let jk = joint_of(&model, &of, child);
 
     let wrong = {

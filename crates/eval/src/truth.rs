@@ -498,14 +498,7 @@ fn miss(
     else {
         return JointMiss::ChildIsRoot;
     };
-    let true_parent = |b: usize| {
-        truth
-            .mechanism
-            .joints
-            .iter()
-            .find(|j| j.child == b)
-            .map(|j| j.parent)
-    };
+    let true_parent = |b: usize| truth.mechanism.parent_of(b);
     if true_parent(spec.parent) == Some(on) {
         return JointMiss::OnGrandparent;
     }

@@ -184,6 +184,15 @@ impl Mechanism {
         Ok(())
     }
 
+    /// The parent of body `body`: the body its joint hangs it on (`None` for the base or a
+    /// body no joint names).
+    pub fn parent_of(&self, body: usize) -> Option<usize> {
+        self.joints
+            .iter()
+            .find(|j| j.child == body)
+            .map(|j| j.parent)
+    }
+
     /// Number of joint coordinates: [`JointType::n_coordinates`] summed over the joints.
     pub fn n_coordinates(&self) -> usize {
         self.joints
