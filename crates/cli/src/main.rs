@@ -409,7 +409,7 @@ enum Command {
     /// Compare a model with the simulator's truth (`truth.json` beside the tracks `simulate`
     /// wrote): the segmentation's ARI, the bodies, and each true joint found with its type,
     /// its errors, or why it was missed (wrong type, child missing or split, reversed, on its
-    /// grandparent, a sibling or another body)
+    /// grandparent, a sibling or another body).
     Evaluate {
         /// Model JSON written by `discover` or `run`.
         model: PathBuf,
