@@ -32,6 +32,10 @@ pub struct RunnerParams {
     /// Observed pairs a point needs with a body to be judged against it by the point-by-point
     /// check (default 2).
     pub reassign_min_pairs: usize,
+    /// Whether a points edit that does not stand on the next pass's model is undone alone, the
+    /// model made again with the pass's other edits (default true); otherwise the whole pass
+    /// is undone (`docs/decisions.md`, `runner.redo_passes`).
+    pub redo_passes: bool,
 }
 
 impl Default for RunnerParams {
@@ -40,6 +44,7 @@ impl Default for RunnerParams {
             point_check: true,
             model_passes: 2,
             reassign_min_pairs: 2,
+            redo_passes: true,
         }
     }
 }
@@ -313,7 +318,42 @@ fn bodies_in(seg: &Segmentation, other: &Segmentation) -> Result<Vec<usize>> {
 }
 
 /// The edits of one points pass, with the repairs that proposed them.
-type PassEdits<'r> = Vec<(&'r dyn Repair, Edit)>;
+type PassEdits<'r> = Vec<(&'r dyn Repair, Proposal)>;
+
+/// A pass's edits with the draft they were made on and the history and constraints from before
+/// them, so that the next draft can be made again without one of them.
+struct Applied<'r> {
+    before: Draft,
+    edits: PassEdits<'r>,
+    history: Vec<Warning>,
+    constraints: kinetree_core::Constraints,
+}
+
+/// The draft `edits` make of `before`'s segmentation: their point moves in order, `constraints`
+/// with theirs.
+fn edited(
+    before: &Draft,
+    edits: &PassEdits<'_>,
+    constraints: &kinetree_core::Constraints,
+) -> Draft {
+    let mut labels = before.segmentation.labels().to_vec();
+    let mut all = constraints.clone();
+    for (_, p) in edits {
+        if let Edit::Points(moves) = &p.edit {
+            for &(point, body) in moves {
+                if let Some(l) = labels.get_mut(point) {
+                    *l = body;
+                }
+            }
+        }
+        all.extend(&p.constraints);
+    }
+    let mut seg = Segmentation::from_raw(&labels, 1).with_shared_of(&before.segmentation, &labels);
+    seg.discarded_groups = before.segmentation.discarded_groups.clone();
+    let mut next = Draft::new(seg);
+    next.constraints = all;
+    next
+}
 
 /// What the runner calls with every trace entry as it is made: progress, for a caller who
 /// wants to show it (the runner itself never prints).
@@ -740,7 +780,7 @@ impl<'a> Runner<'a> {
         let ctx = self.context();
         let passes = self.pipeline.runner.model_passes;
         let mut draft = Draft::new(seg);
-        let mut previous: Option<(Draft, PassEdits<'_>)> = None;
+        let mut previous: Option<Applied<'_>> = None;
         let mut pass = 0;
         let last = loop {
             self.set_pass(pass);
@@ -771,28 +811,55 @@ impl<'a> Runner<'a> {
             stage("whole-tree fit");
             self.fit(&mut model)?;
             draft.adopt(model)?;
-            // The previous pass's edits must stand on this model, or the pass is undone.
-            if let Some((before, edits)) = previous.take() {
+            // The previous pass's edits must stand on this model. One that does not is undone
+            // and the model made again with the others; with none left, the pass is undone.
+            if let Some(applied) = previous.take() {
                 let mut undone = None;
-                for (r, e) in edits {
-                    if !self.timed(r, || r.stands(&ctx, &e, &before, &draft))? {
-                        undone = Some((r, e));
+                for (k, (r, p)) in applied.edits.iter().enumerate() {
+                    if !self.timed(*r, || r.stands(&ctx, &p.edit, &applied.before, &draft))? {
+                        undone = Some(k);
                         break;
                     }
                 }
-                if let Some((r, e)) = undone {
-                    let mut points: Vec<usize> = match &e {
+                if let Some(k) = undone {
+                    let Applied {
+                        before,
+                        mut edits,
+                        history: kept,
+                        constraints,
+                    } = applied;
+                    let (r, p) = edits.remove(k);
+                    let mut points: Vec<usize> = match &p.edit {
                         Edit::Points(moves) => moves.iter().map(|&(p, _)| p).collect(),
                         _ => Vec::new(),
                     };
                     points.sort_unstable();
+                    let others = !edits.is_empty() && self.pipeline.runner.redo_passes;
                     let mut note = Proposal::new(
-                        e,
-                        "the previous pass undone: this edit did not stand on its model",
+                        p.edit,
+                        if others {
+                            "undone: this edit did not stand on its model, which is made again with the pass's other edits"
+                        } else {
+                            "the previous pass undone: this edit did not stand on its model"
+                        },
                     );
                     note.points = points;
                     self.record(r, "reverted", &note);
-                    break before;
+                    if !others {
+                        break before;
+                    }
+                    history.clone_from(&kept);
+                    for (_, p) in &edits {
+                        history.extend(p.warnings.iter().cloned());
+                    }
+                    draft = edited(&before, &edits, &constraints);
+                    previous = Some(Applied {
+                        before,
+                        edits,
+                        history: kept,
+                        constraints,
+                    });
+                    continue;
                 }
             }
             let mut proposals = if pass < passes {
@@ -829,28 +896,24 @@ impl<'a> Runner<'a> {
             if proposals.is_empty() {
                 break draft;
             }
-            let mut labels = draft.segmentation.labels().to_vec();
+            let kept = history.clone();
+            let constraints = draft.constraints.clone();
             let mut edits = Vec::new();
             for (r, p) in proposals {
-                let Edit::Points(moves) = &p.edit else {
+                if !matches!(p.edit, Edit::Points(_)) {
                     return Err(wrong_edit(r, &p.edit));
-                };
-                for &(point, body) in moves {
-                    if let Some(l) = labels.get_mut(point) {
-                        *l = body;
-                    }
                 }
                 self.record(r, "applied", &p);
                 history.extend(p.warnings.iter().cloned());
-                draft.constraints.extend(&p.constraints);
-                edits.push((r, p.edit));
+                edits.push((r, p));
             }
-            let mut seg =
-                Segmentation::from_raw(&labels, 1).with_shared_of(&draft.segmentation, &labels);
-            seg.discarded_groups = draft.segmentation.discarded_groups.clone();
-            let mut next = Draft::new(seg);
-            next.constraints = draft.constraints.clone();
-            previous = Some((std::mem::replace(&mut draft, next), edits));
+            let next = edited(&draft, &edits, &constraints);
+            previous = Some(Applied {
+                before: std::mem::replace(&mut draft, next),
+                edits,
+                history: kept,
+                constraints,
+            });
             pass += 1;
         };
         let trace = self
