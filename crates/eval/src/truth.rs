@@ -118,8 +118,11 @@ pub enum JointMiss {
 }
 
 impl JointMiss {
+    /// The number of classes.
+    pub const COUNT: usize = 11;
+
     /// Every class, in order.
-    pub const ALL: [JointMiss; 11] = [
+    pub const ALL: [JointMiss; JointMiss::COUNT] = [
         Self::WrongType,
         Self::ChildMissing,
         Self::ParentMissing,
@@ -132,6 +135,27 @@ impl JointMiss {
         Self::OnOther,
         Self::RootNotFree,
     ];
+
+    /// How many of `misses` fall in each class, in the order of [`JointMiss::ALL`].
+    pub fn tally(misses: impl IntoIterator<Item = JointMiss>) -> [usize; JointMiss::COUNT] {
+        let mut counts = [0; JointMiss::COUNT];
+        for m in misses {
+            counts[m as usize] += 1;
+        }
+        counts
+    }
+
+    /// `counts` (in the order of [`JointMiss::ALL`]) as text, the classes with none left
+    /// out: `wrong type 2, on sibling 3`; empty when every count is zero.
+    pub fn describe(counts: &[usize; JointMiss::COUNT]) -> String {
+        Self::ALL
+            .iter()
+            .zip(counts)
+            .filter(|&(_, &c)| c > 0)
+            .map(|(m, c)| format!("{} {c}", m.as_str().replace('_', " ")))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
 
     /// The name written in files (`wrong_type`, ...).
     pub fn as_str(self) -> &'static str {

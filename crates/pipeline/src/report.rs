@@ -273,7 +273,6 @@ pub fn evaluation_text(
             .get(b)
             .map_or_else(|| format!("body {b}"), |s| s.name.clone())
     };
-    let mut missed = std::collections::BTreeMap::new();
     for j in &e.joints {
         let Some(spec) = truth.mechanism.joints.get(j.joint) else {
             continue;
@@ -298,7 +297,6 @@ pub fn evaluation_text(
                 );
             }
             Some(m) => {
-                *missed.entry(m).or_insert(0) += 1;
                 let found = j
                     .model_type
                     .map_or(String::new(), |t| format!(" (found as {})", t.as_str()));
@@ -307,16 +305,14 @@ pub fn evaluation_text(
         }
     }
     let right = e.joints.iter().filter(|j| j.miss.is_none()).count();
-    let classes: Vec<String> = missed
-        .iter()
-        .map(|(m, c)| format!("{} {c}", m.as_str().replace('_', " ")))
-        .collect();
+    let missed = kinetree_eval::JointMiss::describe(&kinetree_eval::JointMiss::tally(
+        e.joints.iter().filter_map(|j| j.miss),
+    ));
     let _ = writeln!(
         s,
-        "  {right} of {} joints right{}{}",
+        "  {right} of {} joints right{}{missed}",
         e.joints.len(),
-        if classes.is_empty() { "" } else { "; missed: " },
-        classes.join(", ")
+        if missed.is_empty() { "" } else { "; missed: " },
     );
     s
 }

@@ -641,11 +641,9 @@ impl Sweep {
                         run.joints_true = Some(e.joints.len());
                         run.joints_right =
                             Some(e.joints.iter().filter(|j| j.found && j.type_ok).count());
-                        let mut missed = [0; JOINT_MISSES];
-                        for m in e.joints.iter().filter_map(|j| j.miss) {
-                            missed[m as usize] += 1;
-                        }
-                        run.joints_missed = Some(missed);
+                        run.joints_missed = Some(kinetree_eval::JointMiss::tally(
+                            e.joints.iter().filter_map(|j| j.miss),
+                        ));
                     }
                     let max = |v: Vec<f64>| v.into_iter().reduce(f64::max);
                     run.max_axis_error_deg =
@@ -729,7 +727,7 @@ pub const FUNCTIONAL_COLUMNS: [&str; 3] = [
 ];
 
 /// The classes of [`kinetree_eval::JointMiss`].
-pub const JOINT_MISSES: usize = kinetree_eval::JointMiss::ALL.len();
+pub const JOINT_MISSES: usize = kinetree_eval::JointMiss::COUNT;
 
 /// The columns of `runs.csv` after the standard and functional ones with `[sweep] per_joint =
 /// true`: the true joints, those right, and the others by why they were missed
@@ -1127,21 +1125,8 @@ pub fn table_markdown(name: &str, sweep: &Sweep, runs: &[SweepRun]) -> String {
                     *sum += c;
                 }
             }
-            let classes: Vec<String> = kinetree_eval::JointMiss::ALL
-                .iter()
-                .zip(missed)
-                .filter(|&(_, c)| c > 0)
-                .map(|(m, c)| format!("{} {c}", m.as_str().replace('_', " ")))
-                .collect();
-            let _ = write!(
-                s,
-                " {} |",
-                if classes.is_empty() {
-                    "-".to_string()
-                } else {
-                    classes.join(", ")
-                }
-            );
+            let classes = kinetree_eval::JointMiss::describe(&missed);
+            let _ = write!(s, " {} |", if classes.is_empty() { "-" } else { &classes });
         }
         if sweep.spec.timing {
             let times: Vec<f64> = rs.iter().filter_map(|r| r.seconds).collect();
