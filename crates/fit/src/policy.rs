@@ -505,8 +505,11 @@ impl Default for TypeByFitLimits {
 /// then a hinge, is fitted from the two bodies' fitted poses, refined like a freed joint, and
 /// the first the fit then follows closely is kept (see `type_by_fit`). A freed single-DoF
 /// joint gets the other single-DoF type tried the same way: a link turning a little on the
-/// base can show no rotation in its pair test and a straight path. A universal joint is tried
-/// as a ball and then as a hinge (see `universal_by_fit`). With `hinges_as_universal`, every
+/// base can show no rotation in its pair test and a straight path. A freed slide is first
+/// fitted again as a slide, from the fitted poses: its axis, from a child posed in a few
+/// frames, can miss, and a hinge about a pivot metres away then fits the child as closely
+/// with two more parameters. A universal joint is tried as a ball and then as a hinge (see
+/// `universal_by_fit`). With `hinges_as_universal`, every
 /// hinge the fit follows is first tried as a universal joint (see `universal_from_hinge`).
 /// Returns the new fit and the joints typed.
 ///
@@ -577,12 +580,13 @@ fn typing_tried(
     !typing_candidates(model, k, observer).is_empty()
 }
 
-/// The types joint `k` is tried as, in order (`true` revolute, `false` prismatic).
+/// The types joint `k` is tried as, in order (`true` revolute, `false` prismatic): a freed
+/// slide as a slide again before a hinge (see [`type_joints_by_fit`]).
 fn typing_candidates(model: &Model, k: usize, observer: &Observer) -> &'static [bool] {
     match model.joints[k].joint_type {
         JointType::Spherical => &[true],
         JointType::MultiDof => &[false, true],
-        JointType::Prismatic if observer.freed[k] => &[true],
+        JointType::Prismatic if observer.freed[k] => &[false, true],
         JointType::Revolute if observer.freed[k] => &[false],
         _ => &[],
     }
