@@ -509,9 +509,8 @@ impl Default for TypeByFitLimits {
 /// fitted again as a slide, from the fitted poses: its axis, from a child posed in a few
 /// frames, can miss, and a hinge about a pivot metres away then fits the child as closely
 /// with two more parameters. A universal joint is tried as a ball and then as a hinge (see
-/// `universal_by_fit`). With `hinges_as_universal`, every
-/// hinge the fit follows is first tried as a universal joint (see `universal_from_hinge`).
-/// Returns the new fit and the joints typed.
+/// `universal_by_fit`). With `hinges_as_universal`, every hinge the fit follows is first tried
+/// as a universal joint (see `universal_from_hinge`). Returns the new fit and the joints typed.
 ///
 /// # Errors
 /// As [`Observer::new`] and [`Observer::fit_sequence`].

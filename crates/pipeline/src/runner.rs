@@ -320,24 +320,19 @@ fn bodies_in(seg: &Segmentation, other: &Segmentation) -> Result<Vec<usize>> {
 /// The edits of one points pass, with the repairs that proposed them.
 type PassEdits<'r> = Vec<(&'r dyn Repair, Proposal)>;
 
-/// A pass's edits with the draft they were made on and the history and constraints from before
-/// them, so that the next draft can be made again without one of them.
+/// A pass's edits with the draft they were made on (its constraints those from before them) and
+/// the history from before them, so that the next draft can be made again without one of them.
 struct Applied<'r> {
     before: Draft,
     edits: PassEdits<'r>,
     history: Vec<Warning>,
-    constraints: kinetree_core::Constraints,
 }
 
-/// The draft `edits` make of `before`'s segmentation: their point moves in order, `constraints`
-/// with theirs.
-fn edited(
-    before: &Draft,
-    edits: &PassEdits<'_>,
-    constraints: &kinetree_core::Constraints,
-) -> Draft {
+/// The draft `edits` make of `before`: their point moves in order on its segmentation, its
+/// constraints with theirs.
+fn edited(before: &Draft, edits: &PassEdits<'_>) -> Draft {
     let mut labels = before.segmentation.labels().to_vec();
-    let mut all = constraints.clone();
+    let mut all = before.constraints.clone();
     for (_, p) in edits {
         if let Edit::Points(moves) = &p.edit {
             for &(point, body) in moves {
@@ -826,7 +821,6 @@ impl<'a> Runner<'a> {
                         before,
                         mut edits,
                         history: kept,
-                        constraints,
                     } = applied;
                     let (r, p) = edits.remove(k);
                     let mut points: Vec<usize> = match &p.edit {
@@ -852,12 +846,11 @@ impl<'a> Runner<'a> {
                     for (_, p) in &edits {
                         history.extend(p.warnings.iter().cloned());
                     }
-                    draft = edited(&before, &edits, &constraints);
+                    draft = edited(&before, &edits);
                     previous = Some(Applied {
                         before,
                         edits,
                         history: kept,
-                        constraints,
                     });
                     continue;
                 }
@@ -897,7 +890,6 @@ impl<'a> Runner<'a> {
                 break draft;
             }
             let kept = history.clone();
-            let constraints = draft.constraints.clone();
             let mut edits = Vec::new();
             for (r, p) in proposals {
                 if !matches!(p.edit, Edit::Points(_)) {
@@ -907,12 +899,11 @@ impl<'a> Runner<'a> {
                 history.extend(p.warnings.iter().cloned());
                 edits.push((r, p));
             }
-            let next = edited(&draft, &edits, &constraints);
+            let next = edited(&draft, &edits);
             previous = Some(Applied {
                 before: std::mem::replace(&mut draft, next),
                 edits,
                 history: kept,
-                constraints,
             });
             pass += 1;
         };
