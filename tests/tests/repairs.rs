@@ -1360,3 +1360,37 @@ fn an_edit_that_does_not_stand_is_undone_alone() {
     let undone = kinetree_tests::discover_with(&data.tracks, &config);
     assert!(!kinetree_eval::evaluate(&undone, &data.truth).joints_exact);
 }
+
+/// The memo of pair tests and hinge fits changes nothing: on a 10-joint tree whose hidden
+/// links are posed through their hinges (the mechanisms sweep's revolute tree, seed 7), the
+/// model with the memo is the model without it, and the memo answered some of the lookups
+/// (the later passes' bodies are mostly the first pass's).
+#[test]
+fn the_memo_answers_repeated_work_and_changes_nothing() {
+    let params = kinetree_synth::RandomParams {
+        n_joints: 10,
+        prismatic_fraction: 0.0,
+        tree: true,
+        seed: 7,
+        ..Default::default()
+    };
+    let data = simulate(&kinetree_synth::random_scenario(&params)).expect("simulate");
+    let config = PipelineConfig::default();
+    let timer = kinetree_pipeline::StageTimes::new(&());
+    let with = Pipeline::from_config(&config)
+        .expect("pipeline")
+        .run_observed(&data.tracks, &timer)
+        .expect("discover");
+    assert!(traced(&with, "hinges"), "{:?}", with.model.trace);
+    let usage = timer.memo_usage();
+    assert!(usage.hits > 0 && usage.misses > 0, "{usage:?}");
+    let mut off = config.clone();
+    off.runner.memo_mib = 0;
+    let without = kinetree_tests::discover_with(&data.tracks, &off);
+    let json = |m: &kinetree_core::Model| serde_json::to_string(m).expect("json");
+    // Compared whole, and reported briefly: the models are hundreds of kilobytes of JSON.
+    assert!(
+        json(&with.model) == json(&without),
+        "the model with the memo differs from the model without it"
+    );
+}

@@ -224,6 +224,17 @@ fn repair_table(times: &[kinetree_pipeline::RepairTime]) -> String {
     out
 }
 
+/// `--timings`' account of the memo of pair tests and hinge fits.
+fn memo_line(m: &kinetree_core::memo::MemoUsage) -> String {
+    format!(
+        "memo: {} of {} pair tests and hinge fits answered from {} kept results ({:.1} MiB)",
+        m.hits,
+        m.hits + m.misses,
+        m.kept,
+        m.bytes as f64 / f64::from(1u32 << 20)
+    )
+}
+
 /// Runs `work` with a [`StageDisplay`] (none when `quiet`), cleared when it ends.
 fn with_stage_display<T>(
     quiet: bool,
@@ -775,6 +786,7 @@ fn run_command() -> Result<()> {
                 if timings {
                     eprint!("{}", stage_table(&timer.totals()));
                     eprint!("{}", repair_table(&timer.repair_totals()));
+                    eprintln!("{}", memo_line(&timer.memo_usage()));
                 }
                 d
             })?;

@@ -635,7 +635,8 @@ fn discover_shows_its_stages_on_a_terminal_unless_quiet() {
 }
 
 /// `discover --timings` prints each stage's time on stderr, and the rows add up to the total
-/// it states; then each repair's, longest first; without the flag nothing of it is printed.
+/// it states; then each repair's, longest first, and how often the memo answered; without the
+/// flag nothing of it is printed.
 #[test]
 fn discover_prints_its_stage_times_when_asked() {
     let (dir, _) = discovered_paper_arm("timings");
@@ -685,8 +686,20 @@ fn discover_prints_its_stage_times_when_asked() {
         );
     }
     assert!(repairs.windows(2).all(|w| w[0].1 >= w[1].1), "{err}");
+    // Then the memo: every pair test of the run went through it.
+    let memo = err
+        .lines()
+        .find(|l| l.starts_with("memo: "))
+        .unwrap_or_else(|| panic!("a memo line in {err}"));
+    let lookups: usize = memo
+        .split_whitespace()
+        .nth(3)
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("lookups in {memo}"));
+    assert!(lookups > 0, "{memo}");
     let plain = discover(false);
     assert!(!plain.contains("stage times") && !plain.contains("repair times"));
+    assert!(!plain.contains("memo: "));
 }
 
 /// `fit-track` takes a `.npy` of one point, `(T, 3)` or `(T, 1, 3)`, and a `(T, N, 3)` one

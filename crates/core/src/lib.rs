@@ -6,6 +6,7 @@
 mod error;
 pub mod geom;
 pub mod limits;
+pub mod memo;
 pub mod model;
 mod pairs;
 mod poses;

@@ -92,6 +92,9 @@ pub struct RepairContext<'a> {
     pub seed: u64,
     /// The spanning tree's preferences, for repairs that build trees.
     pub tree: crate::TreeCosts,
+    /// Results of pure computations kept for the rest of the discovery (the pair tests, the
+    /// hinges' fits); `None` computes everything each time.
+    pub memo: Option<&'a crate::memo::Memo>,
 }
 
 /// Decisions the repairs have made that later steps must respect. They are typed here, not

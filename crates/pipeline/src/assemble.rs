@@ -13,7 +13,7 @@ use kinetree_core::{
 
 /// The model of a segmentation's bodies, poses and pair tests (segmentation numbering): the
 /// spanning tree without the edges `excluded`, the bodies renumbered in tree order, a joint
-/// per tree edge from its pair test, and the warnings of the assembly after `warnings`. Not
+/// per tree edge from its pair test (looked up in `memo` when kept there), and the warnings of the assembly after `warnings`. Not
 /// fitted: the whole-tree fit sets the positions' precision and the re-prediction.
 ///
 /// # Errors
@@ -29,6 +29,7 @@ pub(crate) fn assemble(
     source: NoiseSource,
     mut warnings: Vec<Warning>,
     excluded: &[(usize, usize)],
+    memo: Option<&kinetree_core::memo::Memo>,
 ) -> Result<ModelDraft> {
     let nb = seg.n_bodies();
     let tree = kinetree_structure::spanning_tree_without(nb, &pairs, excluded, &pipeline.tree)
@@ -60,7 +61,8 @@ pub(crate) fn assemble(
         let Some(parent) = tree.parent[child] else {
             continue;
         };
-        let pair = pipeline.dof.test_pair(&input, Some(parent), child)?;
+        let pair =
+            crate::runner::test_pair(pipeline.dof.as_ref(), &input, Some(parent), child, memo)?;
         let (positions, reference) = kinetree_structure::joint_positions(poses, &pair);
         let reference_frame = reference.unwrap_or(pair.reference_frame);
         let cam_parent = cam_from(poses, Some(parent), reference_frame);

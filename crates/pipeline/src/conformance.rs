@@ -58,7 +58,7 @@ fn clean_draft(
         segmentation: &seg,
         noise_sigma_m: sigma,
     })?;
-    let pairs = all_pairs(pipeline.dof.as_ref(), &poses, sigma)?;
+    let pairs = all_pairs(pipeline.dof.as_ref(), &poses, sigma, None)?;
     draft.poses = Some(poses);
     draft.pairs = Some(pairs);
     if phase != RepairPhase::Bodies {

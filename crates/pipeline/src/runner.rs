@@ -8,6 +8,7 @@
 //! its edits stand), then its model repairs when no point moved.
 
 use crate::Pipeline;
+use kinetree_core::memo::{Fingerprint, Memo, MemoUsage};
 use kinetree_core::model::NoiseSource;
 use kinetree_core::{
     BodyPoses, BodyTrack, ClusteringInput, DissimilarityInput, DissimilarityMatrix, DofInput,
@@ -36,6 +37,10 @@ pub struct RunnerParams {
     /// model made again with the pass's other edits (default true); otherwise the whole pass
     /// is undone (`docs/decisions.md`, `runner.redo_passes`).
     pub redo_passes: bool,
+    /// Mebibytes of pair tests and hinge fits the discovery keeps, each under a fingerprint
+    /// of its inputs, to look up when a later pass asks for it again (default 256; 0 keeps
+    /// none). The output is the same at any value; `docs/decisions.md`, `runner.memo_mib`.
+    pub memo_mib: usize,
 }
 
 impl Default for RunnerParams {
@@ -45,6 +50,7 @@ impl Default for RunnerParams {
             model_passes: 2,
             reassign_min_pairs: 2,
             redo_passes: true,
+            memo_mib: 256,
         }
     }
 }
@@ -62,7 +68,8 @@ impl RunnerParams {
             self.reassign_min_pairs,
             0,
             1_000_000,
-        )
+        )?;
+        count_within("pipeline.runner.memo_mib", self.memo_mib, 0, 1 << 20)
     }
 }
 
@@ -119,7 +126,12 @@ pub(crate) fn frame_and_moving(spread: &[(f64, f64)], i: usize, j: usize) -> (us
 ///
 /// # Errors
 /// The DoF stage's errors other than [`Error::Degenerate`].
-pub fn all_pairs(dof: &dyn DofTester, poses: &BodyPoses, sigma: f64) -> Result<Vec<PairDof>> {
+pub fn all_pairs(
+    dof: &dyn DofTester,
+    poses: &BodyPoses,
+    sigma: f64,
+    memo: Option<&Memo>,
+) -> Result<Vec<PairDof>> {
     let input = DofInput {
         poses,
         noise_sigma_m: sigma,
@@ -136,7 +148,7 @@ pub fn all_pairs(dof: &dyn DofTester, poses: &BodyPoses, sigma: f64) -> Result<V
     // The tests are independent: run in parallel, kept in this order.
     let tested: Vec<Result<Option<PairDof>>> = pairs
         .par_iter()
-        .map(|&(a, b)| match dof.test_pair(&input, a, b) {
+        .map(|&(a, b)| match test_pair(dof, &input, a, b, memo) {
             Ok(p) => Ok(Some(p)),
             Err(Error::Degenerate(_)) => Ok(None),
             Err(e) => Err(e),
@@ -147,6 +159,51 @@ pub fn all_pairs(dof: &dyn DofTester, poses: &BodyPoses, sigma: f64) -> Result<V
         out.extend(t?);
     }
     Ok(out)
+}
+
+/// `dof`'s test of body `b` in frame `a`, looked up in `memo` when the same tester has tested
+/// the same two tracks at the same noise level before (a test depends on nothing else,
+/// [`DofTester::test_pair`]). Degenerate pairs are kept too; other errors are not.
+///
+/// # Errors
+/// The DoF stage's.
+pub(crate) fn test_pair(
+    dof: &dyn DofTester,
+    input: &DofInput<'_>,
+    a: Option<usize>,
+    b: usize,
+    memo: Option<&Memo>,
+) -> Result<PairDof> {
+    let bodies = &input.poses.bodies;
+    let (Some(memo), Some(track)) = (memo, bodies.get(b)) else {
+        return dof.test_pair(input, a, b);
+    };
+    let mut key = Fingerprint::new("pair test");
+    // The tester's address tells apart two testers of one name with other parameters.
+    key.usize(std::ptr::from_ref(dof).cast::<()>() as usize)
+        .option_usize(a)
+        .usize(b)
+        .usize(input.poses.n_frames)
+        .f64(input.noise_sigma_m)
+        .track(track);
+    if let Some(frame) = a.and_then(|a| bodies.get(a)) {
+        key.track(frame);
+    }
+    let key = key.finish();
+    let kept = memo.get_or_compute(
+        key,
+        || match dof.test_pair(input, a, b) {
+            Err(Error::Degenerate(why)) => Some(Err(why)),
+            Ok(p) => Some(Ok(p)),
+            Err(_) => None,
+        },
+        |_| std::mem::size_of::<PairDof>(),
+    );
+    match kept {
+        Some(Ok(p)) => Ok(p),
+        Some(Err(why)) => Err(Error::Degenerate(why)),
+        None => dof.test_pair(input, a, b),
+    }
 }
 
 /// The configured stages as repair slots.
@@ -252,6 +309,7 @@ pub(crate) fn grouping(
                 models: None,
                 seed: p.seed,
                 tree: p.tree,
+                memo: None,
             };
             let Some(proposal) = timed(observer, r, || r.propose(&ctx, &Draft::new(seg.clone())))?
             else {
@@ -367,6 +425,9 @@ pub trait DiscoveryObserver: Sync {
     /// A repair's `propose` or `stands` returned after `seconds` of wall-clock time: the
     /// time includes the models it had built and the repairs those ran.
     fn repair_time(&self, _repair: &str, _seconds: f64) {}
+    /// The model phases are over: what their memo of pair tests and hinge fits kept and how
+    /// often it answered (once per discovery, so twice in a sampled one).
+    fn memo(&self, _usage: MemoUsage) {}
 }
 
 /// The observer that is told nothing.
@@ -405,6 +466,7 @@ pub struct StageTimes<'a> {
     started: std::time::Instant,
     starts: std::sync::Mutex<Vec<(String, std::time::Instant)>>,
     repairs: std::sync::Mutex<Vec<RepairTime>>,
+    memo: std::sync::Mutex<MemoUsage>,
 }
 
 impl<'a> StageTimes<'a> {
@@ -415,7 +477,13 @@ impl<'a> StageTimes<'a> {
             started: std::time::Instant::now(),
             starts: std::sync::Mutex::new(Vec::new()),
             repairs: std::sync::Mutex::new(Vec::new()),
+            memo: std::sync::Mutex::new(MemoUsage::default()),
         }
+    }
+
+    /// The memo's usage, summed over the discoveries so far.
+    pub fn memo_usage(&self) -> MemoUsage {
+        self.memo.lock().map(|m| *m).unwrap_or_default()
     }
 
     /// Each repair's time so far, the longest first (then by name).
@@ -507,6 +575,13 @@ impl DiscoveryObserver for StageTimes<'_> {
         }
         self.inner.repair_time(repair, seconds);
     }
+
+    fn memo(&self, usage: MemoUsage) {
+        if let Ok(mut m) = self.memo.lock() {
+            *m = m.plus(usage);
+        }
+        self.inner.memo(usage);
+    }
 }
 
 /// A [`Progress`] callback as an observer of the trace alone.
@@ -557,6 +632,7 @@ pub(crate) struct Runner<'a> {
     /// The trace so far and the current pass.
     trace: Mutex<(Vec<TraceEntry>, usize)>,
     observer: &'a dyn DiscoveryObserver,
+    memo: Memo,
 }
 
 impl std::fmt::Debug for Runner<'_> {
@@ -592,6 +668,7 @@ impl<'a> Runner<'a> {
             first_guess,
             trace: Mutex::new((trace, 0)),
             observer,
+            memo: Memo::new(pipeline.runner.memo_mib.saturating_mul(1 << 20)),
         }
     }
 
@@ -606,6 +683,7 @@ impl<'a> Runner<'a> {
             models: Some(self),
             seed: self.pipeline.seed,
             tree: self.pipeline.tree,
+            memo: Some(&self.memo),
         }
     }
 
@@ -669,7 +747,12 @@ impl<'a> Runner<'a> {
             ));
         }
         let poses = crate::repairs::poses_of("runner", draft.poses.as_ref())?;
-        draft.pairs = Some(all_pairs(self.pipeline.dof.as_ref(), poses, self.sigma)?);
+        draft.pairs = Some(all_pairs(
+            self.pipeline.dof.as_ref(),
+            poses,
+            self.sigma,
+            Some(&self.memo),
+        )?);
         Ok(())
     }
 
@@ -912,6 +995,7 @@ impl<'a> Runner<'a> {
             .lock()
             .map(|mut t| std::mem::take(&mut t.0))
             .unwrap_or_default();
+        self.observer.memo(self.memo.usage());
         Ok((last, trace))
     }
 
@@ -986,6 +1070,7 @@ impl ModelMaker for Runner<'_> {
             self.source,
             history.to_vec(),
             excluded,
+            Some(&self.memo),
         )?;
         m.history = history.to_vec();
         Ok(m)

@@ -146,7 +146,8 @@ impl Repair for HingeGroups {
             })
             .collect();
         let bounds = self.params.bounds();
-        let turns = |group: &[usize]| best_hinge(&bounds, tracks, poses, group, None, sigma);
+        let turns =
+            |group: &[usize]| best_hinge(&bounds, tracks, poses, group, None, sigma, ctx.memo);
         // The clusters discarded as too small for a pose first: rigid groups the clustering
         // found, which halving the rest would not reach (its clusterer keeps no part under
         // three keypoints). Two markers of a segment whose others sit on its joint's axis

@@ -7,6 +7,7 @@
 //! alone, and its children's over the frames they share.
 
 use super::{in_range, poses_of};
+use kinetree_core::memo::{Fingerprint, Memo};
 use kinetree_core::{
     BodyPoses, Constraints, Draft, Edit, Proposal, Repair, RepairContext, RepairPhase, Result,
     Tracks, Warning,
@@ -185,7 +186,13 @@ impl Hinges {
     /// Bodies registered in at most `max_reposed_share` of the frames that show one of their
     /// keypoints that turn on another body about one axis, with the hinge, when it poses them
     /// in at least `min_repose_gain` times as many frames. By body.
-    fn reposed(&self, tracks: &Tracks, poses: &BodyPoses, sigma: f64) -> Vec<(usize, Hinge)> {
+    fn reposed(
+        &self,
+        tracks: &Tracks,
+        poses: &BodyPoses,
+        sigma: f64,
+        memo: Option<&Memo>,
+    ) -> Vec<(usize, Hinge)> {
         // Bodies in parallel; an indexed collect keeps them in order.
         (0..poses.bodies.len())
             .into_par_iter()
@@ -199,6 +206,7 @@ impl Hinges {
                     &track.points,
                     Some(b),
                     sigma,
+                    memo,
                 )?;
                 (h.track.n_registered() as f64 >= self.params.min_repose_gain * own as f64)
                     .then_some((b, h))
@@ -218,6 +226,7 @@ impl Hinges {
         reposed: &[(usize, Hinge)],
         sigma: f64,
         done: &[usize],
+        memo: Option<&Memo>,
     ) -> Vec<usize> {
         let bounds = self.params.bounds();
         (0..poses.bodies.len())
@@ -230,7 +239,7 @@ impl Hinges {
                     return None;
                 }
                 let hinges = scored_without_each(&track.points, done, |rest| {
-                    best_hinge(&bounds, tracks, poses, rest, Some(b), sigma)
+                    best_hinge(&bounds, tracks, poses, rest, Some(b), sigma, memo)
                         .map(|h| h.rms_residual_m)
                 });
                 hinges
@@ -251,21 +260,20 @@ impl Hinges {
     /// neighbour's joint then tests multi-DoF (`docs/decisions.md`, `hinges`).
     fn off_hinge_point(
         &self,
-        tracks: &Tracks,
+        ctx: &RepairContext<'_>,
         poses: &BodyPoses,
         points: &[usize],
         hinge: &Hinge,
-        sigma: f64,
         done: &[usize],
     ) -> Option<usize> {
         if points.len() <= kinetree_core::MIN_BODY_POINTS {
             return None;
         }
+        let (tracks, sigma, memo) = (ctx.tracks, ctx.noise_sigma_m, ctx.memo);
         let chi2 = hinge.chi2_per_dof * hinge.dof;
         let limits = self.params.bounds().fit;
         let gains = scored_without_each(points, done, |rest| {
-            let without =
-                kinetree_pose::hinged_body(tracks, poses, hinge.parent, rest, sigma, &limits)?;
+            let without = hinged_body(tracks, poses, hinge.parent, rest, sigma, &limits, memo)?;
             let dof = hinge.dof - without.dof;
             let gain = (chi2 - without.chi2_per_dof * without.dof) / dof;
             (dof >= 1.0 && gain > self.params.bounds().bound(dof)).then_some(gain)
@@ -300,6 +308,41 @@ fn scored_without_each(
     scores.into_iter().flatten().collect()
 }
 
+/// [`kinetree_pose::hinged_body`], looked up in `memo` when the same group was fitted on the
+/// same parent track before (the fit reads the tracks, which a discovery never changes, the
+/// parent's track and the arguments).
+fn hinged_body(
+    tracks: &Tracks,
+    poses: &BodyPoses,
+    parent: Option<usize>,
+    group: &[usize],
+    sigma: f64,
+    limits: &kinetree_pose::HingeLimits,
+    memo: Option<&Memo>,
+) -> Option<Hinge> {
+    let fit = || kinetree_pose::hinged_body(tracks, poses, parent, group, sigma, limits);
+    // The camera as parent has no track; a parent out of range is left to the fit to refuse.
+    let track = parent.map_or(Some(None), |b| poses.bodies.get(b).map(Some));
+    let (Some(memo), Some(track)) = (memo, track) else {
+        return fit();
+    };
+    let mut key = Fingerprint::new("hinged body");
+    key.option_usize(parent)
+        .indices(group)
+        .usize(poses.n_frames)
+        .f64(sigma)
+        .usize(limits.min_frames)
+        .f64(limits.min_spread_in_sigma)
+        .f64(limits.min_lever_in_sigma);
+    if let Some(track) = track {
+        key.track(track);
+    }
+    memo.get_or_compute(key.finish(), fit, |h| {
+        h.as_ref()
+            .map_or(0, |h| kinetree_core::memo::track_bytes(&h.track))
+    })
+}
+
 /// Of the hinges of `group` on the posed bodies other than `skip` and on the camera frame
 /// that hold (within the `chi^2` bound, the group rigid, at most `max_rms_in_sigma` off,
 /// sweeping `min_arc_in_std`), the one that explains the keypoints best (lowest RMS residual,
@@ -313,6 +356,7 @@ pub(crate) fn best_hinge(
     group: &[usize],
     skip: Option<usize>,
     sigma: f64,
+    memo: Option<&Memo>,
 ) -> Option<Hinge> {
     // The group's rigidity does not depend on the parent: checked once, first.
     let (rigidity, rigidity_dof) = kinetree_pose::group_rigidity(tracks, group, sigma);
@@ -326,7 +370,7 @@ pub(crate) fn best_hinge(
     // The hinge on each candidate parent is fitted in parallel; the best is chosen in order.
     let hinges: Vec<Option<Hinge>> = parents
         .par_iter()
-        .map(|&parent| kinetree_pose::hinged_body(tracks, poses, parent, group, sigma, &bounds.fit))
+        .map(|&parent| hinged_body(tracks, poses, parent, group, sigma, &bounds.fit, memo))
         .collect();
     hinges
         .into_iter()
@@ -355,16 +399,16 @@ impl Repair for Hinges {
     fn propose(&self, ctx: &RepairContext<'_>, draft: &Draft) -> Result<Option<Proposal>> {
         let poses = poses_of(self.name(), draft.poses.as_ref())?;
         let (tracks, sigma) = (ctx.tracks, ctx.noise_sigma_m);
-        let reposed = self.reposed(tracks, poses, sigma);
+        let reposed = self.reposed(tracks, poses, sigma, ctx.memo);
         let done = &draft.constraints.off_hinge;
         let mut off: Vec<usize> = reposed
             .iter()
             .filter_map(|(b, h)| {
-                self.off_hinge_point(tracks, poses, &poses.bodies[*b].points, h, sigma, done)
+                self.off_hinge_point(ctx, poses, &poses.bodies[*b].points, h, done)
             })
             .collect();
         if off.is_empty() {
-            off = self.peeled(tracks, poses, &reposed, sigma, done);
+            off = self.peeled(tracks, poses, &reposed, sigma, done, ctx.memo);
         }
         if reposed.is_empty() && off.is_empty() {
             return Ok(None);

@@ -115,7 +115,7 @@ impl Repair for Retest {
             FittedMotions::freeing(&found.model, ctx.tracks, &typed)?
         };
         let fitted = motions.onto_body_poses(poses)?;
-        let mut pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m)?;
+        let mut pairs = all_pairs(ctx.stages.dof, &fitted, ctx.noise_sigma_m, ctx.memo)?;
         // The static body keeps its test against the camera on its own poses: the fit poses
         // the root freely, from its keypoints and those below it, so the misfit of the doubtful
         // joints under it moves it and that test would find motion that is not there.
