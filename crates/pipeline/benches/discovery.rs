@@ -93,7 +93,22 @@ fn discover_tree_20_joints_168_points_200_frames(bencher: divan::Bencher) {
 /// in every pass.
 #[divan::bench(args = [3, 0], sample_count = 3)]
 fn discover_tree_19_joints_160_points_300_frames(bencher: divan::Bencher, seed: u64) {
-    let tracks = random_tracks(kinetree_synth::RandomParams {
+    let tracks = tree_19_joints_160_points_300_frames(seed);
+    bencher.bench_local(|| discover(divan::black_box(&tracks)));
+}
+
+/// The same without the memo of pair tests and hinge fits (`runner.memo_mib = 0`): what the
+/// later passes' repeated work costs.
+#[divan::bench(args = [3, 0], sample_count = 3)]
+fn discover_tree_19_joints_160_points_300_frames_memo_off(bencher: divan::Bencher, seed: u64) {
+    let tracks = tree_19_joints_160_points_300_frames(seed);
+    let mut config = PipelineConfig::default();
+    config.runner.memo_mib = 0;
+    bencher.bench_local(|| discover_with(&config, divan::black_box(&tracks)));
+}
+
+fn tree_19_joints_160_points_300_frames(seed: u64) -> Tracks {
+    random_tracks(kinetree_synth::RandomParams {
         n_joints: 19,
         extra_points: 0,
         tree: true,
@@ -102,8 +117,7 @@ fn discover_tree_19_joints_160_points_300_frames(bencher: divan::Bencher, seed: 
         dropout: 0.1,
         seed,
         ..Default::default()
-    });
-    bencher.bench_local(|| discover(divan::black_box(&tracks)));
+    })
 }
 
 #[divan::bench(sample_count = 20)]
