@@ -10,37 +10,55 @@
 use crate::BodyTrack;
 use std::any::Any;
 use std::collections::HashMap;
-use std::hash::{DefaultHasher, Hash, Hasher};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
+use xxhash_rust::xxh3::Xxh3Default;
 
-/// A 128-bit digest of a computation's inputs: two SipHash streams over the same values,
-/// the second keyed by a distinct prefix. Floats enter by their bits, so two inputs share a
-/// digest only when they are equal bit for bit (or, with odds of about `2^-128` a pair, by a
-/// collision).
-#[derive(Debug, Clone)]
+/// A 128-bit digest of a computation's inputs: XXH3 (xxhash-rust) over their bytes. Floats
+/// enter by their bits, so two inputs share a digest only when they are equal bit for bit
+/// (or, with odds of about `2^-128` a pair, by a collision).
+#[derive(Clone)]
 pub struct Fingerprint {
-    a: DefaultHasher,
-    b: DefaultHasher,
+    hasher: Xxh3Default,
+    /// Bytes not yet handed to the hasher: a track's fields arrive eight bytes at a time and
+    /// are hashed in blocks.
+    pending: Vec<u8>,
 }
+
+impl std::fmt::Debug for Fingerprint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Fingerprint").finish_non_exhaustive()
+    }
+}
+
+/// Bytes a [`Fingerprint`] gathers before it hashes them.
+const BLOCK: usize = 4096;
 
 impl Fingerprint {
     /// A digest for computations of the kind `kind` (a name that keeps different
     /// computations on the same inputs apart).
     pub fn new(kind: &str) -> Self {
-        let mut a = DefaultHasher::new();
-        let mut b = DefaultHasher::new();
-        b.write_u64(0x6b69_6e65_7472_6565);
-        kind.hash(&mut a);
-        kind.hash(&mut b);
-        Self { a, b }
+        let mut f = Self {
+            hasher: Xxh3Default::new(),
+            pending: Vec::with_capacity(BLOCK + 8),
+        };
+        f.pending.extend_from_slice(kind.as_bytes());
+        f.usize(kind.len());
+        f
+    }
+
+    fn word(&mut self, bytes: [u8; 8]) -> &mut Self {
+        self.pending.extend_from_slice(&bytes);
+        if self.pending.len() >= BLOCK {
+            self.hasher.update(&self.pending);
+            self.pending.clear();
+        }
+        self
     }
 
     /// Adds a count or an index.
     pub fn usize(&mut self, x: usize) -> &mut Self {
-        self.a.write_usize(x);
-        self.b.write_usize(x);
-        self
+        self.word((x as u64).to_le_bytes())
     }
 
     /// Adds an optional index (`None` apart from every index).
@@ -53,9 +71,7 @@ impl Fingerprint {
 
     /// Adds a float by its bits.
     pub fn f64(&mut self, x: f64) -> &mut Self {
-        self.a.write_u64(x.to_bits());
-        self.b.write_u64(x.to_bits());
-        self
+        self.word(x.to_bits().to_le_bytes())
     }
 
     /// Adds a list of indices, with its length.
@@ -116,7 +132,9 @@ impl Fingerprint {
 
     /// The digest.
     pub fn finish(&self) -> u128 {
-        (u128::from(self.a.finish()) << 64) | u128::from(self.b.finish())
+        let mut hasher = self.hasher.clone();
+        hasher.update(&self.pending);
+        hasher.digest128()
     }
 }
 
