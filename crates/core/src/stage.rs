@@ -87,7 +87,10 @@ pub struct DofInput<'a> {
 pub trait DofTester: Send + Sync + std::fmt::Debug {
     /// Short name used in configs and reports.
     fn name(&self) -> &str;
-    /// Tests body `b` relative to frame `a` (the camera when `None`).
+    /// Tests body `b` relative to frame `a` (the camera when `None`). The result must depend
+    /// only on the two bodies' tracks, the noise level and the tester's own parameters: the
+    /// runner answers a test it has made before on the same inputs from its memo
+    /// ([`crate::memo`]).
     ///
     /// # Errors
     /// [`crate::Error::Degenerate`] when the two are never registered in the same frame.
