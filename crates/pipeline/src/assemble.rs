@@ -13,8 +13,9 @@ use kinetree_core::{
 
 /// The model of a segmentation's bodies, poses and pair tests (segmentation numbering): the
 /// spanning tree without the edges `excluded`, the bodies renumbered in tree order, a joint
-/// per tree edge from its pair test (looked up in `memo` when kept there), and the warnings of the assembly after `warnings`. Not
-/// fitted: the whole-tree fit sets the positions' precision and the re-prediction.
+/// per tree edge from its pair test (looked up in `memo` when kept there), and the warnings
+/// of the assembly after `warnings`. Not fitted: the whole-tree fit sets the positions'
+/// precision and the re-prediction.
 ///
 /// # Errors
 /// [`Error::Degenerate`] when there is no body; the DoF stage's error.
