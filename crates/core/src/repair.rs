@@ -152,8 +152,10 @@ pub struct FittedPoses {
 pub trait ModelMaker: Send + Sync + std::fmt::Debug {
     /// The model of `segmentation`'s bodies with `poses` and `pairs` (in its numbering), its
     /// spanning tree chosen without the edges `excluded` (`(parent, child)`), `history` as its
-    /// first warnings; not yet fitted (no positions' precision, no re-prediction). Its bodies
-    /// come in tree order; `body_order` maps them to `segmentation`'s.
+    /// first warnings; not yet fitted (no positions' precision, no re-prediction). Each edge's
+    /// joint is the DoF stage's test of the child against the parent, or the pair in
+    /// `replaced` from that parent to that child. Its bodies come in tree order;
+    /// `body_order` maps them to `segmentation`'s.
     ///
     /// # Errors
     /// [`crate::Error::Degenerate`] when there is no body; a stage's error.
@@ -163,6 +165,7 @@ pub trait ModelMaker: Send + Sync + std::fmt::Debug {
         poses: &BodyPoses,
         pairs: &[PairDof],
         excluded: &[(usize, usize)],
+        replaced: &[PairDof],
         history: &[Warning],
     ) -> Result<ModelDraft>;
     /// The finished model: assembled, the tree repairs applied, fitted whole to every frame;
@@ -336,8 +339,17 @@ pub enum Edit {
     Segmentation(Segmentation),
     /// New poses for the same segmentation.
     Poses(BodyPoses),
-    /// The tree without these edges `(parent, child)`.
-    Tree(Vec<(usize, usize)>),
+    /// The tree without the edges `excluded` (`(parent, child)`, either order), assembled
+    /// from the draft's pair tests with those between the same bodies as a pair in
+    /// `replaced` replaced by it.
+    Tree {
+        /// Body pairs the tree may not join.
+        excluded: Vec<(usize, usize)>,
+        /// Pair tests to assemble from in place of the draft's, in the draft's numbering (a
+        /// joint the test could not see, typed from the bodies around it); the model records
+        /// each that becomes one of its joints with a `joint_typed_by_sibling` warning.
+        replaced: Vec<PairDof>,
+    },
     /// Points moved: `(point, new body)` (`None`: on no body).
     Points(Vec<(usize, Option<usize>)>),
     /// The model with its joints refitted (same bodies, poses and tree).
@@ -358,7 +370,7 @@ impl Edit {
             Self::NoiseLevel { .. } => "noise_level",
             Self::Segmentation(_) => "segmentation",
             Self::Poses(_) => "poses",
-            Self::Tree(_) => "tree",
+            Self::Tree { .. } => "tree",
             Self::Fit(_) => "fit",
             Self::Points(_) => "points",
             Self::Model { .. } => "model",

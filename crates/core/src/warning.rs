@@ -247,6 +247,21 @@ pub enum Warning {
         /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
         excess_in_sigma2: f64,
     },
+    /// The pair test between a joint's bodies found `tested` (rigid, or a slide for a hinge
+    /// turning through a small arc): the child moves too little against the parent for the
+    /// test to see its joint. A tree repair typed it from the bodies around it instead (a
+    /// gripper's quiet finger, on the rail or pin its sibling moves along), and the model
+    /// with it fitted the keypoints as well and was kept.
+    JointTypedBySibling {
+        /// Parent body (model numbering).
+        parent: usize,
+        /// Child body (model numbering).
+        child: usize,
+        /// The pair test's type.
+        tested: crate::model::JointType,
+        /// The type given.
+        joint_type: crate::model::JointType,
+    },
     /// The recorded motion cannot tell a joint's type from others; the type is the one the
     /// tests chose, and the alternatives fit the data as well. `basis` says why:
     /// - `small_motion`: its least-moving coordinate (for a ball joint, its rotations' least
@@ -580,6 +595,15 @@ impl std::fmt::Display for Warning {
             } => write!(
                 f,
                 "joint {parent} -> {child}: typed otherwise by its pair test, but the whole-tree fit follows it as {joint_type} (its child misses by {excess_in_sigma2:.1} sigma^2 per point beyond its own pose)"
+            ),
+            Warning::JointTypedBySibling {
+                parent,
+                child,
+                tested,
+                joint_type,
+            } => write!(
+                f,
+                "joint {parent} -> {child}: its pair test found it {tested}, a motion too small to test; typed {joint_type} from its sibling's joint, whose axis it shares"
             ),
             Warning::JointNotIdentifiable {
                 parent,

@@ -30,6 +30,7 @@ pub(crate) fn assemble(
     source: NoiseSource,
     mut warnings: Vec<Warning>,
     excluded: &[(usize, usize)],
+    replaced: &[PairDof],
     memo: Option<&kinetree_core::memo::Memo>,
 ) -> Result<ModelDraft> {
     let nb = seg.n_bodies();
@@ -62,8 +63,15 @@ pub(crate) fn assemble(
         let Some(parent) = tree.parent[child] else {
             continue;
         };
-        let pair =
-            crate::runner::test_pair(pipeline.dof.as_ref(), &input, Some(parent), child, memo)?;
+        let pair = match replaced
+            .iter()
+            .find(|q| (q.a, q.b) == (Some(parent), child))
+        {
+            Some(q) => q.clone(),
+            None => {
+                crate::runner::test_pair(pipeline.dof.as_ref(), &input, Some(parent), child, memo)?
+            }
+        };
         let (positions, reference) = kinetree_structure::joint_positions(poses, &pair);
         let reference_frame = reference.unwrap_or(pair.reference_frame);
         let cam_parent = cam_from(poses, Some(parent), reference_frame);

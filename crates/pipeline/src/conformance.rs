@@ -66,7 +66,7 @@ fn clean_draft(
             return Ok(draft);
         };
         let mut model = if matches!(phase, RepairPhase::Tree | RepairPhase::Fit) {
-            runner.assemble(&seg, poses, pairs, &[], &[])?
+            runner.assemble(&seg, poses, pairs, &[], &[], &[])?
         } else {
             runner.make(&seg, poses, pairs, &[])?
         };

@@ -1051,6 +1051,63 @@ impl<'a> Runner<'a> {
     }
 }
 
+/// `pairs` with each pair between the same two bodies as one in `replaced` (either order)
+/// replaced by it.
+pub(crate) fn with_replaced(pairs: &[PairDof], replaced: &[PairDof]) -> Vec<PairDof> {
+    pairs
+        .iter()
+        .map(|p| {
+            replaced
+                .iter()
+                .find(|q| same_bodies(p, q))
+                .unwrap_or(p)
+                .clone()
+        })
+        .collect()
+}
+
+/// Whether two pair tests are between the same two frames, in either order.
+fn same_bodies(p: &PairDof, q: &PairDof) -> bool {
+    (p.a, p.b) == (q.a, q.b) || (p.a == Some(q.b) && q.a == Some(p.b))
+}
+
+/// Adds a [`Warning::JointTypedBySibling`] for each joint of `alt` (bodies numbered as
+/// `alt.body_order` says) assembled from a pair in `replaced`, naming the type the draft's
+/// own test in `tested` found.
+fn warn_typed_by_sibling(
+    alt: &mut ModelDraft,
+    replaced: &[PairDof],
+    tested: &Option<Vec<PairDof>>,
+) {
+    let order = &alt.body_order;
+    let mut found = Vec::new();
+    for j in &alt.model.joints {
+        let (Some(&p), Some(&c)) = (order.get(j.parent), order.get(j.child)) else {
+            continue;
+        };
+        let Some(q) = replaced
+            .iter()
+            .find(|q| (q.a, q.b) == (Some(p), c) || (q.a, q.b) == (Some(c), p))
+        else {
+            continue;
+        };
+        let own = tested
+            .iter()
+            .flatten()
+            .find(|t| same_bodies(t, q))
+            .map_or(kinetree_core::model::JointType::MultiDof, |t| {
+                t.joint.joint_type()
+            });
+        found.push(Warning::JointTypedBySibling {
+            parent: j.parent,
+            child: j.child,
+            tested: own,
+            joint_type: j.joint_type,
+        });
+    }
+    alt.model.warnings.extend(found);
+}
+
 impl ModelMaker for Runner<'_> {
     fn assemble(
         &self,
@@ -1058,6 +1115,7 @@ impl ModelMaker for Runner<'_> {
         poses: &BodyPoses,
         pairs: &[PairDof],
         excluded: &[(usize, usize)],
+        replaced: &[PairDof],
         history: &[Warning],
     ) -> Result<ModelDraft> {
         let mut m = crate::assemble::assemble(
@@ -1070,6 +1128,7 @@ impl ModelMaker for Runner<'_> {
             self.source,
             history.to_vec(),
             excluded,
+            replaced,
             Some(&self.memo),
         )?;
         m.history = history.to_vec();
@@ -1085,7 +1144,7 @@ impl ModelMaker for Runner<'_> {
         history: &[Warning],
     ) -> Result<ModelDraft> {
         let ctx = self.context();
-        let first = self.assemble(segmentation, poses, pairs, excluded, history)?;
+        let first = self.assemble(segmentation, poses, pairs, excluded, &[], history)?;
         // The excluded edges in the first model's numbering, for the alternatives (a model
         // whose body order is no permutation is refused by `adopt` below).
         let renumbered: Vec<(usize, usize)> =
@@ -1106,7 +1165,7 @@ impl ModelMaker for Runner<'_> {
         let mut alternatives = Vec::new();
         for r in self.phase(RepairPhase::Tree) {
             if let Some(p) = self.timed(r, || r.propose(&ctx, &draft))? {
-                let Edit::Tree(excluded) = &p.edit else {
+                let Edit::Tree { excluded, replaced } = &p.edit else {
                     return Err(wrong_edit(r, &p.edit));
                 };
                 let (Some(poses), Some(pairs)) = (&draft.poses, &draft.pairs) else {
@@ -1114,17 +1173,24 @@ impl ModelMaker for Runner<'_> {
                 };
                 let all: Vec<(usize, usize)> =
                     excluded.iter().chain(&renumbered).copied().collect();
-                let alt = self.assemble(&draft.segmentation, poses, pairs, &all, history)?;
-                alternatives.push((r, p, alt));
+                let pairs = with_replaced(pairs, replaced);
+                let alt =
+                    self.assemble(&draft.segmentation, poses, &pairs, &all, replaced, history)?;
+                alternatives.push((r, p, alt, pairs));
             }
         }
         let Some(first) = draft.model.take() else {
             return Err(Error::Degenerate("no model to finish".into()));
         };
         draft.model = Some(self.finish(&draft.segmentation, first)?);
-        for (r, p, alt) in alternatives {
+        for (r, p, alt, pairs) in alternatives {
             let mut after = draft.clone();
-            after.adopt(self.finish(&draft.segmentation, alt)?)?;
+            after.pairs = Some(pairs);
+            let mut alt = self.finish(&draft.segmentation, alt)?;
+            if let Edit::Tree { replaced, .. } = &p.edit {
+                warn_typed_by_sibling(&mut alt, replaced, &draft.pairs);
+            }
+            after.adopt(alt)?;
             if self.timed(r, || r.stands(&ctx, &p.edit, &draft, &after))? {
                 self.record(r, "kept", &p);
                 draft = after;

@@ -101,8 +101,14 @@ impl Repair for TreeTies {
         let own = plain_sse(&first.model, ctx.tracks)?;
         let mut best: Option<((usize, usize), f64)> = None;
         for edge in ties.into_iter().take(self.params.max_alternatives) {
-            let alt =
-                models.assemble(&draft.segmentation, poses, pairs, &[edge], &first.history)?;
+            let alt = models.assemble(
+                &draft.segmentation,
+                poses,
+                pairs,
+                &[edge],
+                &[],
+                &first.history,
+            )?;
             let sse = plain_sse(&alt.model, ctx.tracks)?;
             let bar = best.as_ref().map_or(own, |c| c.1);
             if sse < bar * (1.0 - self.params.gain).powi(2) {
@@ -111,7 +117,10 @@ impl Repair for TreeTies {
         }
         Ok(best.map(|(edge, sse)| {
             Proposal::new(
-                Edit::Tree(vec![edge]),
+                Edit::Tree {
+                    excluded: vec![edge],
+                    replaced: Vec::new(),
+                },
                 format!(
                     "tree without edge {edge:?} fits {:.3} of the squared residual",
                     sse / own.max(f64::MIN_POSITIVE)
