@@ -146,11 +146,11 @@ fn serial_hinges_a_few_degrees_apart_stay_a_chain() {
 }
 
 /// Grippers at 3 mm whose fingers move a few noise levels against the hand: a finger tests
-/// rigid with the hand (parallel seed 2: it slides +-5 mm; seed 0: both fingers do), or
-/// turning through a small arc the fingers' pair passes for a slide (angular seed 1), while
-/// the fingers test as their joint with each other, so the spanning tree hangs one finger on
-/// the other. With `sibling_ties.quiet_siblings` both hang on the hand by the joint their
-/// pairs share (the trace keeps the rule's tree), each with its type; a model whose last pass
+/// rigid with the hand (parallel seed 2: it slides +-5 mm; seed 0: both fingers do; angular
+/// seed 17: it turns on the pin), while the fingers test as their joint with each other, so
+/// the spanning tree hangs one finger on the other. With `sibling_ties.quiet_siblings` (and the pair test's `hidden_slide_ratio`
+/// off, which sees the parallel fingers' slides itself) both hang on the hand by the joint
+/// their pairs share (the trace keeps the rule's tree), each with its type; a model whose last pass
 /// still needed the rule names the joints it typed so with `joint_typed_by_sibling` warnings
 /// (a later pass, with points moved, can test the fingers' joints plainly). Without the rule a
 /// finger stays on its sibling.
@@ -160,7 +160,7 @@ fn a_finger_too_quiet_to_test_hangs_beside_its_sibling() {
     for (gripper, seed) in [
         (GripperKind::Parallel, 2),
         (GripperKind::Parallel, 0),
-        (GripperKind::Angular, 1),
+        (GripperKind::Angular, 17),
     ] {
         let params = GripperParams {
             gripper,
@@ -169,9 +169,17 @@ fn a_finger_too_quiet_to_test_hangs_beside_its_sibling() {
             ..GripperParams::default()
         };
         let data = simulate(&gripper_scenario(&params)).expect("simulate");
-        let mut off = PipelineConfig::default();
+        // The pair test's own rule for slides it hides is off, so that the repair alone acts.
+        let on = PipelineConfig {
+            dof: kinetree_pipeline::config::DofConfig::Chi2Rank(kinetree_dof::Chi2RankParams {
+                hidden_slide_ratio: 0.0,
+                ..kinetree_dof::Chi2RankParams::default()
+            }),
+            ..PipelineConfig::default()
+        };
+        let mut off = on.clone();
         off.repairs.sibling_ties.quiet_siblings = false;
-        for (config, on) in [(PipelineConfig::default(), true), (off, false)] {
+        for (config, on) in [(on, true), (off, false)] {
             let model = Pipeline::from_config(&config)
                 .expect("pipeline")
                 .run(&data.tracks)

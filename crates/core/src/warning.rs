@@ -247,9 +247,9 @@ pub enum Warning {
         /// The child's miss beyond its own pose with this joint, per point, in sigma^2.
         excess_in_sigma2: f64,
     },
-    /// The pair test between a joint's bodies found `tested` (rigid, or a slide for a hinge
-    /// turning through a small arc): the child moves too little against the parent for the
-    /// test to see its joint. A tree repair typed it from the bodies around it instead (a
+    /// The pair test between a joint's bodies found `tested` (rigid, or a slide that stood
+    /// out only against the measured noise level): the child moves too little against the
+    /// parent for the test to see its joint. A tree repair typed it from the bodies around it instead (a
     /// gripper's quiet finger, on the rail or pin its sibling moves along), and the model
     /// with it fitted the keypoints as well and was kept.
     JointTypedBySibling {

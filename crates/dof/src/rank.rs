@@ -31,6 +31,11 @@ pub enum RankRule {
         min_excess: f64,
         /// The looser rule for a rotation the slack hides ([`HiddenHinge`]).
         hidden_hinge: HiddenHinge,
+        /// A translation between two bodies that stops at rank 0 with no rotation is retried
+        /// at rank 1 when its rank-0 residual per degree of freedom exceeds this many times
+        /// its rank-1 residual and a nested F-test at `z` rejects rank 0 (0: never).
+        #[serde(default)]
+        hidden_slide_ratio: f64,
     },
 }
 

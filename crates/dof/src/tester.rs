@@ -548,6 +548,10 @@ pub const UNIVERSAL_SLACK: f64 = 1.25;
 /// Default of [`Chi2RankParams::hidden_hinge_ratio`] (`docs/decisions.md`).
 pub const HIDDEN_HINGE_RATIO: f64 = 1.8;
 
+/// Default of [`Chi2RankParams::hidden_slide_ratio`] (`docs/decisions.md`,
+/// `dof.hidden_slide_ratio`).
+pub const HIDDEN_SLIDE_RATIO: f64 = 1.8;
+
 /// Default of [`Chi2RankParams::hidden_hinge_min_angle_deg`] (`docs/decisions.md`).
 pub const HIDDEN_HINGE_MIN_ANGLE_DEG: f64 = 5.0;
 
@@ -766,6 +770,25 @@ fn classify(
                 return Ok(retried);
             }
         }
+    }
+    // A slide the slack hides between two bodies: rank 1 when the translation stands out
+    // against its measured level as a hidden rotation must. Not against the camera: a
+    // static body is what the other tests are measured from.
+    if let RankRule::Chi2 {
+        z,
+        min_excess,
+        hidden_slide_ratio,
+        ..
+    } = rule
+        && hidden_slide_ratio > 0.0
+        && a.is_some()
+        && rotation.rank == 0
+        && translation.rank == 0
+        && crate::rank::hidden_next_rank_above(&translation, 3, z, min_excess, hidden_slide_ratio)
+    {
+        let mut sliding = translation.clone();
+        sliding.rank = 1;
+        return classify_ranks(c, a, b, rule, centre_settings, sliding, rotation);
     }
     classify_ranks(c, a, b, rule, centre_settings, translation, rotation)
 }
@@ -1167,6 +1190,12 @@ pub struct Chi2RankParams {
     pub hidden_hinge_ratio: f64,
     /// Least RMS angle of such a hinge's rotation above the noise, degrees (default 5).
     pub hidden_hinge_min_angle_deg: f64,
+    /// A translation between two bodies that stops at rank 0, with no rotation, under its
+    /// chi-square bound is retried at rank 1 (a slide) when its rank-0 residual per degree
+    /// of freedom exceeds this many times its rank-1 residual (the measured noise level) and
+    /// a nested F-test at `z` rejects rank 0: a gripper's finger sliding a few noise levels.
+    /// 0 turns the rule off (`docs/decisions.md`, `dof.hidden_slide_ratio`).
+    pub hidden_slide_ratio: f64,
 }
 
 impl Default for Chi2RankParams {
@@ -1184,6 +1213,7 @@ impl Default for Chi2RankParams {
             universal_slack: UNIVERSAL_SLACK,
             hidden_hinge_ratio: HIDDEN_HINGE_RATIO,
             hidden_hinge_min_angle_deg: HIDDEN_HINGE_MIN_ANGLE_DEG,
+            hidden_slide_ratio: HIDDEN_SLIDE_RATIO,
         }
     }
 }
@@ -1205,6 +1235,7 @@ impl Chi2RankParams {
             ("model_error_rad", self.model_error_rad),
             ("min_excess", self.min_excess),
             ("hidden_hinge_ratio", self.hidden_hinge_ratio),
+            ("hidden_slide_ratio", self.hidden_slide_ratio),
             (
                 "hidden_hinge_min_angle_deg",
                 self.hidden_hinge_min_angle_deg,
@@ -1266,6 +1297,7 @@ impl DofTester for Chi2Rank {
                     ratio: self.params.hidden_hinge_ratio,
                     min_angle_rad: self.params.hidden_hinge_min_angle_deg.to_radians(),
                 },
+                hidden_slide_ratio: self.params.hidden_slide_ratio,
             },
             CentreSettings {
                 min_angle_rad: self.params.min_centre_angle_rad,

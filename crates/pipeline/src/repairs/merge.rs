@@ -1,7 +1,8 @@
 //! Bodies that move rigidly together merged, when the merged body still fits as one.
 //!
-//! Groups come from complete linkage over the `rigid` body pairs, clearest first: two groups
-//! merge only when every pair across them tests rigid, so one body with poor poses (which
+//! Groups come from complete linkage over the body pairs rigid within their tests' bounds (a
+//! slide that stood out only against the measured noise level counts), clearest first: two
+//! groups merge only when every pair across them tests rigid, so one body with poor poses (which
 //! "tests rigid" against everything because its noise hides all motion) cannot chain unrelated
 //! bodies together. Parts of a split (the `cannot_link` constraints) and bodies the pairwise
 //! measure keeps apart never end in one group.
@@ -11,10 +12,12 @@
 //! plainly (`docs/decisions.md`, `merge`). A body the clusterer split by mistake has cross
 //! pairs near q = 0.5 and still merges.
 
-use super::{count_in_range, in_range, mean_cross, points_fit_as_one, poses_of};
+use super::{
+    count_in_range, in_range, mean_cross, points_fit_as_one, poses_of, rigid_within_bounds,
+};
 use kinetree_core::{
-    DissimilarityMatrix, Draft, Edit, Error, JointKind, PairDof, Proposal, Repair, RepairContext,
-    RepairLimit, RepairPhase, Result, Segmentation, Warning,
+    DissimilarityMatrix, Draft, Edit, Error, PairDof, Proposal, Repair, RepairContext, RepairLimit,
+    RepairPhase, Result, Segmentation, Warning,
 };
 use serde::{Deserialize, Serialize};
 
@@ -91,7 +94,7 @@ fn pairwise_apart(m: &DissimilarityMatrix, seg: &Segmentation) -> Vec<(usize, us
 }
 
 /// Groups of bodies to merge because they move rigidly together (complete linkage over the
-/// `Rigid` pairs, clearest first); bodies listed together in `forbidden` never end in one
+/// pairs rigid within their tests' bounds, [`rigid_within_bounds`], clearest first); bodies listed together in `forbidden` never end in one
 /// group. Returns a group id per body.
 pub(crate) fn rigid_groups(
     n_bodies: usize,
@@ -100,21 +103,18 @@ pub(crate) fn rigid_groups(
 ) -> Vec<usize> {
     let rigid = |a: usize, b: usize| {
         pairs.iter().any(|p| {
-            matches!(p.joint, JointKind::Rigid)
+            rigid_within_bounds(p).is_some()
                 && ((p.a == Some(a) && p.b == b) || (p.a == Some(b) && p.b == a))
         })
     };
-    let mut candidates: Vec<&PairDof> = pairs
+    let mut candidates: Vec<(f64, &PairDof)> = pairs
         .iter()
-        .filter(|p| p.a.is_some() && matches!(p.joint, JointKind::Rigid))
+        .filter(|p| p.a.is_some())
+        .filter_map(|p| Some((rigid_within_bounds(p)?, p)))
         .collect();
-    candidates.sort_by(|x, y| {
-        x.fit_ratio
-            .total_cmp(&y.fit_ratio)
-            .then((x.a, x.b).cmp(&(y.a, y.b)))
-    });
+    candidates.sort_by(|(x, p), (y, q)| x.total_cmp(y).then((p.a, p.b).cmp(&(q.a, q.b))));
     let mut group: Vec<usize> = (0..n_bodies).collect();
-    for p in candidates {
+    for (_, p) in candidates {
         let Some(a) = p.a else { continue };
         let (ga, gb) = (group[a], group[p.b]);
         if ga == gb {
@@ -265,5 +265,31 @@ mod tests {
         // ... unless two of them were split apart before.
         let g = rigid_groups(3, &all, &[(0, 2)]);
         assert_ne!(g[0], g[2]);
+    }
+
+    /// A slide the chi-square rule found under its bound (rank 0's residual 2.1 against a
+    /// bound of 3, but twice the measured level) joins a group as a rigid pair would: two
+    /// parts of one body the clustering split move apart by no more than the model error the
+    /// bound allows for. A slide over its bound does not.
+    #[test]
+    fn a_slide_under_the_bound_merges_as_a_rigid_pair() {
+        let slide = |chi2: f64| {
+            let mut p = pair(
+                0,
+                1,
+                JointKind::Prismatic {
+                    axis: kinetree_core::nalgebra::Vector3::x(),
+                },
+                0.3,
+            );
+            p.translation.rank = 1;
+            p.translation.chi2_per_dof = vec![chi2, 1.0, 1.0];
+            p.translation.chi2_bound = vec![3.0, 3.1, 3.4];
+            p
+        };
+        let g = rigid_groups(2, &[slide(2.1)], &[]);
+        assert_eq!(g[0], g[1]);
+        let g = rigid_groups(2, &[slide(3.2)], &[]);
+        assert_ne!(g[0], g[1]);
     }
 }

@@ -216,6 +216,24 @@ pub(crate) fn tree_inputs<'a>(
     }
 }
 
+/// The fit ratio of a pair whose tests call it rigid within their bounds: a rigid pair's, or
+/// that of a slide the chi-square rule found under its bound (`hidden_slide_ratio`: no
+/// rotation, and a translation within its rank-0 bound), which moves by no more than the
+/// model error allowed for and so may be two parts of one body; `None` for other pairs.
+pub(crate) fn rigid_within_bounds(p: &kinetree_core::PairDof) -> Option<f64> {
+    match p.joint {
+        kinetree_core::JointKind::Rigid => Some(p.fit_ratio),
+        kinetree_core::JointKind::Prismatic { .. } if p.rotation.rank == 0 => {
+            let (&s, &b) = (
+                p.translation.chi2_per_dof.first()?,
+                p.translation.chi2_bound.first()?,
+            );
+            (b > 0.0 && s <= b).then(|| p.rotation.next_rank_ratio().max(s / b))
+        }
+        _ => None,
+    }
+}
+
 /// Whether the model of `after` stands against that of `before`: no more doubtful joints, and
 /// a re-prediction RMS that `accept(after's, before's)` takes.
 pub(crate) fn tree_stands(

@@ -21,13 +21,16 @@
 //! follow) and re-predicts the keypoints within `rms_tolerance` of the model.
 //!
 //! With `quiet_siblings`, when neither finds a hoist: two bodies that move against each other
-//! by a hinge or a slide while their pairs with a third test rigid (a gripper's finger sliding
-//! a few noise levels, whose motion the pair test's slack for model error hides) are hung on
-//! the third by the joint their pairs share ([`Edit::Tree`] with the pairs replaced), when the
+//! by a hinge or a slide while a pair with a third tests rigid within its bounds (a gripper's
+//! finger sliding a few noise levels, whose motion the pair test's slack for model error
+//! hides) are hung on the third by the joint their pairs share ([`Edit::Tree`] with the pairs replaced), when the
 //! fit costs at most `max_cost_per_frame` and each such body's position on its joint spreads
 //! between `quiet_min_spread_in_std` and `quiet_max_spread_in_std` of its precision.
 
-use super::{count_in_range, in_range, not_followed, plain_sse, tree_inputs, tree_stands};
+use super::{
+    count_in_range, in_range, not_followed, plain_sse, rigid_within_bounds, tree_inputs,
+    tree_stands,
+};
 use kinetree_core::nalgebra::{Point3, Vector3};
 use kinetree_core::{
     BodyPoses, Draft, Edit, JointKind, PairDof, Proposal, Repair, RepairContext, RepairPhase,
@@ -71,9 +74,9 @@ pub struct SiblingTiesParams {
     /// which gains about one per frame by chance.
     pub universal_min_gain_per_frame: f64,
     /// Whether two bodies whose pair is a hinge or a slide are tried as siblings on a third
-    /// body both test rigid with (or, for a hinge, one tests a slide with: a small arc), on
-    /// their own pair's axis (default true): a gripper's finger that moves a few noise
-    /// levels tests rigid with the hand (`docs/decisions.md`, `sibling_ties.quiet_siblings`).
+    /// body that one of them tests rigid with, by the joint their pairs share (default true):
+    /// a gripper's finger that moves a few noise levels tests rigid with the hand
+    /// (`docs/decisions.md`, `sibling_ties.quiet_siblings`).
     pub quiet_siblings: bool,
     /// Least spread of such a body's position on the joint in the plain whole-tree fit, RMS
     /// about its mean in the fit's per-frame standard deviations, for it to count as moving
@@ -387,7 +390,11 @@ impl SiblingTies {
         // hung on the third by the joint their pairs share, when the fit costs no more.
         let mut best: Option<(Vec<PairDof>, f64, Candidate)> = None;
         for (w, u, v, source) in quiet_siblings(pairs, tree).into_iter().take(budget) {
-            let Some(replaced) = sibling_joints(pairs, poses, w, u, v, source) else {
+            let collinear = (
+                self.params.collinear_max_angle_deg.to_radians(),
+                self.params.collinear_max_offset,
+            );
+            let Some(replaced) = sibling_joints(pairs, poses, w, u, v, source, collinear) else {
                 continue;
             };
             let mut parent = tree.parent.clone();
@@ -481,10 +488,13 @@ type Candidate = (usize, usize, usize, (usize, usize));
 /// `u` and `v` that carry no body but each other in `tree`, are not both on `w` there, and
 /// whose pair and pairs with `w` have at most one DoF, hung on `w` by the joint of the pair
 /// `source` (bodies in either order). The source is the first of the pairs `u`-`v`, `w`-`u`
-/// and `w`-`v` that is a hinge or a slide which every other of the three pairs matches or is
-/// too quiet to contradict: a rigid pair matches any joint, and a slide matches a hinge (a
-/// small arc passes for a line). At least one pair with `w` must not be of the source's type,
-/// or the exact-tie rule of [`kinetree_structure::spanning_tree`] would have seen the tie.
+/// and `w`-`v` that is a hinge or a slide which each pair with `w` matches or is too quiet
+/// to contradict (rigid within its tests' bounds, [`rigid_within_bounds`]: a slide that
+/// stood out only against the measured noise level counts too), and which the pair `u`-`v`
+/// matches, is rigid with, or, for a hinge,
+/// passes for as a slide (the two bodies' relative arc is small too). At least one pair with
+/// `w` must be rigid, or the exact-tie rule of [`kinetree_structure::spanning_tree`] would
+/// have seen the tie.
 /// Neither `u` nor `v` is the tree's root or static. In the order of the pairs, then of `w`.
 fn quiet_siblings(pairs: &[PairDof], tree: &kinetree_structure::Tree) -> Vec<Candidate> {
     let nb = tree.parent.len();
@@ -529,7 +539,13 @@ fn quiet_siblings(pairs: &[PairDof], tree: &kinetree_structure::Tree) -> Vec<Can
             let three = [(q, (u, v)), (pu, (w, u)), (pv, (w, v))];
             let source = three.iter().find(|(s, _)| {
                 s.joint.is_single_dof()
-                    && three.iter().all(|(p, _)| matches(&p.joint, &s.joint))
+                    && three.iter().all(|(p, bodies)| {
+                        if *bodies == (u, v) {
+                            matches(&p.joint, &s.joint)
+                        } else {
+                            rigid_within_bounds(p).is_some() || same_type(&p.joint, &s.joint)
+                        }
+                    })
                     && !(same_type(&pu.joint, &s.joint) && same_type(&pv.joint, &s.joint))
             });
             if let Some((_, bodies)) = source {
@@ -542,7 +558,10 @@ fn quiet_siblings(pairs: &[PairDof], tree: &kinetree_structure::Tree) -> Vec<Can
 
 /// The pairs from `w` to `u` and to `v` with the joint of the pair between the bodies
 /// `source`, its axis (and pivot) carried into `w`'s frame by the bodies' mean relative pose
-/// (the rank tests stay the pairs' own); `None` when a pair or a common frame is missing.
+/// (the rank tests stay the pairs' own); `None` when a pair or a common frame is missing, or
+/// when a hinge among the three pairs turns about another line than the source's: more than
+/// `collinear.0` radians from it, or further from it than `collinear.1` times the distance
+/// between `u` and `v`.
 fn sibling_joints(
     pairs: &[PairDof],
     poses: &BodyPoses,
@@ -550,6 +569,7 @@ fn sibling_joints(
     u: usize,
     v: usize,
     source: (usize, usize),
+    collinear: (f64, f64),
 ) -> Option<Vec<PairDof>> {
     let q = find_pair(pairs, Some(source.0), source.1)?;
     let from = q.a?;
@@ -559,6 +579,27 @@ fn sibling_joints(
         _ => return None,
     };
     let (axis, at) = line_in(poses, from, w, axis, pivot.unwrap_or_else(Point3::origin))?;
+    // Hinges in series about parallel lines a link apart (a finger's knuckles) are no tie:
+    // every hinge among the three pairs must turn about the source's line.
+    if pivot.is_some() {
+        let scale = find_pair(pairs, Some(u), v)?.distance_m?;
+        for (a, b) in [(u, v), (w, u), (w, v)] {
+            let p = find_pair(pairs, Some(a), b)?;
+            if let JointKind::Revolute {
+                axis: other,
+                pivot: through,
+            } = p.joint
+            {
+                let (other, through) = line_in(poses, p.a?, w, other, through)?;
+                let angle = axis.dot(&other).abs().min(1.0).acos();
+                if angle > collinear.0
+                    || line_distance(at, axis, through, other) > collinear.1 * scale
+                {
+                    return None;
+                }
+            }
+        }
+    }
     let joint = match pivot {
         Some(_) => JointKind::Revolute { axis, pivot: at },
         None => JointKind::Prismatic { axis },
@@ -573,6 +614,18 @@ fn sibling_joints(
             Some(r)
         })
         .collect()
+}
+
+/// The least distance between the line through `p` along `a` and the line through `q` along
+/// `b` (unit axes).
+fn line_distance(p: Point3<f64>, a: Vector3<f64>, q: Point3<f64>, b: Vector3<f64>) -> f64 {
+    let d = q - p;
+    let n = a.cross(&b);
+    if n.norm() > 1e-9 {
+        d.dot(&n).abs() / n.norm()
+    } else {
+        d.cross(&a).norm()
+    }
 }
 
 /// A line (unit `axis` through `pivot`) fixed in body `from`, in body `to`'s frame: carried by
