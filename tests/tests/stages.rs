@@ -126,15 +126,11 @@ fn dof_graph_and_tree_on_the_paper_arm() {
     assert!(tree.root_is_static);
 }
 
-/// Poses of one body that turns about a fixed axis (or slides along one) relative to a
-/// static one, noise-free but with realistic pose precision.
-fn one_dof_poses(prismatic: bool) -> kinetree_core::BodyPoses {
+/// A body track of `poses`, each fitted from 8 points with a rotation std of 10 sigma and an
+/// origin std of 0.5 sigma per axis.
+fn posed_track(poses: Vec<Option<Isometry3<f64>>>) -> kinetree_core::BodyTrack {
     use kinetree_core::nalgebra::Matrix3;
-    use kinetree_core::{BodyPoses, BodyTrack, PoseQuality};
-    let n_frames = 60;
-    let axis = Vector3::new(0.3, -0.5, 0.8).normalize();
-    let pivot = Vector3::new(0.2, 0.1, 1.5);
-    let quality = Some(PoseQuality {
+    let quality = Some(kinetree_core::PoseQuality {
         n_visible: 8,
         rms_residual_m: 0.0,
         rot_std_per_sigma: 10.0,
@@ -142,7 +138,7 @@ fn one_dof_poses(prismatic: bool) -> kinetree_core::BodyPoses {
         rot_cov_per_sigma2: Matrix3::identity() * 100.0,
         origin_cov_per_sigma2: Matrix3::identity() * 0.25,
     });
-    let track = |poses: Vec<Option<Isometry3<f64>>>| BodyTrack {
+    kinetree_core::BodyTrack {
         points: vec![],
         shape: vec![],
         placed: vec![],
@@ -151,7 +147,17 @@ fn one_dof_poses(prismatic: bool) -> kinetree_core::BodyPoses {
         cam_from_body: poses,
         frames_too_few_points: 0,
         frames_degenerate: 0,
-    };
+    }
+}
+
+/// Poses of one body that turns about a fixed axis (or slides along one) relative to a
+/// static one, noise-free but with realistic pose precision.
+fn one_dof_poses(prismatic: bool) -> kinetree_core::BodyPoses {
+    use kinetree_core::BodyPoses;
+    let n_frames = 60;
+    let axis = Vector3::new(0.3, -0.5, 0.8).normalize();
+    let pivot = Vector3::new(0.2, 0.1, 1.5);
+    let track = posed_track;
     let base = Isometry3::translation(0.0, 0.0, 2.0);
     let moving: Vec<Option<Isometry3<f64>>> = (0..n_frames)
         .map(|k| {
@@ -903,18 +909,8 @@ fn a_link_never_seen_whole_is_posed_through_its_ball_joint() {
 /// (rotation std 10 sigma, origin std 0.5 sigma per axis, drawn from a fixed seed), the second
 /// sliding `amplitude` metres (a sine over the frames) along one axis against the first.
 fn quiet_slide_poses(amplitude: f64, sigma: f64) -> kinetree_core::BodyPoses {
-    use kinetree_core::nalgebra::Matrix3;
-    use kinetree_core::{BodyPoses, BodyTrack, PoseQuality};
     let n_frames = 300;
     let axis = Vector3::new(0.3, -0.5, 0.8).normalize();
-    let quality = Some(PoseQuality {
-        n_visible: 8,
-        rms_residual_m: 0.0,
-        rot_std_per_sigma: 10.0,
-        trans_std_per_sigma: 0.5,
-        rot_cov_per_sigma2: Matrix3::identity() * 100.0,
-        origin_cov_per_sigma2: Matrix3::identity() * 0.25,
-    });
     let mut state: u64 = 0x2545_f491_4f6c_dd1d;
     let mut gauss = move || {
         let mut uniform = || {
@@ -945,19 +941,9 @@ fn quiet_slide_poses(amplitude: f64, sigma: f64) -> kinetree_core::BodyPoses {
             base * Isometry3::translation(0.4 + axis.x * q, axis.y * q, axis.z * q),
         ));
     }
-    let track = |poses: Vec<Option<Isometry3<f64>>>| BodyTrack {
-        points: vec![],
-        shape: vec![],
-        placed: vec![],
-        reference_frame: 0,
-        quality: vec![quality; poses.len()],
-        cam_from_body: poses,
-        frames_too_few_points: 0,
-        frames_degenerate: 0,
-    };
-    BodyPoses {
+    kinetree_core::BodyPoses {
         n_frames,
-        bodies: vec![track(fixed), track(moving)],
+        bodies: vec![posed_track(fixed), posed_track(moving)],
     }
 }
 

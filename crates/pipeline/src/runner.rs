@@ -1072,13 +1072,9 @@ fn same_bodies(p: &PairDof, q: &PairDof) -> bool {
 }
 
 /// Adds a [`Warning::JointTypedBySibling`] for each joint of `alt` (bodies numbered as
-/// `alt.body_order` says) assembled from a pair in `replaced`, naming the type the draft's
-/// own test in `tested` found.
-fn warn_typed_by_sibling(
-    alt: &mut ModelDraft,
-    replaced: &[PairDof],
-    tested: &Option<Vec<PairDof>>,
-) {
+/// `alt.body_order` says) assembled from a pair in `replaced` whose type differs from the one
+/// the draft's own test in `tested` found.
+fn warn_typed_by_sibling(alt: &mut ModelDraft, replaced: &[PairDof], tested: &[PairDof]) {
     let order = &alt.body_order;
     let mut found = Vec::new();
     for j in &alt.model.joints {
@@ -1091,19 +1087,17 @@ fn warn_typed_by_sibling(
         else {
             continue;
         };
-        let own = tested
-            .iter()
-            .flatten()
-            .find(|t| same_bodies(t, q))
-            .map_or(kinetree_core::model::JointType::MultiDof, |t| {
-                t.joint.joint_type()
+        let Some(own) = tested.iter().find(|t| same_bodies(t, q)) else {
+            continue;
+        };
+        if own.joint.joint_type() != j.joint_type {
+            found.push(Warning::JointTypedBySibling {
+                parent: j.parent,
+                child: j.child,
+                tested: own.joint.joint_type(),
+                joint_type: j.joint_type,
             });
-        found.push(Warning::JointTypedBySibling {
-            parent: j.parent,
-            child: j.child,
-            tested: own,
-            joint_type: j.joint_type,
-        });
+        }
     }
     alt.model.warnings.extend(found);
 }
@@ -1188,7 +1182,7 @@ impl ModelMaker for Runner<'_> {
             after.pairs = Some(pairs);
             let mut alt = self.finish(&draft.segmentation, alt)?;
             if let Edit::Tree { replaced, .. } = &p.edit {
-                warn_typed_by_sibling(&mut alt, replaced, &draft.pairs);
+                warn_typed_by_sibling(&mut alt, replaced, draft.pairs.as_deref().unwrap_or(&[]));
             }
             after.adopt(alt)?;
             if self.timed(r, || r.stands(&ctx, &p.edit, &draft, &after))? {

@@ -389,11 +389,11 @@ impl SiblingTies {
         // Two bodies on one rail or pin whose joints with a third the pair tests missed: both
         // hung on the third by the joint their pairs share, when the fit costs no more.
         let mut best: Option<(Vec<PairDof>, f64, Candidate)> = None;
+        let collinear = (
+            self.params.collinear_max_angle_deg.to_radians(),
+            self.params.collinear_max_offset,
+        );
         for (w, u, v, source) in quiet_siblings(pairs, tree).into_iter().take(budget) {
-            let collinear = (
-                self.params.collinear_max_angle_deg.to_radians(),
-                self.params.collinear_max_offset,
-            );
             let Some(replaced) = sibling_joints(pairs, poses, w, u, v, source, collinear) else {
                 continue;
             };
@@ -488,22 +488,22 @@ type Candidate = (usize, usize, usize, (usize, usize));
 /// `u` and `v` that carry no body but each other in `tree`, are not both on `w` there, and
 /// whose pair and pairs with `w` have at most one DoF, hung on `w` by the joint of the pair
 /// `source` (bodies in either order). The source is the first of the pairs `u`-`v`, `w`-`u`
-/// and `w`-`v` that is a hinge or a slide which each pair with `w` matches or is too quiet
-/// to contradict (rigid within its tests' bounds, [`rigid_within_bounds`]: a slide that
-/// stood out only against the measured noise level counts too), and which the pair `u`-`v`
-/// matches, is rigid with, or, for a hinge,
-/// passes for as a slide (the two bodies' relative arc is small too). At least one pair with
-/// `w` must be rigid, or the exact-tie rule of [`kinetree_structure::spanning_tree`] would
-/// have seen the tie.
-/// Neither `u` nor `v` is the tree's root or static. In the order of the pairs, then of `w`.
+/// and `w`-`v` that is a hinge or a slide of whose type each pair with `w` is, unless it is
+/// too quiet to contradict it (rigid within its tests' bounds, [`rigid_within_bounds`]: a
+/// slide that stood out only against the measured noise level counts too), and which the
+/// pair `u`-`v` matches, is rigid with or, for a hinge, passes for as a slide (the two
+/// bodies' relative arc is small too). At least one pair with `w` must be of another type
+/// than the source, or the exact-tie rule of [`kinetree_structure::spanning_tree`] would have
+/// seen the tie. Neither `u` nor `v` is the tree's root or static. In the order of the pairs,
+/// then of `w`.
 fn quiet_siblings(pairs: &[PairDof], tree: &kinetree_structure::Tree) -> Vec<Candidate> {
     let nb = tree.parent.len();
     let carries_only = |x: usize, y: usize| (0..nb).all(|c| c == y || tree.parent[c] != Some(x));
     let fixed = |x: usize| {
         x == tree.root || find_pair(pairs, None, x).is_some_and(|p| p.joint == JointKind::Rigid)
     };
-    // Whether a pair of kind `p` is consistent with a joint of the kind `of`.
-    let matches = |p: &JointKind, of: &JointKind| {
+    // Whether the two bodies' own pair of kind `p` is consistent with a joint of kind `of`.
+    let consistent = |p: &JointKind, of: &JointKind| {
         matches!(
             (p, of),
             (JointKind::Rigid, _)
@@ -541,7 +541,7 @@ fn quiet_siblings(pairs: &[PairDof], tree: &kinetree_structure::Tree) -> Vec<Can
                 s.joint.is_single_dof()
                     && three.iter().all(|(p, bodies)| {
                         if *bodies == (u, v) {
-                            matches(&p.joint, &s.joint)
+                            consistent(&p.joint, &s.joint)
                         } else {
                             rigid_within_bounds(p).is_some() || same_type(&p.joint, &s.joint)
                         }
