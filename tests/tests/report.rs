@@ -180,8 +180,10 @@ An arm of two revolute links and a revolute wrist whose hand carries two fingers
 8 cm, ten keypoints each) that slide along one axis through 1-2 cm (parallel) or turn about
 one pin through 0.2-0.5 rad (angular). The fingers' motion relative to each other is a joint
 of the same type, so the data fit a chain as well as siblings; the tree hangs both fingers on
-the hand. At 3 mm a finger's 1-2 cm travel is within a few noise levels of rigid, and the
-fingers merge with the hand or each other.
+the hand. At 3 mm a finger's 1-2 cm travel is within a few noise levels of rigid: some
+fingers merge with the hand, and a finger that tests rigid with the hand while the fingers
+test as their joint is hung beside its sibling by that joint (`sibling_ties.quiet_siblings`),
+except where its small arc tests as a slide (two angular draws).
 
 ### Hands (experiments/sweeps/hands.toml)
 

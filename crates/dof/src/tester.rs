@@ -550,7 +550,7 @@ pub const HIDDEN_HINGE_RATIO: f64 = 1.8;
 
 /// Default of [`Chi2RankParams::hidden_slide_ratio`] (`docs/decisions.md`,
 /// `dof.hidden_slide_ratio`).
-pub const HIDDEN_SLIDE_RATIO: f64 = 1.8;
+pub const HIDDEN_SLIDE_RATIO: f64 = 0.0;
 
 /// Default of [`Chi2RankParams::hidden_hinge_min_angle_deg`] (`docs/decisions.md`).
 pub const HIDDEN_HINGE_MIN_ANGLE_DEG: f64 = 5.0;
@@ -1194,7 +1194,8 @@ pub struct Chi2RankParams {
     /// chi-square bound is retried at rank 1 (a slide) when its rank-0 residual per degree
     /// of freedom exceeds this many times its rank-1 residual (the measured noise level) and
     /// a nested F-test at `z` rejects rank 0: a gripper's finger sliding a few noise levels.
-    /// 0 turns the rule off (`docs/decisions.md`, `dof.hidden_slide_ratio`).
+    /// Default 0, off (`docs/decisions.md`, `dof.hidden_slide_ratio`: on the hands sweep it
+    /// gains and loses joints by turns; 1.8, as `hidden_hinge_ratio`, is the measured choice).
     pub hidden_slide_ratio: f64,
 }
 

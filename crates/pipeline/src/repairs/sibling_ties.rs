@@ -84,7 +84,8 @@ pub struct SiblingTiesParams {
     /// does not move spreads about 1.
     pub quiet_min_spread_in_std: f64,
     /// Largest such spread (default 10): a body moving that much along one axis shows in its
-    /// pair test, so a rigid verdict on it came from other frames or another fault.
+    /// pair test, so a rigid verdict on it came from other frames or another fault. The fit
+    /// may gain at most its square in noise variances per frame for each such body.
     pub quiet_max_spread_in_std: f64,
 }
 
@@ -426,6 +427,20 @@ impl SiblingTies {
             // clustering split test rigid too, and do not), and by too little for its pair
             // test to see (a rigid verdict over a few frames, or beside a wrong tree
             // elsewhere, hides no quiet joint).
+            let overridden = [u, v]
+                .iter()
+                .zip(&replaced)
+                .filter(|(x, r)| {
+                    find_pair(pairs, Some(w), **x).map(|p| p.joint.joint_type())
+                        != Some(r.joint.joint_type())
+                })
+                .count();
+            // Nor can hanging such bodies gain more than their motions explain, a squared
+            // spread per frame each: a larger gain is a fault of the first tree elsewhere,
+            // which this tree need not mend.
+            if cost < -(overridden as f64) * self.params.quiet_max_spread_in_std.powi(2) {
+                continue;
+            }
             let moves = [u, v].iter().zip(&replaced).all(|(&x, r)| {
                 let tested = find_pair(pairs, Some(w), x).map(|p| p.joint.joint_type());
                 if tested == Some(r.joint.joint_type()) {
