@@ -19,15 +19,6 @@ fn fingers_parents(model: &Model, data: &SynthData) -> Vec<String> {
         .collect()
 }
 
-/// The model `config` discovers in `data`'s tracks.
-fn discover(config: &PipelineConfig, data: &SynthData) -> Model {
-    Pipeline::from_config(config)
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover")
-        .model
-}
-
 /// Draws whose pair tests leave the second finger on the first: the grandparent's pair fits
 /// 0.5-0.6 worse in fit ratio than the parent's, beyond the spanning tree's margin, although
 /// the fingers share one rail or one pin. With `sibling_ties` the whole-tree fit hangs both on
@@ -189,7 +180,7 @@ fn a_finger_too_quiet_to_test_hangs_beside_its_sibling() {
         let mut off = on.clone();
         off.repairs.sibling_ties.quiet_siblings = false;
         for (config, on) in [(on, true), (off, false)] {
-            let model = discover(&config, &data);
+            let model = kinetree_tests::discover_with(&data.tracks, &config);
             let parents = fingers_parents(&model, &data);
             let map = body_map(&model, &data.truth);
             let name = |b: usize| data.truth.mechanism.bodies[map[b]].name.clone();
@@ -257,7 +248,7 @@ fn a_rigid_verdict_the_fit_contradicts_makes_no_quiet_sibling() {
         unbounded.repairs.sibling_ties.quiet_min_spread_in_std = 0.0;
         unbounded.repairs.sibling_ties.quiet_max_spread_in_std = 1e6;
         for (config, bounded) in [(PipelineConfig::default(), true), (unbounded, false)] {
-            let model = discover(&config, &data);
+            let model = kinetree_tests::discover_with(&data.tracks, &config);
             let report = evaluate(&model, &data.truth);
             assert_eq!(
                 report.structure_exact, bounded,

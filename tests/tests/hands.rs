@@ -2,17 +2,8 @@
 
 use kinetree_core::Model;
 use kinetree_eval::body_map;
-use kinetree_pipeline::{Pipeline, PipelineConfig};
+use kinetree_pipeline::PipelineConfig;
 use kinetree_synth::{HandParams, SynthData, hand_scenario, simulate};
-
-/// The model `config` discovers on `data`'s tracks.
-fn discover(config: &PipelineConfig, data: &SynthData) -> Model {
-    Pipeline::from_config(config)
-        .expect("pipeline")
-        .run(&data.tracks)
-        .expect("discover")
-        .model
-}
 
 /// The model's joints from one finger's first link to another's (by the bodies' true names).
 fn first_links_on_first_links(model: &Model, data: &SynthData) -> usize {
@@ -44,8 +35,9 @@ fn fingers_flexing_about_one_line_hang_on_the_palm() {
         let data = simulate(&hand_scenario(&params)).expect("simulate");
         let mut off = PipelineConfig::default();
         off.repairs.sibling_ties.collinear_max_angle_deg = 0.0;
-        let [on, off] = [PipelineConfig::default(), off]
-            .map(|config| first_links_on_first_links(&discover(&config, &data), &data));
+        let [on, off] = [PipelineConfig::default(), off].map(|config| {
+            first_links_on_first_links(&kinetree_tests::discover_with(&data.tracks, &config), &data)
+        });
         assert!(
             on < off,
             "seed {seed}: {on} with the candidates, {off} without"
@@ -207,7 +199,10 @@ fn fingers_on_universal_knuckles_hang_on_the_palm() {
         };
         let data = simulate(&hand_scenario(&params)).expect("simulate");
         for (k, config) in [PipelineConfig::default(), dear.clone()].iter().enumerate() {
-            on_palm[k] += first_links_on_the_palm(&discover(config, &data), &data);
+            on_palm[k] += first_links_on_the_palm(
+                &kinetree_tests::discover_with(&data.tracks, config),
+                &data,
+            );
         }
     }
     assert!(
@@ -260,8 +255,9 @@ fn fingers_hidden_from_a_universal_knuckle_are_moved_onto_the_palm() {
     let data = simulate(&hand_scenario(&params)).expect("simulate");
     let mut with = PipelineConfig::default();
     with.repairs.sibling_ties.universal_candidates = true;
-    let [on, off] = [with, PipelineConfig::default()]
-        .map(|config| first_links_on_first_links(&discover(&config, &data), &data));
+    let [on, off] = [with, PipelineConfig::default()].map(|config| {
+        first_links_on_first_links(&kinetree_tests::discover_with(&data.tracks, &config), &data)
+    });
     assert!(on < off, "{on} with the universal moves, {off} without");
 }
 
@@ -280,7 +276,8 @@ fn edges_the_fit_misses_by_far_are_rerouted() {
     let data = simulate(&hand_scenario(&params)).expect("simulate");
     let mut off = PipelineConfig::default();
     off.repairs.reroute.enabled = false;
-    let [on, off] = [PipelineConfig::default(), off].map(|config| discover(&config, &data));
+    let [on, off] = [PipelineConfig::default(), off]
+        .map(|config| kinetree_tests::discover_with(&data.tracks, &config));
     assert!(
         on.trace
             .iter()
@@ -309,7 +306,8 @@ fn a_rebuilt_model_that_explains_the_keypoints_worse_is_refused() {
     let data = simulate(&hand_scenario(&params)).expect("simulate");
     let mut any = PipelineConfig::default();
     any.repairs.retest.max_rms_growth = 1e6;
-    let [kept, rebuilt] = [PipelineConfig::default(), any].map(|config| discover(&config, &data));
+    let [kept, rebuilt] = [PipelineConfig::default(), any]
+        .map(|config| kinetree_tests::discover_with(&data.tracks, &config));
     let retested = |m: &Model| {
         m.trace
             .iter()
@@ -343,7 +341,7 @@ fn a_retested_model_keeps_its_static_palm() {
         ..HandParams::default()
     };
     let data = simulate(&hand_scenario(&params)).expect("simulate");
-    let model = discover(&PipelineConfig::default(), &data);
+    let model = kinetree_tests::discover_with(&data.tracks, &PipelineConfig::default());
     assert!(
         model
             .trace
@@ -374,7 +372,8 @@ fn knuckles_hidden_in_the_pair_test_are_typed_universal_by_the_fit() {
     let data = simulate(&hand_scenario(&params)).expect("simulate");
     let mut on = PipelineConfig::default();
     on.repairs.type_by_fit.hinges_as_universal = true;
-    let [default, typed] = [PipelineConfig::default(), on].map(|c| discover(&c, &data));
+    let [default, typed] =
+        [PipelineConfig::default(), on].map(|c| kinetree_tests::discover_with(&data.tracks, &c));
     let right = |model: &Model| {
         kinetree_eval::evaluate(model, &data.truth)
             .joints
