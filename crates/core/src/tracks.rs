@@ -245,6 +245,22 @@ impl Tracks {
         &self.xyz
     }
 
+    /// Number of frames in which each point is visible, read in one pass over the frames
+    /// (the buffer's order): counting point by point strides across every frame, a cache
+    /// miss per frame and point.
+    pub fn visible_counts(&self) -> Vec<usize> {
+        let mut counts = vec![0; self.n_points];
+        if self.n_points == 0 {
+            return counts;
+        }
+        for frame in self.xyz.chunks_exact(3 * self.n_points) {
+            for (count, p) in counts.iter_mut().zip(frame.chunks_exact(3)) {
+                *count += usize::from(!p[0].is_nan());
+            }
+        }
+        counts
+    }
+
     /// Number of frames in which `point` is visible.
     pub fn visible_count(&self, point: usize) -> usize {
         (0..self.n_frames)
@@ -450,6 +466,11 @@ mod tests {
         assert_eq!(t.get(0, 1), Some(Point3::new(0.03, 0.04, 0.05)));
         assert_eq!(t.get(9, 0), None, "out of range is None, not a panic");
         assert_eq!(t.visible_count(2), 3);
+        let counts = t.visible_counts();
+        assert_eq!(counts.len(), t.n_points());
+        for (i, &c) in counts.iter().enumerate() {
+            assert_eq!(c, t.visible_count(i), "point {i}");
+        }
         assert!((t.occluded_fraction() - 1.0 / 12.0).abs() < 1e-12);
     }
 

@@ -199,7 +199,7 @@ impl Pipeline {
             self.max_minutes,
             "",
         )?;
-        let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
+        let visible: Vec<usize> = tracks.visible_counts();
         let duplicated = duplicated_points(&warnings);
         for (i, &v) in visible.iter().enumerate() {
             if v == 0 && !duplicated.contains(&i) {

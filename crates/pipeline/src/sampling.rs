@@ -138,10 +138,11 @@ fn farthest_points(
         taken[c] = true;
         out.push(candidates[c]);
         let p = pos[c];
-        gap.par_iter_mut().enumerate().for_each(|(j, g)| {
-            let d2 = (0..3).map(|a| (pos[j][a] - p[a]).powi(2)).sum::<f64>();
+        // On one thread: a few thousand products a pick, less than waking the pool costs.
+        for (g, q) in gap.iter_mut().zip(&pos) {
+            let d2 = (0..3).map(|a| (q[a] - p[a]).powi(2)).sum::<f64>();
             *g = g.min(d2);
-        });
+        }
         next = (0..candidates.len())
             .filter(|&j| !taken[j])
             .map(|j| (j, gap[j] * weight[j] * weight[j]))
@@ -240,7 +241,7 @@ pub(crate) fn discover_sampled(
 ) -> Result<Option<Discovery>> {
     let p = pipeline.sampling;
     let n = tracks.n_points();
-    let visible: Vec<usize> = (0..n).map(|i| tracks.visible_count(i)).collect();
+    let visible: Vec<usize> = tracks.visible_counts();
     let seen: Vec<usize> = (0..n).filter(|&i| visible[i] > 0).collect();
     if seen.len() <= p.max_points {
         return Ok(None);
