@@ -15,6 +15,13 @@ use rayon::prelude::*;
 /// core's L2.
 const CHUNK_FRAMES: usize = 32;
 
+/// Chunks of fewer points are handed to the threads together, up to about this many bytes
+/// (1 MB, as one chunk of 1000 points): each thread then carries its rows through every
+/// chunk of the group in turn, so a row merges its chunks in the same order as one chunk at
+/// a time and the statistics keep every bit, while the threads are woken once a group
+/// rather than once a chunk (with 100 points a chunk is 80 microseconds of work).
+const GROUP_BYTES: usize = 1 << 20;
+
 /// Running count, mean and sum of squared deviations of every pair's distance.
 ///
 /// Feed frames with [`PairStatsAccumulator::add_frames`] in any number of calls, then take
@@ -142,15 +149,28 @@ impl PairStatsAccumulator {
     }
 
     fn add_frames_unchecked(&mut self, tracks: &Tracks) {
+        // Four arrays of f64 per point and frame.
+        let chunk_bytes = CHUNK_FRAMES * self.n * 4 * std::mem::size_of::<f64>();
+        self.add_frames_grouped(tracks, GROUP_BYTES / chunk_bytes.max(1));
+    }
+
+    /// Adds every frame of `tracks`, chunks handed to the threads `group` at a time.
+    fn add_frames_grouped(&mut self, tracks: &Tracks, group: usize) {
+        let group = group.max(1);
         let mut start = 0;
         while start < tracks.n_frames() {
-            let end = (start + CHUNK_FRAMES).min(tracks.n_frames());
-            self.add_chunk(&Chunk::new(tracks, start, end));
-            start = end;
+            let mut chunks = Vec::with_capacity(group);
+            while chunks.len() < group && start < tracks.n_frames() {
+                let end = (start + CHUNK_FRAMES).min(tracks.n_frames());
+                chunks.push(Chunk::new(tracks, start, end));
+                start = end;
+            }
+            self.add_chunks(&chunks);
         }
     }
 
-    fn add_chunk(&mut self, c: &Chunk) {
+    /// Adds `chunks`, in order, to every row.
+    fn add_chunks(&mut self, chunks: &[Chunk]) {
         let n = self.n;
         // Split the condensed arrays into rows so each thread owns whole rows.
         let mut rows: Vec<RowMut<'_>> = Vec::with_capacity(n);
@@ -175,33 +195,39 @@ impl PairStatsAccumulator {
             let RowMut { i, count, mean, m2 } = row;
             let i = *i;
             let len = n - i - 1;
-            // Shift: the running mean where known, else this chunk's first joint distance.
             let mut shift = vec![0.0; len];
-            for j in 0..len {
-                shift[j] = if count[j] > 0 {
-                    mean[j]
-                } else {
-                    first_distance(c, i, i + 1 + j).unwrap_or(0.0)
-                };
-            }
             let mut cnt = vec![0.0; len];
             let mut s1 = vec![0.0; len];
             let mut s2 = vec![0.0; len];
-            accumulate_row(c, i, &shift, &mut cnt, &mut s1, &mut s2);
-            for j in 0..len {
-                if cnt[j] == 0.0 {
-                    continue;
+            for c in chunks {
+                // Shift: the running mean where known, else this chunk's first joint distance.
+                for j in 0..len {
+                    shift[j] = if count[j] > 0 {
+                        mean[j]
+                    } else {
+                        first_distance(c, i, i + 1 + j).unwrap_or(0.0)
+                    };
                 }
-                // Chan et al.: merge (n_a, mean_a, M2_a) with the chunk's (n_b, mean_b, M2_b).
-                let nb = cnt[j];
-                let mean_b = shift[j] + s1[j] / nb;
-                let m2_b = (s2[j] - s1[j] * s1[j] / nb).max(0.0);
-                let na = f64::from(count[j]);
-                let total = na + nb;
-                let delta = mean_b - mean[j];
-                mean[j] += delta * nb / total;
-                m2[j] += m2_b + delta * delta * na * nb / total;
-                count[j] += nb as u32;
+                cnt.fill(0.0);
+                s1.fill(0.0);
+                s2.fill(0.0);
+                accumulate_row(c, i, &shift, &mut cnt, &mut s1, &mut s2);
+                for j in 0..len {
+                    if cnt[j] == 0.0 {
+                        continue;
+                    }
+                    // Chan et al.: merge (n_a, mean_a, M2_a) with the chunk's (n_b, mean_b,
+                    // M2_b).
+                    let nb = cnt[j];
+                    let mean_b = shift[j] + s1[j] / nb;
+                    let m2_b = (s2[j] - s1[j] * s1[j] / nb).max(0.0);
+                    let na = f64::from(count[j]);
+                    let total = na + nb;
+                    let delta = mean_b - mean[j];
+                    mean[j] += delta * nb / total;
+                    m2[j] += m2_b + delta * delta * na * nb / total;
+                    count[j] += nb as u32;
+                }
             }
         });
     }
@@ -349,6 +375,20 @@ mod tests {
             );
             assert!((fast.mean_m[k] - slow.mean_m[k]).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn chunks_handed_over_in_groups_give_the_same_bits_as_one_at_a_time() {
+        // 23 points: a chunk is far under the group size, so several go together.
+        let tracks = wobbly_tracks(7 * CHUNK_FRAMES + 3, 23, 5);
+        let grouped = pair_stats(&tracks);
+        let mut single = PairStatsAccumulator::new(23);
+        single.add_frames_grouped(&tracks, 1);
+        let single = single.finish();
+        assert_eq!(grouped.count, single.count);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&grouped.mean_m), bits(&single.mean_m));
+        assert_eq!(bits(&grouped.var_m2), bits(&single.var_m2));
     }
 
     #[test]
