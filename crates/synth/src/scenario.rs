@@ -435,7 +435,7 @@ pub fn simulate(s: &Scenario) -> Result<SynthData> {
     }
     let tracks = Tracks::from_points(&frames)?.with_frame_rate(s.frame_rate_hz)?;
     let occluded_fraction = tracks.occluded_fraction();
-    let visible_frames = (0..n).map(|i| tracks.visible_count(i)).collect();
+    let visible_frames = tracks.visible_counts();
     Ok(SynthData {
         tracks,
         truth: GroundTruth {

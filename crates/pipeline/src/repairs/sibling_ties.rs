@@ -427,25 +427,22 @@ impl SiblingTies {
             // clustering split test rigid too, and do not), and by too little for its pair
             // test to see (a rigid verdict over a few frames, or beside a wrong tree
             // elsewhere, hides no quiet joint).
-            let overridden = [u, v]
-                .iter()
+            let overridden: Vec<usize> = [u, v]
+                .into_iter()
                 .zip(&replaced)
                 .filter(|(x, r)| {
-                    find_pair(pairs, Some(w), **x).map(|p| p.joint.joint_type())
+                    find_pair(pairs, Some(w), *x).map(|p| p.joint.joint_type())
                         != Some(r.joint.joint_type())
                 })
-                .count();
+                .map(|(x, _)| x)
+                .collect();
             // Nor can hanging such bodies gain more than their motions explain, a squared
             // spread per frame each: a larger gain is a fault of the first tree elsewhere,
             // which this tree need not mend.
-            if cost < -(overridden as f64) * self.params.quiet_max_spread_in_std.powi(2) {
+            if cost < -(overridden.len() as f64) * self.params.quiet_max_spread_in_std.powi(2) {
                 continue;
             }
-            let moves = [u, v].iter().zip(&replaced).all(|(&x, r)| {
-                let tested = find_pair(pairs, Some(w), x).map(|p| p.joint.joint_type());
-                if tested == Some(r.joint.joint_type()) {
-                    return true;
-                }
+            let moves = overridden.iter().all(|&x| {
                 let spread = alt
                     .model
                     .joints
